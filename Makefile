@@ -1,0 +1,31 @@
+# scart-bench: `make run` sets up and runs the benchmark, `make test` sets up and runs the tests.
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: setup run test lint clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	# torch first, the CPU build: anything else would pull a CUDA torch of several GB
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[dev]'
+	# deepod pins an old torch in its metadata; its real needs are installed above
+	$(BIN)/pip install --quiet --no-deps deepod==0.4.1
+	touch $(STAMP)
+
+run: setup
+	$(BIN)/scart-bench run --detectors all
+
+test: setup
+	$(BIN)/pytest -q
+
+lint: setup
+	$(BIN)/ruff check .
+
+clean:
+	rm -rf $(VENV) runs data/datasets

@@ -1,0 +1,1 @@
+"""The benchmark: CLI, protocol, runner, scoring and results store."""

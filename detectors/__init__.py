@@ -1,0 +1,1 @@
+"""Detectors: the protocol, the registry and the built-in adapters."""

@@ -1,0 +1,134 @@
+"""The Detector protocol shared by every built-in adapter and every plugin.
+
+A detector learns what normal flights look like from a list of combined navigator-view tables
+(one ``pandas.DataFrame`` per flight, rows in time order, columns ``topic.field``) and then
+gives one anomaly score per row of a new flight: higher means more anomalous. Scores must be
+causal (the score of row ``i`` depends only on rows ``0..i``), so that a detector can run on a
+live stream and batch scores equal streaming scores.
+
+Modelled on scikit-learn estimators: constructor arguments are plain parameters stored unchanged,
+``__init__`` does no work, fitted state lives in attributes ending in ``_``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from sklearn.base import BaseEstimator
+
+from generator.topics import sensor_columns
+
+
+class DetectorError(ValueError):
+    """A detector was used wrongly: no training flights, not fitted, missing columns."""
+
+
+class NotFittedError(DetectorError):
+    """``score`` was called before ``fit``."""
+
+
+class Detector(BaseEstimator):
+    """Base class of all detectors.
+
+    Subclasses set ``name`` and ``description``, take their parameters as keyword arguments of
+    ``__init__`` (stored unchanged, no other work) and implement ``_fit(X_list)`` and
+    ``_score(X)`` on float64 arrays of the selected, standardised columns. The base class
+    handles column selection, missing-value filling, standardisation and input checks.
+
+    Parameters shared by all detectors (define them in the subclass ``__init__``):
+    ``columns`` (list of column names or None for every sensor column) and ``random_state``.
+    """
+
+    name: str = "detector"
+    description: str = ""
+    #: True when the detector implements ``alarms`` with its own threshold.
+    has_alarms: bool = False
+
+    # -- public API -------------------------------------------------------------------------
+    def fit(self, flights: list[pd.DataFrame]) -> Detector:
+        """Learn normal behaviour from a list of normal flights (combined tables)."""
+        if isinstance(flights, pd.DataFrame):
+            flights = [flights]
+        flights = list(flights)
+        if not flights:
+            raise DetectorError(f"{self.name}: fit needs at least one training flight, got none")
+        cols = getattr(self, "columns", None)
+        if cols is None:
+            cols = sensor_columns(flights[0].columns)
+        cols = list(cols)
+        if not cols:
+            raise DetectorError(f"{self.name}: the training flights have no sensor columns (topic.field)")
+        for i, f in enumerate(flights):
+            missing = [c for c in cols if c not in f.columns]
+            if missing:
+                raise DetectorError(f"{self.name}: training flight {i} lacks columns {missing[:5]}")
+        raw = [self._raw_matrix(f, cols) for f in flights]
+        stacked = np.concatenate(raw, axis=0)
+        if stacked.shape[0] == 0:
+            raise DetectorError(f"{self.name}: the training flights have no rows")
+        self.columns_ = cols
+        self.mean_ = stacked.mean(axis=0)
+        std = stacked.std(axis=0)
+        self.scale_ = np.where(std > 1e-12, std, 1.0)
+        self._fit([self._standardise(x) for x in raw])
+        self.n_features_in_ = len(cols)
+        return self
+
+    def score(self, flight: pd.DataFrame) -> np.ndarray:
+        """One anomaly score per row of ``flight`` (higher = more anomalous), float64."""
+        X = self._transform(flight)
+        if X.shape[0] == 0:
+            return np.zeros(0)
+        s = np.asarray(self._score(X), dtype=np.float64).reshape(-1)
+        if s.shape[0] != X.shape[0]:
+            raise DetectorError(f"{self.name}: produced {s.shape[0]} scores for {X.shape[0]} rows")
+        return s
+
+    def alarms(self, flight: pd.DataFrame) -> np.ndarray:  # pragma: no cover - optional
+        """Boolean alarm per row, for detectors with their own thresholding."""
+        raise NotImplementedError(f"{self.name} has no thresholding of its own")
+
+    # -- for subclasses -----------------------------------------------------------------------
+    def _fit(self, X_list: list[np.ndarray]) -> None:
+        raise NotImplementedError
+
+    def _score(self, X: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _rng(self) -> np.random.Generator:
+        return np.random.default_rng(getattr(self, "random_state", 0))
+
+    # -- helpers ------------------------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "columns_"):
+            raise NotFittedError(f"{self.name}: call fit(flights) before score(flight)")
+
+    def _transform(self, flight: pd.DataFrame) -> np.ndarray:
+        self._check_fitted()
+        if not isinstance(flight, pd.DataFrame):
+            raise DetectorError(f"{self.name}: score expects a pandas DataFrame, got {type(flight).__name__}")
+        missing = [c for c in self.columns_ if c not in flight.columns]
+        if missing:
+            raise DetectorError(
+                f"{self.name}: the flight lacks {len(missing)} column(s) it was trained on, "
+                f"e.g. {missing[:5]}"
+            )
+        return self._standardise(self._raw_matrix(flight, self.columns_))
+
+    def _standardise(self, raw: np.ndarray) -> np.ndarray:
+        return (raw - self.mean_) / self.scale_
+
+    @staticmethod
+    def _raw_matrix(flight: pd.DataFrame, cols: list[str]) -> np.ndarray:
+        """Selected columns as float64, NaN filled causally (last value, then 0 at the start)."""
+        block = flight[cols].apply(pd.to_numeric, errors="coerce").astype(np.float64)
+        block = block.ffill().fillna(0.0)
+        return block.to_numpy(dtype=np.float64, copy=True)
+
+
+def flight_score(row_scores: np.ndarray) -> float:
+    """Flight-level score: the maximum row score (NaN propagates so that it is reported)."""
+    row_scores = np.asarray(row_scores, dtype=np.float64)
+    if row_scores.size == 0:
+        return float("nan")
+    return float(np.max(row_scores))

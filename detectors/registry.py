@@ -1,0 +1,120 @@
+"""Where detectors are found: the built-ins, entry-point plugins and ``--plugin`` specs.
+
+Built-ins are imported lazily (torch is only loaded when a torch detector is used). Plugins are
+discovered through the entry-point group ``scart_bench.detectors``; each entry point names a
+Detector subclass. ``load_plugin("pkg.module:Class")`` or ``load_plugin("path/to/file.py:Class")``
+adds one at run time.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import inspect
+import sys
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from pathlib import Path
+
+from detectors.base import Detector, DetectorError
+
+ENTRY_POINT_GROUP = "scart_bench.detectors"
+
+#: name -> "module:Class" of the built-in adapters, in the paper's order.
+BUILTINS: dict[str, str] = {
+    "telemanom": "detectors.telemanom:Telemanom",
+    "tsbitmaps": "detectors.tsbitmaps:TSBitmaps",
+    "statistical": "detectors.statistical:Statistical",
+    "deepsvdd": "detectors.deepod_models:DeepSVDD",
+    "rdp": "detectors.deepod_models:RDP",
+    "rca": "detectors.deepod_models:RCA",
+    "goad": "detectors.deepod_models:GOAD",
+    "neutral": "detectors.deepod_models:NeuTraL",
+}
+
+
+@dataclass(frozen=True)
+class DetectorInfo:
+    """A detector class and where it came from ("built-in" or the plugin's origin)."""
+
+    name: str
+    cls: type
+    source: str
+
+    @property
+    def description(self) -> str:
+        return (self.cls.description or (self.cls.__doc__ or "").strip().split("\n")[0]).strip()
+
+    def parameters(self) -> dict[str, object]:
+        sig = inspect.signature(self.cls.__init__)
+        return {
+            p.name: (None if p.default is inspect.Parameter.empty else p.default)
+            for p in sig.parameters.values()
+            if p.name != "self" and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        }
+
+
+_PLUGINS: dict[str, DetectorInfo] = {}
+
+
+def _import_spec(spec: str) -> type:
+    if ":" not in spec:
+        raise DetectorError(f"plugin spec {spec!r}: expected 'module:Class' or 'path/to/file.py:Class'")
+    target, _, clsname = spec.rpartition(":")
+    if target.endswith(".py"):
+        path = Path(target)
+        if not path.is_file():
+            raise DetectorError(f"plugin spec {spec!r}: file {path} does not exist")
+        modname = f"scart_bench_plugin_{path.stem}"
+        mod_spec = importlib.util.spec_from_file_location(modname, path)
+        module = importlib.util.module_from_spec(mod_spec)
+        sys.modules[modname] = module
+        mod_spec.loader.exec_module(module)
+    else:
+        try:
+            module = importlib.import_module(target)
+        except ImportError as exc:
+            raise DetectorError(f"plugin spec {spec!r}: cannot import module {target!r}: {exc}") from exc
+    cls = getattr(module, clsname, None)
+    if cls is None:
+        raise DetectorError(f"plugin spec {spec!r}: module {target!r} has no attribute {clsname!r}")
+    if not (inspect.isclass(cls) and issubclass(cls, Detector)):
+        raise DetectorError(f"plugin spec {spec!r}: {clsname} is not a detectors.base.Detector subclass")
+    return cls
+
+
+def load_plugin(spec: str) -> DetectorInfo:
+    """Import a detector class from ``module:Class`` or ``file.py:Class`` and register it."""
+    cls = _import_spec(spec)
+    info = DetectorInfo(cls.name, cls, f"plugin ({spec})")
+    _PLUGINS[cls.name] = info
+    return info
+
+
+def available() -> dict[str, DetectorInfo]:
+    """Every known detector: built-ins, entry-point plugins, then ``load_plugin`` ones."""
+    found: dict[str, DetectorInfo] = {}
+    for name, spec in BUILTINS.items():
+        found[name] = DetectorInfo(name, _import_spec(spec), "built-in")
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        cls = ep.load()
+        dist = getattr(ep, "dist", None)
+        origin = f"plugin ({dist.name} {dist.version})" if dist is not None else f"plugin ({ep.value})"
+        found[getattr(cls, "name", ep.name)] = DetectorInfo(getattr(cls, "name", ep.name), cls, origin)
+    found.update(_PLUGINS)
+    return found
+
+
+def names() -> list[str]:
+    """Names of every known detector, built-ins first."""
+    return list(available())
+
+
+def make(name: str, **params) -> Detector:
+    """A new, unfitted detector by name."""
+    if name in BUILTINS:
+        return _import_spec(BUILTINS[name])(**params)
+    known = available()
+    if name not in known:
+        raise DetectorError(f"unknown detector {name!r}; known: {', '.join(known)}")
+    return known[name].cls(**params)

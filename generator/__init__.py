@@ -1,0 +1,1 @@
+"""scart-bench: the flight generator and the SCART attack layer."""

@@ -1,0 +1,1 @@
+"""The SCART man-in-the-middle attack layer."""
