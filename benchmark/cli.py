@@ -1,35 +1,32 @@
-"""The ``scart-bench`` command line: a thin layer over functions a user can call from Python."""
+"""The ``scart-bench`` command line: a thin layer over functions a user can call from Python.
+
+Each sub-command lives in its own module exposing ``register(subparsers)``; the handler it sets
+with ``set_defaults(func=...)`` returns the exit code. Bad user input raises ``UsageError`` (or a
+``ValueError`` subclass from the library) and exits with code 2 and one clear line.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
+from benchmark.errors import UsageError
 
-class UsageError(Exception):
-    """Bad input from the user: printed as one clear line, exit code 2."""
-
-
-def _cmd_detectors(args: argparse.Namespace) -> int:
-    from detectors import registry
-
-    for spec in args.plugin or []:
-        registry.load_plugin(spec)
-    for name, info in registry.available().items():
-        params = ", ".join(f"{k}={v!r}" for k, v in info.parameters().items())
-        print(f"{name:<14} {info.source:<28} {info.description}")
-        if args.verbose:
-            print(f"{'':<14} params: {params}")
-    return 0
+#: Modules that each add one or more sub-commands.
+COMMAND_MODULES = (
+    "benchmark.cli_detectors",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="scart-bench", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="scart-bench",
+        description="SCART attack simulation, labelled flight datasets and an anomaly-detection benchmark.",
+    )
     sub = p.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("detectors", help="list the known detectors (built-ins and plugins)")
-    d.add_argument("--plugin", action="append", help="module:Class or path/to/file.py:Class")
-    d.add_argument("-v", "--verbose", action="store_true", help="also print each detector's parameters")
-    d.set_defaults(func=_cmd_detectors)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
     return p
 
 
@@ -38,9 +35,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except UsageError as exc:
+    except (UsageError, ValueError, FileNotFoundError, PermissionError) as exc:
         print(f"scart-bench {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"scart-bench {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

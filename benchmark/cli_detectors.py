@@ -1,0 +1,24 @@
+"""``scart-bench detectors``: list the known detectors with their source and parameters."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def cmd_detectors(args: argparse.Namespace) -> int:
+    from detectors import registry
+
+    for spec in args.plugin or []:
+        registry.load_plugin(spec)
+    for name, info in registry.available().items():
+        print(f"{name:<14} {info.source:<40} {info.description}")
+        params = ", ".join(f"{k}={v!r}" for k, v in info.parameters().items())
+        print(f"{'':<14} params: {params}")
+    return 0
+
+
+def register(sub) -> None:
+    d = sub.add_parser("detectors", help="list the known detectors (built-ins and plugins)")
+    d.add_argument("--plugin", action="append", metavar="SPEC",
+                   help="load a detector from module:Class or path/to/file.py:Class (repeatable)")
+    d.set_defaults(func=cmd_detectors)

@@ -1,0 +1,267 @@
+"""Reading and writing datasets in the paper's layout.
+
+```
+<dataset>/manifest.(parquet|csv)     one row per flight; written last: a dataset is complete
+                                     exactly when its manifest exists
+<dataset>/dataset.json               format, profile, seed, versions
+<dataset>/flights/<id>/raw/          config.json (scenario, mission, seed, versions), events.csv
+<dataset>/flights/<id>/sensors/      navigator/<topic>.<ext> and simulator/<topic>.<ext>
+<dataset>/flights/<id>/combined/     navigator_all_sensors, navigator_most_frequent,
+                                     simulator_all_sensors, simulator_most_frequent
+```
+Topic tables have columns ``Timestamp`` (integer microseconds from the start of the run),
+``Is_Anomaly`` and the topic's fields. Combined tables start with ``Index``, ``Timestamp``,
+``Is_Anomaly`` and then one ``topic.field`` column per field of every topic.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+FORMATS = ("parquet", "csv")
+VIEWS = ("navigator", "simulator")
+TABLES = ("most_frequent", "all_sensors")
+MANIFEST_COLUMNS = (
+    "flight_id", "mode", "scenario_id", "action", "target", "injection_point", "params", "seed",
+    "split", "rows", "duration_s", "attack_start_us", "attack_end_us", "source_flight",
+)
+
+
+class DatasetError(ValueError):
+    """A dataset folder or file is missing, incomplete or malformed."""
+
+
+@dataclass
+class FlightRecord:
+    """One flight as produced by the generator or the attack layer, before it is written.
+
+    ``navigator`` and ``simulator`` map topic name -> table (``Timestamp``, ``Is_Anomaly``,
+    fields). ``windows`` are the attack windows ``[start_us, end_us)`` in which an action was
+    active; ``events`` is the attack event log (one dict per event).
+    """
+
+    flight_id: str
+    navigator: dict[str, pd.DataFrame]
+    simulator: dict[str, pd.DataFrame]
+    manifest: dict
+    config: dict
+    windows: list[tuple[int, int]] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+
+
+def label_rows(timestamps: np.ndarray, windows: Iterable[tuple[int, int]]) -> np.ndarray:
+    """``Is_Anomaly`` for the given timestamps: 1 inside any ``[start, end)`` window."""
+    ts = np.asarray(timestamps, dtype=np.int64)
+    out = np.zeros(ts.shape[0], dtype=np.int8)
+    for start, end in windows:
+        out[(ts >= start) & (ts < end)] = 1
+    return out
+
+
+def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = None) -> dict[str, pd.DataFrame]:
+    """The two combined tables of one view.
+
+    ``all_sensors``: every timestamp of every topic; a topic's columns are NaN where it has no
+    message. ``most_frequent``: resampled on the timestamps of the most frequently sampled topic
+    (or ``base_topic``), each topic holding its last value received at or before the row.
+    """
+    frames = []
+    for name, df in topics.items():
+        cols = [c for c in df.columns if c not in ("Timestamp", "Is_Anomaly")]
+        part = df[["Timestamp", *cols]].rename(columns={c: f"{name}.{c}" for c in cols})
+        frames.append((name, part.drop_duplicates("Timestamp", keep="last")))
+    if not frames:
+        raise DatasetError("cannot combine a flight with no topics")
+    times = np.unique(np.concatenate([p["Timestamp"].to_numpy(np.int64) for _, p in frames]))
+    all_sensors = pd.DataFrame({"Timestamp": times})
+    for _, part in frames:
+        all_sensors = all_sensors.merge(part, on="Timestamp", how="left")
+    if base_topic is None:
+        base_topic = max(frames, key=lambda item: len(item[1]))[0]
+    base = pd.DataFrame({"Timestamp": topics[base_topic]["Timestamp"].to_numpy(np.int64)})
+    base = base.drop_duplicates().sort_values("Timestamp", kind="stable").reset_index(drop=True)
+    most = base
+    for _, part in frames:
+        most = pd.merge_asof(most, part.sort_values("Timestamp"), on="Timestamp", direction="backward")
+    out = {}
+    for key, table in (("all_sensors", all_sensors), ("most_frequent", most)):
+        ts = table["Timestamp"].to_numpy(np.int64)
+        table.insert(0, "Index", np.arange(len(table), dtype=np.int64))
+        table.insert(2, "Is_Anomaly", label_rows(ts, windows))
+        out[key] = table.reset_index(drop=True)
+    return out
+
+
+def _write_table(df: pd.DataFrame, path: Path, fmt: str) -> None:
+    if fmt == "parquet":
+        df.to_parquet(path.with_suffix(".parquet"), index=False, compression="zstd")
+    else:
+        df.to_csv(path.with_suffix(".csv"), index=False, float_format=None)
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    for suffix in (".parquet", ".csv"):
+        p = path.with_suffix(suffix)
+        if p.exists():
+            return pd.read_parquet(p) if suffix == ".parquet" else pd.read_csv(p)
+    raise DatasetError(f"{path}.(parquet|csv): no such table")
+
+
+def check_output_dir(out: Path, overwrite: bool = False) -> None:
+    """Refuse an output folder that holds something other than a dataset, or is unwritable."""
+    out = Path(out)
+    if out.exists():
+        if not out.is_dir():
+            raise DatasetError(f"{out}: exists and is not a folder")
+        entries = [p.name for p in out.iterdir()]
+        if entries and not is_dataset(out):
+            raise DatasetError(f"{out}: exists, is not empty and is not a scart-bench dataset (no manifest); "
+                               "choose a new folder")
+        if entries and not overwrite:
+            raise DatasetError(f"{out}: a dataset is already there; pass --overwrite to replace it")
+    parent = out if out.exists() else out.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not os.access(parent, os.W_OK):
+        raise DatasetError(f"{out}: folder {parent} is not writable")
+
+
+def is_dataset(path: Path) -> bool:
+    path = Path(path)
+    return (path / "manifest.parquet").exists() or (path / "manifest.csv").exists()
+
+
+class DatasetWriter:
+    """Writes flights one by one and the manifest last (call ``close`` to complete).
+
+    A writer that is not closed leaves no manifest, so the folder never looks complete.
+    """
+
+    def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
+                 overwrite: bool = False):
+        if fmt not in FORMATS:
+            raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+        self.out = Path(out)
+        self.fmt = fmt
+        self.info = dict(info or {})
+        check_output_dir(self.out, overwrite=overwrite)
+        if self.out.exists() and any(self.out.iterdir()):
+            for name in ("manifest.parquet", "manifest.csv"):
+                (self.out / name).unlink(missing_ok=True)
+            shutil.rmtree(self.out / "flights", ignore_errors=True)
+        (self.out / "flights").mkdir(parents=True, exist_ok=True)
+        self.rows: list[dict] = []
+
+    def write(self, record: FlightRecord) -> None:
+        """Write one flight's raw, sensors and combined folders."""
+        root = self.out / "flights" / record.flight_id
+        for sub in ("raw", "sensors/navigator", "sensors/simulator", "combined"):
+            (root / sub).mkdir(parents=True, exist_ok=True)
+        (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
+                                                             default=_json_default))
+        events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
+        events.to_csv(root / "raw" / "events.csv", index=False)
+        n_rows = 0
+        for view, topics in (("navigator", record.navigator), ("simulator", record.simulator)):
+            for name, df in topics.items():
+                _write_table(df, root / "sensors" / view / name, self.fmt)
+            link_topics = {k: v for k, v in topics.items() if k != "truth"}
+            for table, df in combine(link_topics, record.windows).items():
+                _write_table(df, root / "combined" / f"{view}_{table}", self.fmt)
+                if view == "navigator" and table == "most_frequent":
+                    n_rows = len(df)
+        row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
+        row["flight_id"] = record.flight_id
+        row["rows"] = n_rows
+        if record.windows:
+            row["attack_start_us"] = int(min(s for s, _ in record.windows))
+            row["attack_end_us"] = int(max(e for _, e in record.windows))
+        self.rows.append(row)
+
+    def close(self) -> Path:
+        """Write dataset.json and, last, the manifest. Returns the manifest path."""
+        (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt}, indent=2,
+                                                          sort_keys=True, default=_json_default))
+        manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
+        for col in ("attack_start_us", "attack_end_us"):
+            manifest[col] = manifest[col].astype("Int64")
+        final = self.out / f"manifest.{self.fmt}"
+        tmp = self.out / f".manifest.tmp.{self.fmt}"
+        if self.fmt == "parquet":
+            manifest.to_parquet(tmp, index=False)
+        else:
+            manifest.to_csv(tmp, index=False)
+        os.replace(tmp, final)
+        return final
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+class Dataset:
+    """A written dataset: the manifest plus lazy access to each flight's tables."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise DatasetError(f"{self.path}: no such dataset folder")
+        if (self.path / "manifest.parquet").exists():
+            self.manifest = pd.read_parquet(self.path / "manifest.parquet")
+        elif (self.path / "manifest.csv").exists():
+            self.manifest = pd.read_csv(self.path / "manifest.csv", dtype={"scenario_id": "string"})
+        else:
+            raise DatasetError(f"{self.path}: no manifest.parquet or manifest.csv; the dataset is missing or "
+                               "incomplete (the manifest is written last)")
+        missing = [c for c in ("flight_id", "mode", "split") if c not in self.manifest.columns]
+        if missing:
+            raise DatasetError(f"{self.path}/manifest: missing column(s) {missing}")
+        info = self.path / "dataset.json"
+        self.info = json.loads(info.read_text()) if info.exists() else {}
+
+    def __len__(self) -> int:
+        return len(self.manifest)
+
+    def flight_dir(self, flight_id: str) -> Path:
+        return self.path / "flights" / flight_id
+
+    def flight(self, flight_id: str, view: str = "navigator", table: str = "most_frequent") -> pd.DataFrame:
+        """A combined table of one flight (``view`` navigator|simulator, ``table`` most_frequent|all_sensors)."""
+        if view not in VIEWS:
+            raise DatasetError(f"view {view!r}: expected one of {VIEWS}")
+        if table not in TABLES:
+            raise DatasetError(f"table {table!r}: expected one of {TABLES}")
+        return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}")
+
+    def topic(self, flight_id: str, topic: str, view: str = "navigator") -> pd.DataFrame:
+        """One topic table of one flight."""
+        return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)
+
+    def topics(self, flight_id: str, view: str = "navigator") -> list[str]:
+        folder = self.flight_dir(flight_id) / "sensors" / view
+        return sorted(p.stem for p in folder.iterdir())
+
+    def events(self, flight_id: str) -> pd.DataFrame:
+        return pd.read_csv(self.flight_dir(flight_id) / "raw" / "events.csv")
+
+    def config(self, flight_id: str) -> dict:
+        return json.loads((self.flight_dir(flight_id) / "raw" / "config.json").read_text())
+
+
+def open_dataset(path: str | Path) -> Dataset:
+    """Open a complete dataset (raises DatasetError naming the folder when it is not one)."""
+    return Dataset(path)
