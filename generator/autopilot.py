@@ -1,0 +1,284 @@
+"""The flight controller (the paper's "Simulator" side): estimator, PX4-like cascade, land detector.
+
+Estimator: a complementary attitude filter (gyro integration corrected by accelerometer tilt and
+magnetometer heading) and an EKF2-like linear Kalman filter for position, velocity and
+accelerometer bias per axis, fusing delayed GPS position/velocity and barometric height with
+5-sigma innovation gates. The covariance is shared by the batch (it does not depend on the data),
+the states and gates are per flight.
+
+Controller: velocity -> acceleration (PID) -> thrust vector and attitude -> body rates (P) ->
+torques (PI) -> rotor thrusts through the Iris mixer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from generator.params import GRAVITY, ControllerParams, EstimatorParams, VehicleParams
+from generator.rotation import euler_from_quat, quat_integrate, quat_to_rot, rotate, wrap_pi
+
+
+class _SharedKF:
+    """Covariance of the per-axis model x = [position, velocity, accel bias] (shared by flights)."""
+
+    def __init__(self, dt: float, q_acc: float, q_bias: float):
+        self.F = np.array([[1.0, dt, -0.5 * dt * dt], [0.0, 1.0, -dt], [0.0, 0.0, 1.0]])
+        self.Q = np.diag([0.0, q_acc**2 * dt, q_bias**2 * dt])
+        self.P = np.diag([1.0, 0.25, 0.01])
+
+    def predict(self) -> None:
+        self.P = self.F @ self.P @ self.F.T + self.Q
+
+    def update(self, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gain (3, m) and innovation variance diag (m,); updates the covariance."""
+        S = H @ self.P @ H.T + R
+        K = self.P @ H.T @ np.linalg.inv(S)
+        self.P = (np.eye(3) - K @ H) @ self.P
+        self.P = 0.5 * (self.P + self.P.T)
+        return K, np.diag(S).copy()
+
+
+@dataclass
+class EstimatorState:
+    """Per-flight estimator state."""
+
+    quat: np.ndarray  # (N, 4)
+    gyro_bias: np.ndarray  # (N, 3)
+    x: np.ndarray  # (N, 3, 3): axis (N, E, D) x [pos, vel, accel bias]
+    history: np.ndarray  # (delay, N, 6) past pos/vel for delayed GPS fusion
+    rates: np.ndarray  # (N, 3) bias-corrected body rates
+    accel_ned: np.ndarray  # (N, 3) estimated acceleration
+    gps_pos_rejected: np.ndarray  # (N,) count of rejected GPS position fusions
+    gps_vel_rejected: np.ndarray
+    baro_rejected: np.ndarray
+    baro_offset: np.ndarray  # (N,) baro altitude of home (m AMSL), set at the first baro sample
+    inertial_only_s: np.ndarray  # (N,) seconds since the last accepted horizontal aiding
+
+
+class Estimator:
+    """Attitude and position estimation for a batch; see the module docstring."""
+
+    def __init__(self, params: EstimatorParams, dt: float, gps_delay_steps: int,
+                 mag_field_ned: tuple[float, float, float]):
+        self.p = params
+        self.dt = dt
+        self.delay = gps_delay_steps
+        self.decl = np.arctan2(mag_field_ned[1], mag_field_ned[0])
+        self.kf_h = _SharedKF(dt, params.accel_process_noise, params.bias_process_noise)
+        self.kf_v = _SharedKF(dt, params.accel_process_noise, params.bias_process_noise)
+
+    def init_state(self, n: int, yaw: np.ndarray) -> EstimatorState:
+        quat = np.zeros((n, 4))
+        quat[:, 0] = np.cos(yaw / 2)
+        quat[:, 3] = np.sin(yaw / 2)
+        return EstimatorState(
+            quat=quat, gyro_bias=np.zeros((n, 3)), x=np.zeros((n, 3, 3)),
+            history=np.zeros((self.delay, n, 6)), rates=np.zeros((n, 3)), accel_ned=np.zeros((n, 3)),
+            gps_pos_rejected=np.zeros(n, dtype=np.int64), gps_vel_rejected=np.zeros(n, dtype=np.int64),
+            baro_rejected=np.zeros(n, dtype=np.int64), baro_offset=np.full(n, np.nan),
+            inertial_only_s=np.zeros(n),
+        )
+
+    def predict(self, s: EstimatorState, step: int, accel: np.ndarray, gyro: np.ndarray,
+                on_ground: np.ndarray) -> np.ndarray:
+        """Propagate with one IMU sample; returns the estimated rotation matrices."""
+        p, dt = self.p, self.dt
+        R = quat_to_rot(s.quat)
+        # tilt correction: measured "down" vs estimated "down" in the body frame
+        norm = np.linalg.norm(accel, axis=1)
+        trust = (np.abs(norm - GRAVITY) < 0.15 * GRAVITY).astype(float)
+        meas_down = -accel / np.maximum(norm, 1e-6)[:, None]
+        est_down = R[:, 2, :]  # R^T e3
+        err = np.cross(meas_down, est_down) * (p.att_accel_gain * trust)[:, None]
+        s.gyro_bias -= p.gyro_bias_gain * err * dt
+        s.rates = gyro - s.gyro_bias
+        s.quat = quat_integrate(s.quat, s.rates + err, dt)
+        R = quat_to_rot(s.quat)
+        # translation: accelerometer in NED minus the estimated bias
+        a_ned = rotate(R, accel)
+        a_ned[:, 2] += GRAVITY
+        a_ned = a_ned - s.x[:, :, 2]
+        a_ned[on_ground] = 0.0
+        s.accel_ned = a_ned
+        x = s.x
+        x[:, :, 0] += x[:, :, 1] * dt + 0.5 * a_ned * dt * dt
+        x[:, :, 1] += a_ned * dt
+        self.kf_h.predict()
+        self.kf_v.predict()
+        slot = step % self.delay
+        s.history[slot, :, :3] = x[:, :, 0]
+        s.history[slot, :, 3:] = x[:, :, 1]
+        s.inertial_only_s += dt
+        return R
+
+    def fuse_mag(self, s: EstimatorState, mag: np.ndarray) -> None:
+        """Heading correction from the magnetometer (tilt-compensated)."""
+        eul = euler_from_quat(s.quat)
+        cr, sr = np.cos(eul[:, 0]), np.sin(eul[:, 0])
+        cp, sp = np.cos(eul[:, 1]), np.sin(eul[:, 1])
+        mx = mag[:, 0] * cp + mag[:, 1] * sr * sp + mag[:, 2] * cr * sp
+        my = mag[:, 1] * cr - mag[:, 2] * sr
+        yaw_mag = np.arctan2(-my, mx) + self.decl
+        err = wrap_pi(yaw_mag - eul[:, 2])
+        R = quat_to_rot(s.quat)
+        axis = R[:, 2, :]  # world down axis in body
+        s.quat = quat_integrate(s.quat, axis * (self.p.att_mag_gain * err)[:, None], 0.01)
+
+    def fuse_baro(self, s: EstimatorState, baro_alt: np.ndarray) -> None:
+        """Height from the barometer (altitude AMSL), referenced to the first sample."""
+        first = np.isnan(s.baro_offset)
+        s.baro_offset[first] = baro_alt[first] + s.x[first, 2, 0]
+        meas = -(baro_alt - s.baro_offset)
+        H = np.array([[1.0, 0.0, 0.0]])
+        K, S = self.kf_v.update(H, np.array([[self.p.baro_noise**2]]))
+        innov = meas - s.x[:, 2, 0]
+        ok = innov**2 <= self.p.gate_sigma**2 * S[0]
+        s.baro_rejected += ~ok
+        s.x[:, 2, :] += (K[:, 0][None, :] * (innov * ok)[:, None])
+
+    def fuse_gps(self, s: EstimatorState, step: int, pos: np.ndarray, vel: np.ndarray) -> None:
+        """Delayed GPS position (horizontal) and velocity (3-D), with innovation gates."""
+        p = self.p
+        old = s.history[(step + 1) % self.delay]
+        gate2 = p.gate_sigma**2
+        # horizontal position and velocity (per axis [pos, vel] measurement)
+        H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        Rm = np.diag([p.gps_pos_noise**2, p.gps_vel_noise**2])
+        K, S = self.kf_h.update(H, Rm)
+        ip = pos[:, :2] - old[:, :2]
+        iv = vel[:, :2] - old[:, 3:5]
+        pos_ok = (ip**2).sum(axis=1) <= gate2 * S[0]
+        ivz = vel[:, 2] - old[:, 5]
+        vel_ok = ((iv**2).sum(axis=1) + ivz**2) <= gate2 * S[1]
+        s.gps_pos_rejected += ~pos_ok
+        s.gps_vel_rejected += ~vel_ok
+        ip = ip * pos_ok[:, None]
+        iv = iv * vel_ok[:, None]
+        s.x[:, :2, :] += ip[:, :, None] * K[:, 0][None, None, :] + iv[:, :, None] * K[:, 1][None, None, :]
+        s.inertial_only_s[pos_ok | vel_ok] = 0.0
+        # vertical velocity
+        Hv = np.array([[0.0, 1.0, 0.0]])
+        Kv, _ = self.kf_v.update(Hv, np.array([[p.gps_vel_noise**2]]))
+        s.x[:, 2, :] += (ivz * vel_ok)[:, None] * Kv[:, 0][None, :]
+
+    @staticmethod
+    def position(s: EstimatorState) -> np.ndarray:
+        return s.x[:, :, 0]
+
+    @staticmethod
+    def velocity(s: EstimatorState) -> np.ndarray:
+        return s.x[:, :, 1]
+
+
+@dataclass
+class ControllerState:
+    """Per-flight controller state."""
+
+    armed: np.ndarray  # (N,) bool
+    vel_int: np.ndarray  # (N, 3)
+    rate_int: np.ndarray  # (N, 3)
+    thrust_sp: np.ndarray  # (N,) collective thrust setpoint, N
+    att_quat_sp: np.ndarray  # (N, 3, 3) attitude setpoint (rotation matrix)
+    rate_sp: np.ndarray  # (N, 3)
+    land_time: np.ndarray  # (N,) seconds of landed evidence
+    disarmed_after_flight: np.ndarray  # (N,) bool
+    prev_vel_err: np.ndarray  # (N, 3)
+    vel_sp: np.ndarray  # (N, 3) slew-limited velocity setpoint in use
+
+
+class Controller:
+    """PX4-like multicopter cascade for a batch."""
+
+    def __init__(self, params: ControllerParams, vehicle: VehicleParams, dt: float):
+        self.p = params
+        self.v = vehicle
+        self.dt = dt
+        self.alloc_inv = np.linalg.inv(vehicle.allocation())
+        self.inertia = np.array(vehicle.inertia)
+        self.max_total = 4 * vehicle.max_thrust
+
+    def init_state(self, n: int) -> ControllerState:
+        eye = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        return ControllerState(
+            armed=np.zeros(n, dtype=bool), vel_int=np.zeros((n, 3)), rate_int=np.zeros((n, 3)),
+            thrust_sp=np.zeros(n), att_quat_sp=eye, rate_sp=np.zeros((n, 3)), land_time=np.zeros(n),
+            disarmed_after_flight=np.zeros(n, dtype=bool), prev_vel_err=np.zeros((n, 3)),
+            vel_sp=np.zeros((n, 3)),
+        )
+
+    def velocity_control(self, c: ControllerState, vel_sp: np.ndarray, yaw_sp: np.ndarray,
+                         vel_est: np.ndarray, R_est: np.ndarray, dt: float) -> None:
+        """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust."""
+        p, m = self.p, self.v.mass
+        # PX4 smooths setpoints: limit the horizontal and vertical acceleration they ask for
+        dv = vel_sp - c.vel_sp
+        dvh = np.linalg.norm(dv[:, :2], axis=1)
+        lim = p.acc_hor * dt
+        dv[:, :2] *= np.where(dvh > lim, lim / np.maximum(dvh, 1e-9), 1.0)[:, None]
+        dv[:, 2] = np.clip(dv[:, 2], -p.acc_vert * dt, p.acc_vert * dt)
+        c.vel_sp = np.where(c.armed[:, None], c.vel_sp + dv, 0.0)
+        vel_sp = c.vel_sp
+        err = vel_sp - vel_est
+        gains_p = np.array([p.vel_xy_p, p.vel_xy_p, p.vel_z_p])
+        gains_i = np.array([p.vel_xy_i, p.vel_xy_i, p.vel_z_i])
+        d_err = (err - c.prev_vel_err) / dt
+        c.prev_vel_err = err
+        acc = gains_p * err + gains_i * c.vel_int
+        acc[:, :2] += p.vel_xy_d * d_err[:, :2]
+        # limit tilt: horizontal acceleration within tan(tilt_max) of the vertical specific force
+        lift = np.maximum(GRAVITY - acc[:, 2], 0.3 * GRAVITY)
+        h = np.linalg.norm(acc[:, :2], axis=1)
+        h_max = lift * np.tan(p.tilt_max)
+        scale = np.where(h > h_max, h_max / np.maximum(h, 1e-9), 1.0)
+        acc[:, :2] *= scale[:, None]
+        saturated = scale < 1.0
+        upd = err * dt
+        upd[saturated, :2] = 0.0
+        c.vel_int = np.clip(c.vel_int + upd * c.armed[:, None], -3.0, 3.0)
+        f = acc.copy()
+        f[:, 2] -= GRAVITY  # desired specific force (points up: negative z)
+        f[:, 2] = np.minimum(f[:, 2], -0.3 * GRAVITY)
+        b3 = -f / np.linalg.norm(f, axis=1, keepdims=True)
+        xc = np.column_stack([np.cos(yaw_sp), np.sin(yaw_sp), np.zeros_like(yaw_sp)])
+        y = np.cross(b3, xc)
+        y /= np.linalg.norm(y, axis=1, keepdims=True)
+        x = np.cross(y, b3)
+        c.att_quat_sp = np.stack([x, y, b3], axis=2)
+        thrust = m * np.einsum("ni,ni->n", f, -R_est[:, :, 2])
+        c.thrust_sp = np.clip(thrust, self.p.thrust_min * self.max_total, 0.95 * self.max_total)
+
+    def attitude_control(self, c: ControllerState, R_est: np.ndarray) -> None:
+        """Attitude error -> body-rate setpoint (geometric attitude error, PX4 P gains)."""
+        Rd = c.att_quat_sp
+        E = np.einsum("nji,njk->nik", Rd, R_est) - np.einsum("nji,njk->nik", R_est, Rd)
+        e = 0.5 * np.column_stack([E[:, 2, 1], E[:, 0, 2], E[:, 1, 0]])
+        rate = -np.array(self.p.att_p) * e
+        rmax = np.array(self.p.rate_max)
+        c.rate_sp = np.clip(rate, -rmax, rmax)
+
+    def rate_control(self, c: ControllerState, rates: np.ndarray) -> np.ndarray:
+        """Body-rate PI -> rotor speed commands (rad/s) through the mixer."""
+        p, dt = self.p, self.dt
+        err = c.rate_sp - rates
+        c.rate_int = np.clip(c.rate_int + err * dt * c.armed[:, None], -0.5, 0.5)
+        J = self.inertia
+        torque = J * (np.array(p.rate_p) * err + np.array(p.rate_i) * c.rate_int)
+        torque += np.cross(rates, rates * J)
+        wrench = np.column_stack([c.thrust_sp, torque])
+        thrusts = wrench @ self.alloc_inv.T
+        thrusts = np.clip(thrusts, 0.02 * self.v.max_thrust, self.v.max_thrust)
+        cmd = np.sqrt(thrusts / self.v.motor_constant)
+        cmd[~c.armed] = 0.0
+        return cmd
+
+    def land_detector(self, c: ControllerState, vel_sp: np.ndarray, vel_est: np.ndarray, dt: float) -> None:
+        """Disarm after ``land_detect_s`` of descent demand with no vertical motion and low thrust."""
+        hover = self.v.mass * GRAVITY
+        evidence = c.armed & (vel_sp[:, 2] > 0.1) & (np.abs(vel_est[:, 2]) < 0.25) & (c.thrust_sp < 0.7 * hover)
+        c.land_time = np.where(evidence, c.land_time + dt, 0.0)
+        landed = c.land_time >= self.p.land_detect_s
+        c.disarmed_after_flight |= landed
+        c.armed &= ~landed
+        c.vel_int[landed] = 0.0

@@ -1,0 +1,102 @@
+"""Dataset generation: profiles of flight counts, normal flights and (with scenarios) attacked ones."""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from generator.dataset import DatasetError, DatasetWriter, check_output_dir
+from generator.records import normal_record
+from generator.simulate import FlightConfig, simulate
+
+
+@dataclass(frozen=True)
+class Profile:
+    """How many flights a dataset holds, and which scenario grid attacks them."""
+
+    name: str
+    n_train: int
+    n_validation: int
+    n_test: int
+    scenario_grid: str | None  # file under data/scenarios/, or None for normal flights only
+    batch_size: int = 256
+
+    @property
+    def n_normal(self) -> int:
+        return self.n_train + self.n_validation + self.n_test
+
+
+PROFILES: dict[str, Profile] = {
+    "quick": Profile("quick", 8, 4, 4, "quick.toml"),
+    "standard": Profile("standard", 24, 8, 8, "standard.toml"),
+    "paper": Profile("paper", 60, 20, 20, "paper.toml"),
+}
+
+
+def get_profile(name: str) -> Profile:
+    if name not in PROFILES:
+        raise DatasetError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}")
+    return PROFILES[name]
+
+
+def normal_seeds(seed: int, count: int) -> list[int]:
+    """Flight seeds derived from the dataset seed (stable, distinct)."""
+    ss = np.random.SeedSequence(int(seed))
+    return [int(x) for x in ss.generate_state(count, dtype=np.uint32)]
+
+
+def splits(count: int, n_train: int, n_validation: int) -> list[str]:
+    """Split of the i-th normal flight: train, then validation, then test (by seed order)."""
+    return ["train" if i < n_train else "validation" if i < n_train + n_validation else "test"
+            for i in range(count)]
+
+
+def versions() -> dict[str, str]:
+    import pandas
+    import pyarrow
+
+    from generator import __version__
+
+    return {"scart-bench": __version__, "numpy": np.__version__, "pandas": pandas.__version__,
+            "pyarrow": pyarrow.__version__, "python": platform.python_version()}
+
+
+def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "parquet",
+                     n_normal: int | None = None, overwrite: bool = False, with_attacks: bool = True,
+                     config: FlightConfig | None = None, log: Callable[[str], None] | None = None) -> Path:
+    """Generate a complete dataset; returns its folder. The manifest is written last."""
+    prof = get_profile(profile)
+    if n_normal is not None and n_normal < 1:
+        raise DatasetError(f"flight count must be at least 1, got {n_normal}")
+    out = Path(out)
+    check_output_dir(out, overwrite=overwrite)
+    cfg = config or FlightConfig()
+    count = n_normal if n_normal is not None else prof.n_normal
+    frac_train = prof.n_train / prof.n_normal
+    frac_val = prof.n_validation / prof.n_normal
+    n_train = max(1, int(round(count * frac_train))) if count > 2 else count
+    n_val = int(round(count * frac_val)) if count > 2 else 0
+    seeds = normal_seeds(seed, count)
+    split_of = splits(count, n_train, n_val)
+    config_dict = {"flight_config": dataclasses.asdict(cfg), "versions": versions(), "profile": prof.name}
+    writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
+                           info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions()})
+    say = log or (lambda msg: None)
+    for start in range(0, count, prof.batch_size):
+        chunk = seeds[start:start + prof.batch_size]
+        say(f"flying normal flights {start + 1}-{start + len(chunk)} of {count}")
+        batch = simulate(chunk, cfg)
+        for j in range(len(chunk)):
+            i = start + j
+            writer.write(normal_record(batch, j, f"normal-{i:04d}", split_of[i], config_dict))
+    if with_attacks and prof.scenario_grid is not None:
+        from generator.attacks import attack_flights
+
+        attack_flights(writer, prof, seeds, split_of, cfg, config_dict, say)
+    writer.close()
+    return out

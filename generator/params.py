@@ -1,0 +1,131 @@
+"""Physical and tuning parameters as plain data with units, apart from the dynamics code.
+
+Vehicle values are the 3DR Iris of PX4 SITL (Gazebo classic ``iris.sdf``); sensor values are the
+Gazebo-classic plugin defaults PX4 ships; controller gains follow PX4 multicopter defaults
+(MPC_*, MC_*) translated to physical units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+GRAVITY = 9.80665  # m/s^2
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """3DR Iris quadrotor (PX4 SITL)."""
+
+    mass: float = 1.5  # kg
+    inertia: tuple[float, float, float] = (0.029125, 0.029125, 0.055225)  # kg m^2, body x/y/z
+    # rotor positions in the FRD body frame (m) and spin (+1: reaction torque yaws the body +z)
+    rotor_x: tuple[float, ...] = (0.13, -0.13, 0.13, -0.13)
+    rotor_y: tuple[float, ...] = (0.22, -0.20, -0.22, 0.20)
+    rotor_spin: tuple[float, ...] = (1.0, 1.0, -1.0, -1.0)
+    motor_constant: float = 5.84e-06  # N / (rad/s)^2
+    moment_constant: float = 0.06  # m (yaw torque = moment_constant * thrust)
+    max_rot_velocity: float = 1100.0  # rad/s
+    time_constant_up: float = 0.0125  # s
+    time_constant_down: float = 0.025  # s
+    rotor_drag_coefficient: float = 8.06428e-05  # N s / (m rad) per rotor
+    body_drag: float = 0.05  # N s^2/m^2, quadratic drag of the airframe
+
+    @property
+    def max_thrust(self) -> float:
+        """Thrust of one rotor at full speed (N)."""
+        return self.motor_constant * self.max_rot_velocity**2
+
+    def allocation(self) -> np.ndarray:
+        """Matrix A with [thrust, tau_x, tau_y, tau_z] = A @ rotor_thrusts (FRD body)."""
+        x = np.array(self.rotor_x)
+        y = np.array(self.rotor_y)
+        s = np.array(self.rotor_spin)
+        return np.vstack([np.ones(4), -y, x, s * self.moment_constant])
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """PX4 Gazebo-classic sensor plugin defaults (noise densities turned into per-sample sigmas)."""
+
+    imu_rate_hz: float = 250.0
+    accel_noise_density: float = 0.004  # m/s^2/sqrt(Hz)
+    accel_bias_random_walk: float = 0.006  # m/s^3/sqrt(Hz)
+    accel_bias_tau: float = 300.0  # s
+    gyro_noise_density: float = 0.00018665  # rad/s/sqrt(Hz)
+    gyro_bias_random_walk: float = 3.8785e-05  # rad/s^2/sqrt(Hz)
+    gyro_bias_tau: float = 1000.0  # s
+    mag_rate_hz: float = 100.0
+    mag_noise: float = 0.004  # gauss, 1 sigma per sample
+    # Earth field at the PX4 SITL home (Zurich), NED, gauss
+    mag_field_ned: tuple[float, float, float] = (0.2158, 0.0099, 0.4250)
+    baro_rate_hz: float = 50.0
+    baro_noise_pa: float = 1.0  # Pa RMS
+    baro_drift_pa: float = 0.6  # Pa, 1 sigma of the slowly varying offset
+    gps_rate_hz: float = 10.0
+    gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)
+    gps_noise_h: float = 0.15  # m, white, per axis
+    gps_noise_v: float = 0.25  # m, white
+    gps_bias_h: float = 0.25  # m, 1 sigma of the correlated (Gauss-Markov) error
+    gps_bias_v: float = 0.4  # m
+    gps_bias_tau: float = 60.0  # s
+    gps_vel_noise: float = 0.05  # m/s
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """PX4-like cascade: velocity -> acceleration -> attitude -> rate -> motors."""
+
+    vel_xy_p: float = 1.8  # MPC_XY_VEL_P_ACC, 1/s
+    vel_xy_i: float = 0.4  # MPC_XY_VEL_I_ACC, 1/s^2
+    vel_xy_d: float = 0.2  # MPC_XY_VEL_D_ACC
+    vel_z_p: float = 4.0  # MPC_Z_VEL_P_ACC
+    vel_z_i: float = 2.0  # MPC_Z_VEL_I_ACC
+    acc_hor: float = 3.0  # MPC_ACC_HOR, m/s^2: slew limit of the horizontal velocity setpoint
+    acc_vert: float = 3.0  # MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX, m/s^2
+    tilt_max: float = np.deg2rad(35.0)  # MPC_TILTMAX_AIR (rad)
+    att_p: tuple[float, float, float] = (6.5, 6.5, 2.8)  # MC_ROLL_P, MC_PITCH_P, MC_YAW_P
+    rate_max: tuple[float, float, float] = (np.deg2rad(220), np.deg2rad(220), np.deg2rad(200))
+    rate_p: tuple[float, float, float] = (18.0, 18.0, 8.0)  # 1/s, in physical units
+    rate_i: tuple[float, float, float] = (4.0, 4.0, 2.0)
+    thrust_min: float = 0.08  # of the maximum collective thrust
+    land_detect_s: float = 0.6  # seconds of "landed" evidence before disarming
+
+
+@dataclass(frozen=True)
+class EstimatorParams:
+    """EKF2-like position/velocity filter and complementary attitude filter."""
+
+    gate_sigma: float = 5.0  # EKF2_GPS_P_GATE / EKF2_GPS_V_GATE / EKF2_BARO_GATE
+    accel_process_noise: float = 0.35  # m/s^2/sqrt(Hz), includes model error
+    bias_process_noise: float = 0.003  # m/s^3/sqrt(Hz)
+    gps_pos_noise: float = 0.5  # m, assumed measurement sigma (EKF2_GPS_P_NOISE)
+    gps_vel_noise: float = 0.3  # m/s (EKF2_GPS_V_NOISE)
+    baro_noise: float = 0.3  # m (EKF2_BARO_NOISE)
+    att_accel_gain: float = 0.2  # 1/s, tilt correction from the accelerometer
+    att_mag_gain: float = 0.3  # 1/s, heading correction from the magnetometer
+    gyro_bias_gain: float = 0.002
+
+
+@dataclass(frozen=True)
+class MissionParams:
+    """The default mission: take off, fly the square through its four corners, return, land."""
+
+    altitude: float = 10.0  # m above home
+    side: float = 30.0  # m
+    # square of side 30 m, offset from home so that "return" is a leg of its own (N, E in m)
+    corners: tuple[tuple[float, float], ...] = ((10.0, 10.0), (40.0, 10.0), (40.0, 40.0), (10.0, 40.0))
+    cruise_speed: float = 5.0  # m/s (MPC_XY_CRUISE)
+    climb_speed: float = 2.5  # m/s
+    land_speed: float = 0.7  # m/s (MPC_LAND_SPEED), below 3 m; 1.5 m/s above
+    acceptance_radius: float = 0.8  # m, perceived
+    approach_gain: float = 1.0  # 1/s, speed = gain * distance near a waypoint
+    arm_delay_s: float = 1.0
+    takeoff_hold_s: float = 1.0
+    max_duration_s: float = 150.0
+    jitter_m: float = 0.3  # per-flight jitter of waypoints
+    jitter_speed: float = 0.4  # m/s, per-flight jitter of the cruise speed
+    wind_max: float = 5.0  # m/s, mean wind drawn uniformly in [0, wind_max]
+    gust_sigma_max: float = 0.8  # m/s, gust standard deviation drawn in [0, gust_sigma_max]
+    gust_tau: float = 2.0  # s

@@ -1,0 +1,50 @@
+"""Turn a simulated batch into per-flight tables (topic tables of both views, truth, labels)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from generator.dataset import FlightRecord, label_rows
+from generator.link import field_names
+from generator.simulate import STEP_US, BatchResult
+
+
+def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | None, fields, windows,
+                last_step: int) -> pd.DataFrame:
+    """One flight's table of one topic: Timestamp, Is_Anomaly, fields (undelivered rows dropped)."""
+    keep = steps <= last_step
+    if delivered is not None:
+        keep = keep & delivered
+    ts = steps[keep] * STEP_US
+    df = pd.DataFrame(values[keep], columns=list(fields))
+    df.insert(0, "Timestamp", ts.astype(np.int64))
+    df.insert(1, "Is_Anomaly", label_rows(ts, windows))
+    return df
+
+
+def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
+    """Navigator and simulator views of flight ``i`` as {topic: DataFrame}."""
+    last = int(batch.exit_step[i])
+    nav, sim = {}, {}
+    for topic, (steps, vals, _) in batch.simulator.items():
+        fields = field_names(topic)
+        sim[topic] = topic_table(steps, vals[i], None, fields, windows if topic != "truth" else (), last)
+    for topic, (steps, vals, ok) in batch.navigator.items():
+        if topic == "truth":
+            continue
+        nav[topic] = topic_table(steps, vals[i], ok[i], field_names(topic), windows, last)
+    return nav, sim
+
+
+def normal_record(batch: BatchResult, i: int, flight_id: str, split: str, config: dict) -> FlightRecord:
+    """A normal (unattacked) flight ready for the dataset writer."""
+    nav, sim = flight_views(batch, i)
+    duration = (int(batch.exit_step[i]) + 1) * STEP_US / 1e6
+    manifest = {
+        "mode": "normal", "scenario_id": "", "action": "", "target": "", "injection_point": "",
+        "params": "{}", "seed": batch.seeds[i], "split": split, "duration_s": duration, "source_flight": "",
+    }
+    cfg = {**config, "seed": batch.seeds[i], "status": batch.status[i],
+           "wind_mean_ned": batch.wind[i].tolist(), "waypoints_ned": batch.waypoints[i].tolist()}
+    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=manifest, config=cfg)

@@ -1,0 +1,96 @@
+"""Sensor models with PX4 Gazebo-classic defaults: IMU, magnetometer, barometer and GPS.
+
+Each model turns the true vehicle state into what the flight controller's estimator receives.
+Noise comes from the per-flight NoiseStream slice handed to each call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from generator.geo import HOME_ALT, pressure_at
+from generator.params import GRAVITY, SensorParams
+from generator.rotation import rotate_t
+
+
+@dataclass
+class SensorState:
+    """Slowly varying sensor errors of a batch (leading flight axis)."""
+
+    accel_bias: np.ndarray  # (N, 3) m/s^2
+    gyro_bias: np.ndarray  # (N, 3) rad/s
+    baro_offset: np.ndarray  # (N,) Pa
+    gps_bias: np.ndarray  # (N, 3) m, NED
+    satellites: np.ndarray  # (N,) satellites in view
+    truth_buffer: np.ndarray  # (delay_steps, N, 6) true pos/vel, for the GPS delay
+    temperature: np.ndarray  # (N,) degC
+
+
+class Sensors:
+    """All sensors of a batch of vehicles; call the sample methods at their own rates."""
+
+    def __init__(self, params: SensorParams, dt: float):
+        self.params = params
+        self.dt = dt
+        self.delay_steps = max(1, int(round(params.gps_delay_s / dt)))
+        self.mag_field = np.array(params.mag_field_ned)
+
+    def init_state(self, n: int, rngs: list[np.random.Generator]) -> SensorState:
+        p = self.params
+        u = np.array([g.standard_normal(12) for g in rngs])  # (N, 12)
+        return SensorState(
+            accel_bias=0.02 * u[:, 0:3],
+            gyro_bias=0.002 * u[:, 3:6],
+            baro_offset=p.baro_drift_pa * u[:, 6],
+            gps_bias=np.column_stack([p.gps_bias_h * u[:, 7], p.gps_bias_h * u[:, 8], p.gps_bias_v * u[:, 9]]),
+            satellites=np.clip(np.round(12 + 1.5 * u[:, 10]), 8, 16),
+            truth_buffer=np.zeros((self.delay_steps, n, 6)),
+            temperature=20.0 + 3.0 * u[:, 11],
+        )
+
+    def imu(self, st: SensorState, accel_ned: np.ndarray, omega: np.ndarray, R: np.ndarray,
+            noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Accelerometer (specific force, FRD) and gyro samples; advances the bias random walks."""
+        p, dt = self.params, self.dt
+        fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
+        a_ab = np.exp(-dt / p.accel_bias_tau)
+        a_gb = np.exp(-dt / p.gyro_bias_tau)
+        st.accel_bias = a_ab * st.accel_bias + p.accel_bias_random_walk * np.sqrt(dt) * noise[:, 6:9]
+        st.gyro_bias = a_gb * st.gyro_bias + p.gyro_bias_random_walk * np.sqrt(dt) * noise[:, 9:12]
+        acc = fs + st.accel_bias + p.accel_noise_density * np.sqrt(1 / dt) * noise[:, 0:3]
+        gyro = omega + st.gyro_bias + p.gyro_noise_density * np.sqrt(1 / dt) * noise[:, 3:6]
+        return acc, gyro
+
+    def mag(self, R: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """Magnetometer (gauss, FRD)."""
+        field = np.broadcast_to(self.mag_field, (R.shape[0], 3))
+        return rotate_t(R, field) + self.params.mag_noise * noise
+
+    def baro(self, st: SensorState, pos: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Static pressure (Pa) and temperature (degC)."""
+        press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + self.params.baro_noise_pa * noise[:, 0]
+        temp = st.temperature - 0.0065 * (-pos[:, 2]) + 0.05 * noise[:, 1]
+        return press, temp
+
+    def push_truth(self, st: SensorState, step: int, pos: np.ndarray, vel: np.ndarray) -> None:
+        """Store the true state; the GPS reports it ``delay_steps`` later."""
+        st.truth_buffer[step % self.delay_steps, :, :3] = pos
+        st.truth_buffer[step % self.delay_steps, :, 3:] = vel
+
+    def gps(self, st: SensorState, step: int, noise: np.ndarray, dt_gps: float) -> dict[str, np.ndarray]:
+        """GPS fix of the delayed true state: NED position (m), NED velocity, accuracies."""
+        p = self.params
+        old = st.truth_buffer[(step + 1) % self.delay_steps] if step + 1 >= self.delay_steps else st.truth_buffer[0]
+        a = np.exp(-dt_gps / p.gps_bias_tau)
+        scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
+        st.gps_bias = a * st.gps_bias + np.sqrt(1 - a * a) * scale * noise[:, 0:3]
+        white = np.array([p.gps_noise_h, p.gps_noise_h, p.gps_noise_v]) * noise[:, 3:6]
+        pos = old[:, :3] + st.gps_bias + white
+        vel = old[:, 3:] + p.gps_vel_noise * noise[:, 6:9]
+        n = pos.shape[0]
+        eph = np.full(n, np.hypot(p.gps_noise_h, p.gps_bias_h)) * (12.0 / st.satellites)
+        epv = np.full(n, np.hypot(p.gps_noise_v, p.gps_bias_v)) * (12.0 / st.satellites)
+        return {"pos": pos, "vel": vel, "eph": eph, "epv": epv, "satellites": st.satellites.copy(),
+                "fix_type": np.full(n, 3.0)}

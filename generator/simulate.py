@@ -1,0 +1,379 @@
+"""Fly a batch of flights in the closed loop: the step pipeline and its recorder.
+
+One step (250 Hz) is a fixed pipeline:
+wind -> vehicle dynamics -> sensors [sensor hook] -> estimator -> telemetry [link hook] ->
+navigator -> setpoint [command hook] -> controller -> land detector.
+The hooks are where the SCART attack layer plugs in; with no layer they are skipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from generator.autopilot import Controller, Estimator
+from generator.geo import HOME_ALT, altitude_at, latlon_to_ned, ned_to_latlon
+from generator.link import SENSOR_TOPICS, FCSnapshot, compose, due_steps
+from generator.navigator import Navigator, mission_waypoints
+from generator.noise import NoiseStream
+from generator.params import (
+    GRAVITY,
+    ControllerParams,
+    EstimatorParams,
+    MissionParams,
+    SensorParams,
+    VehicleParams,
+)
+from generator.rotation import euler_from_quat
+from generator.sensors import Sensors
+from generator.topics import SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_FIELDS, TRUTH_RATE_HZ
+from generator.vehicle import Vehicle, VehicleState, Wind
+
+DT = 1.0 / SIM_RATE_HZ
+STEP_US = int(round(1e6 * DT))
+NAV_RATE_HZ = 50.0
+STATUS = ("landed", "timeout", "crashed")
+
+
+class AttackHooks(Protocol):
+    """What the simulator calls at its injection points (implemented by the SCART layer)."""
+
+    points: frozenset[str]
+
+    def on_messages(self, point: str, step: int, t_us: int, messages: dict[str, np.ndarray]
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Return, per topic, the (possibly altered) values and the per-flight delivered mask."""
+
+    def on_physics(self, step: int, t_us: int) -> dict[str, np.ndarray]:
+        """Physical disturbances for this step (e.g. motor efficiency), or an empty dict."""
+
+
+@dataclass
+class FlightConfig:
+    """Everything that defines a batch of flights besides the seeds."""
+
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    sensors: SensorParams = field(default_factory=SensorParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    controller: ControllerParams = field(default_factory=ControllerParams)
+    mission: MissionParams = field(default_factory=MissionParams)
+
+
+class _Recorder:
+    """Preallocated, growing message arrays per topic: (N, n_messages, n_fields)."""
+
+    def __init__(self, n: int, expected_steps: int):
+        self.n = n
+        self.capacity_steps = expected_steps
+        self.values: dict[str, np.ndarray] = {}
+        self.delivered: dict[str, np.ndarray] = {}
+        self.steps: dict[str, list[int]] = {}
+
+    def add(self, topic: str, step: int, values: np.ndarray, delivered: np.ndarray | None = None) -> None:
+        arr = self.values.get(topic)
+        count = len(self.steps.get(topic, ()))
+        if arr is None:
+            rate = values.shape[1]
+            cap = max(8, int(self.capacity_steps * 0.2) + 8)
+            arr = np.empty((self.n, cap, rate))
+            self.values[topic] = arr
+            self.delivered[topic] = np.ones((self.n, cap), dtype=bool)
+            self.steps[topic] = []
+        if count >= arr.shape[1]:
+            grow = arr.shape[1]
+            arr = np.concatenate([arr, np.empty((self.n, grow, arr.shape[2]))], axis=1)
+            self.values[topic] = arr
+            self.delivered[topic] = np.concatenate([self.delivered[topic], np.ones((self.n, grow), bool)], axis=1)
+        arr[:, count, :] = values
+        if delivered is not None:
+            self.delivered[topic][:, count] = delivered
+        self.steps[topic].append(step)
+
+    def finish(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        out = {}
+        for topic, steps in self.steps.items():
+            k = len(steps)
+            out[topic] = (np.asarray(steps, dtype=np.int64), self.values[topic][:, :k], self.delivered[topic][:, :k])
+        return out
+
+
+@dataclass
+class BatchResult:
+    """Recorded messages of a batch of flights.
+
+    ``simulator[topic]`` / ``navigator[topic]`` are ``(steps, values, delivered)`` with ``values``
+    shaped (N, n_messages, n_fields): the stream before and after the attack layer (identical
+    objects when no layer ran). ``truth`` is the true vehicle state at 50 Hz.
+    """
+
+    seeds: list[int]
+    simulator: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    navigator: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    exit_step: np.ndarray  # (N,) last recorded step of each flight
+    status: list[str]
+    waypoints: np.ndarray  # (N, K, 3) planned mission items
+    wind: np.ndarray  # (N, 3) mean wind
+    gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
+    n_steps: int
+
+    def __len__(self) -> int:
+        return len(self.seeds)
+
+
+def _battery_init(n: int) -> np.ndarray:
+    b = np.zeros((n, 3))
+    b[:, 0] = 16.8
+    b[:, 2] = 1.0
+    return b
+
+
+def simulate(seeds: list[int], config: FlightConfig | None = None, layer: AttackHooks | None = None,
+             progress=None) -> BatchResult:
+    """Fly one flight per seed in a batch; same seeds and config give bit-identical results."""
+    cfg = config or FlightConfig()
+    n = len(seeds)
+    if n < 1:
+        raise ValueError("simulate needs at least one seed")
+    rngs = [np.random.default_rng(np.random.SeedSequence([int(s), 0x5CA7])) for s in seeds]
+    m = cfg.mission
+    max_steps = int(m.max_duration_s * SIM_RATE_HZ)
+
+    # per-flight variation: wind, heading at start, mission jitter
+    u = np.array([g.uniform(size=6) for g in rngs])
+    wind_speed = m.wind_max * u[:, 0]
+    wind_dir = 2 * np.pi * u[:, 1]
+    wind_mean = np.column_stack([wind_speed * np.cos(wind_dir), wind_speed * np.sin(wind_dir), np.zeros(n)])
+    wind = Wind(mean=wind_mean, gust=np.zeros((n, 3)), sigma=m.gust_sigma_max * u[:, 2], tau=m.gust_tau)
+    yaw0 = (u[:, 3] - 0.5) * 0.5
+    waypoints, cruise = mission_waypoints(m, rngs)
+
+    vehicle = Vehicle(cfg.vehicle)
+    sensors = Sensors(cfg.sensors, DT)
+    est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
+    ctrl = Controller(cfg.controller, cfg.vehicle, DT)
+    nav = Navigator(m, waypoints, cruise)
+    vs = VehicleState.zeros(n, yaw0)
+    ss = sensors.init_state(n, rngs)
+    es = est.init_state(n, yaw0)
+    cs = ctrl.init_state(n)
+    ns = nav.init_state(n, yaw0)
+    noise = NoiseStream(rngs, 30)
+
+    sim_rec = _Recorder(n, max_steps // 2)
+    nav_rec = _Recorder(n, max_steps // 2) if layer is not None else sim_rec
+    points = layer.points if layer is not None else frozenset()
+
+    sched_len = max_steps + 1
+    due = {t: due_steps(TOPICS[t].rate_hz, sched_len) for t in TOPICS}
+    due_nav = due_steps(NAV_RATE_HZ, sched_len)
+    due_truth = due_steps(TRUTH_RATE_HZ, sched_len)
+    due_sens = {t: due_steps(r, sched_len) for t, (r, _) in SENSOR_TOPICS.items()}
+    gps_dt = 1.0 / cfg.sensors.gps_rate_hz
+
+    done = np.zeros(n, dtype=bool)
+    exit_step = np.full(n, -1, dtype=np.int64)
+    status = np.array(["timeout"] * n, dtype=object)
+    battery = _battery_init(n)
+    vel_sp = np.zeros((n, 3))
+    yaw_sp = yaw0.copy()
+    setpoint_in = np.zeros((n, 6))
+    mag = np.zeros((n, 3))
+    pressure = np.zeros(n)
+    baro_temp = np.zeros(n)
+    gps = None
+    efficiency = None
+    hover_thrust = cfg.vehicle.mass * GRAVITY
+    tail_steps = int(0.5 * SIM_RATE_HZ)
+    landed_at = np.full(n, -1, dtype=np.int64)
+
+    step = 0
+    for step in range(max_steps):
+        t_us = step * STEP_US
+        t = step * DT
+        w = noise.next()
+        if layer is not None:
+            phys = layer.on_physics(step, t_us)
+            efficiency = phys.get("motor_efficiency")
+        wind_now = wind.step(w[:, 26:29], DT)
+        R_true = vehicle.step(vs, ctrl.rate_control(cs, es.rates), wind_now, DT, efficiency)
+        sensors.push_truth(ss, step, vs.pos, vs.vel)
+
+        # sensors -> estimator
+        accel, gyro = sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, 0:12])
+        sens_msgs: dict[str, np.ndarray] = {}
+        if "sensor" in points:
+            sens_msgs["sensor_accel"] = accel
+            sens_msgs["sensor_gyro"] = gyro
+        if due_sens["sensor_mag"][step]:
+            mag = sensors.mag(R_true, w[:, 12:15])
+            if "sensor" in points:
+                sens_msgs["sensor_mag"] = mag
+        if due_sens["sensor_baro"][step]:
+            pressure, baro_temp = sensors.baro(ss, vs.pos, w[:, 15:17])
+            if "sensor" in points:
+                sens_msgs["sensor_baro"] = np.column_stack([pressure, baro_temp])
+        gps_due = due_sens["sensor_gps"][step]
+        if gps_due:
+            gps = sensors.gps(ss, step, w[:, 17:26], gps_dt)
+            if "sensor" in points:
+                lat, lon = ned_to_latlon(gps["pos"][:, 0], gps["pos"][:, 1])
+                sens_msgs["sensor_gps"] = np.column_stack([
+                    lat, lon, HOME_ALT - gps["pos"][:, 2], gps["vel"], gps["eph"], gps["epv"],
+                    gps["satellites"], gps["fix_type"]])
+        sens_ok: dict[str, np.ndarray] = {}
+        if sens_msgs:
+            altered = layer.on_messages("sensor", step, t_us, sens_msgs)
+            for topic, (vals, ok) in altered.items():
+                sens_ok[topic] = ok
+                if topic == "sensor_accel":
+                    accel = np.where(ok[:, None], vals, accel)
+                elif topic == "sensor_gyro":
+                    gyro = np.where(ok[:, None], vals, gyro)
+                elif topic == "sensor_mag":
+                    mag = vals
+                elif topic == "sensor_baro":
+                    pressure, baro_temp = vals[:, 0], vals[:, 1]
+                elif topic == "sensor_gps":
+                    x, y = latlon_to_ned(vals[:, 0], vals[:, 1])
+                    gps = dict(gps)
+                    gps["pos"] = np.column_stack([x, y, HOME_ALT - vals[:, 2]])
+                    gps["vel"] = vals[:, 3:6].copy()
+                    gps["eph"], gps["epv"] = vals[:, 6], vals[:, 7]
+                    gps["satellites"], gps["fix_type"] = vals[:, 8], vals[:, 9]
+
+        R_est = est.predict(es, step, accel, gyro, ~cs.armed)
+        if due_sens["sensor_mag"][step]:
+            if "sensor_mag" in sens_ok:
+                _fuse_rows(est.fuse_mag, es, mag, sens_ok["sensor_mag"])
+            else:
+                est.fuse_mag(es, mag)
+        if due_sens["sensor_baro"][step]:
+            baro_alt = altitude_at(pressure)
+            if "sensor_baro" in sens_ok:
+                _fuse_rows(est.fuse_baro, es, baro_alt, sens_ok["sensor_baro"])
+            else:
+                est.fuse_baro(es, baro_alt)
+        if gps_due:
+            usable = gps["fix_type"] >= 3
+            if "sensor_gps" in sens_ok:
+                usable = usable & sens_ok["sensor_gps"]
+            if usable.all():
+                est.fuse_gps(es, step, gps["pos"], gps["vel"])
+            elif usable.any():
+                _fuse_gps_rows(est, es, step, gps, usable)
+            else:
+                est.kf_h.predict()  # no aiding: the covariance still grows
+
+        # telemetry: flight controller -> link -> navigator
+        due_now = [tp for tp in TELEMETRY_TOPICS if due[tp][step]]
+        if due_now:
+            snap = FCSnapshot(
+                quat=es.quat, rates=es.rates, pos=es.x[:, :, 0], vel=es.x[:, :, 1], accel=accel, gyro=gyro,
+                mag=mag, pressure=pressure, baro_temp=baro_temp, gps=gps if gps is not None else _no_gps(n),
+                battery=battery, baro_home_alt=es.baro_offset,
+            )
+            msgs = {tp: compose(tp, snap) for tp in due_now}
+            for tp, vals in msgs.items():
+                sim_rec.add(tp, step, vals)
+            if "link" in points:
+                altered = layer.on_messages("link", step, t_us, msgs)
+            else:
+                altered = {tp: (vals, None) for tp, vals in msgs.items()}
+            for tp, (vals, ok) in altered.items():
+                if layer is not None:
+                    nav_rec.add(tp, step, vals, ok)
+                nav.receive(ns, tp, vals, np.ones(n, bool) if ok is None else ok, TOPICS[tp].field_names)
+
+        # navigator -> command link -> flight controller
+        if due_nav[step]:
+            sp = nav.step(ns, t)
+            sim_rec.add("setpoint", step, sp)
+            if "command" in points:
+                sp_vals, sp_ok = layer.on_messages("command", step, t_us, {"setpoint": sp})["setpoint"]
+            else:
+                sp_vals, sp_ok = sp, None
+            if layer is not None:
+                nav_rec.add("setpoint", step, sp_vals, sp_ok)
+            ok = np.ones(n, bool) if sp_ok is None else sp_ok
+            setpoint_in[ok] = sp_vals[ok]
+            vel_sp = setpoint_in[:, 0:3]
+            yaw_sp = setpoint_in[:, 3]
+            arm_req = (setpoint_in[:, 5] > 0.5) & ~cs.disarmed_after_flight & ~done
+            cs.armed = arm_req
+            R_est = _rot(es)
+            ctrl.velocity_control(cs, vel_sp, yaw_sp, es.x[:, :, 1], R_est, 1.0 / NAV_RATE_HZ)
+            ctrl.land_detector(cs, vel_sp, es.x[:, :, 1], 1.0 / NAV_RATE_HZ)
+        ctrl.attitude_control(cs, R_est)
+
+        # battery (4S, 5.1 Ah), at its own rate
+        if due["battery_status"][step]:
+            thrust = cfg.vehicle.motor_constant * vs.rotor_speed**2
+            power = 6.4 * np.sum(np.maximum(thrust, 0.0) ** 1.5, axis=1) + 2.0
+            ocv = 12.8 + 4.0 * battery[:, 2]
+            current = power / np.maximum(ocv, 1.0)
+            battery[:, 2] = np.clip(battery[:, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
+            battery[:, 0] = ocv - 0.05 * current + 0.01 * w[:, 29]
+            battery[:, 1] = current
+
+        if due_truth[step]:
+            eul = euler_from_quat(vs.quat)
+            sim_rec.add("truth", step, np.column_stack([vs.pos, vs.vel, eul, cs.armed, vs.on_ground]))
+
+        # end of flight: landed and disarmed, or crashed
+        eul_t = None
+        if step % 25 == 0:
+            eul_t = euler_from_quat(vs.quat)
+            crashed = ~done & ((np.abs(eul_t[:, 0]) > 1.3) | (np.abs(eul_t[:, 1]) > 1.3)) & ~vs.on_ground
+            crashed |= ~done & vs.on_ground & (np.linalg.norm(vs.accel, axis=1) > 3 * hover_thrust)
+            status[crashed] = "crashed"
+            cs.disarmed_after_flight |= crashed
+            cs.armed &= ~crashed
+        newly = ~done & cs.disarmed_after_flight & (landed_at < 0)
+        landed_at[newly] = step
+        status[newly & (status == "timeout")] = "landed"
+        finish = ~done & (landed_at >= 0) & (step >= landed_at + tail_steps)
+        exit_step[finish] = step
+        done |= finish
+        if progress is not None and step % 250 == 0:
+            progress(step, done)
+        if done.all():
+            break
+    exit_step[exit_step < 0] = step
+    if layer is not None:
+        layer.on_finish(step)
+    return BatchResult(
+        seeds=[int(s) for s in seeds], simulator=sim_rec.finish(), navigator=nav_rec.finish(),
+        exit_step=exit_step, status=list(status), waypoints=waypoints, wind=wind_mean,
+        gps_rejections=np.column_stack([es.gps_pos_rejected, es.gps_vel_rejected, es.baro_rejected]),
+        n_steps=step + 1,
+    )
+
+
+def _rot(es):
+    from generator.rotation import quat_to_rot
+
+    return quat_to_rot(es.quat)
+
+
+def _no_gps(n: int) -> dict:
+    return {"pos": np.zeros((n, 3)), "vel": np.zeros((n, 3)), "eph": np.full(n, 99.0), "epv": np.full(n, 99.0),
+            "satellites": np.zeros(n), "fix_type": np.zeros(n)}
+
+
+def _fuse_rows(fn, es, values, ok) -> None:
+    """Fuse only where the message was delivered (dropped messages are not fused)."""
+    before = es.x.copy(), es.quat.copy()
+    fn(es, values)
+    es.x[~ok] = before[0][~ok]
+    es.quat[~ok] = before[1][~ok]
+
+
+def _fuse_gps_rows(est, es, step, gps, usable) -> None:
+    before = es.x.copy()
+    est.fuse_gps(es, step, gps["pos"], gps["vel"])
+    es.x[~usable] = before[~usable]
+
+
+TRUTH_COLUMNS = TRUTH_FIELDS
