@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from generator.attacks import attack_flights, strip_labels
 from generator.dataset import DatasetError, DatasetWriter, check_output_dir
 from generator.records import normal_record
 from generator.simulate import FlightConfig, simulate
@@ -87,16 +88,18 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
                            info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions()})
     say = log or (lambda msg: None)
+    sources: dict[str, list] = {"test": [], "validation": []}
     for start in range(0, count, prof.batch_size):
         chunk = seeds[start:start + prof.batch_size]
         say(f"flying normal flights {start + 1}-{start + len(chunk)} of {count}")
         batch = simulate(chunk, cfg)
         for j in range(len(chunk)):
             i = start + j
-            writer.write(normal_record(batch, j, f"normal-{i:04d}", split_of[i], config_dict))
+            record = normal_record(batch, j, f"normal-{i:04d}", split_of[i], config_dict)
+            writer.write(record)
+            if split_of[i] in sources:
+                sources[split_of[i]].append((record.flight_id, strip_labels(record.navigator), seeds[i]))
     if with_attacks and prof.scenario_grid is not None:
-        from generator.attacks import attack_flights
-
-        attack_flights(writer, prof, seeds, split_of, cfg, config_dict, say)
+        attack_flights(writer, prof, sources["test"] + sources["validation"], seed, cfg, config_dict, say)
     writer.close()
     return out

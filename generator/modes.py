@@ -1,0 +1,150 @@
+"""The two modes of the SCART layer.
+
+- simulation mode: the layer runs inside the closed loop; the navigator reacts to what it is fed.
+- csv mode: the layer replays recorded flights message by message in timestamp order and writes an
+  attacked copy; nothing reacts, and the simulator view is the input, unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from generator.dataset import FlightRecord, label_rows
+from generator.records import flight_views
+from generator.scart.layer import AttackLayer
+from generator.scart.scenario import Scenario
+from generator.simulate import STEP_US, BatchResult, FlightConfig, simulate
+
+
+def simulation_mode(seeds: list[int], scenarios: list[list[Scenario]], config: FlightConfig | None = None
+                    ) -> tuple[BatchResult, AttackLayer]:
+    """Fly each seed with its scenarios in the closed loop."""
+    layer = AttackLayer(scenarios, seeds, rates=_builtin_rates())
+    batch = simulate(seeds, config, layer=layer)
+    return batch, layer
+
+
+def _builtin_rates() -> dict[str, float]:
+    from generator.link import SENSOR_TOPICS
+    from generator.topics import TOPICS
+
+    rates = {t: v.rate_hz for t, v in TOPICS.items()}
+    rates.update({t: r for t, (r, _) in SENSOR_TOPICS.items()})
+    return rates
+
+
+def scenario_manifest(scenarios: list[Scenario], mode: str, seed: int, source: str = "") -> dict:
+    """Manifest fields describing the attack of one flight."""
+    import json
+
+    return {
+        "mode": mode, "scenario_id": "+".join(s.id for s in scenarios),
+        "action": "+".join(s.primary_action() for s in scenarios),
+        "target": "+".join(s.target_label() for s in scenarios),
+        "injection_point": "+".join(s.injection_point for s in scenarios),
+        "params": json.dumps([json.loads(s.params_json()) for s in scenarios], sort_keys=True),
+        "seed": seed, "split": "test", "source_flight": source,
+    }
+
+
+def simulation_record(batch: BatchResult, layer: AttackLayer, i: int, flight_id: str,
+                      scenarios: list[Scenario], config: dict) -> FlightRecord:
+    """An attacked simulation-mode flight ready for the dataset writer."""
+    end_us = (int(batch.exit_step[i]) + 1) * STEP_US
+    windows = layer.windows(i, end_us)
+    nav, sim = flight_views(batch, i, windows)
+    manifest = scenario_manifest(scenarios, "simulation", batch.seeds[i])
+    manifest["duration_s"] = end_us / 1e6
+    cfg = {**config, "seed": batch.seeds[i], "status": batch.status[i], "mode": "simulation",
+           "scenarios": [s.to_dict() for s in scenarios], "wind_mean_ned": batch.wind[i].tolist(),
+           "waypoints_ned": batch.waypoints[i].tolist()}
+    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=manifest, config=cfg,
+                        windows=windows, events=layer.event_log(i, end_us))
+
+
+def _same_schedule(flights: list[dict[str, pd.DataFrame]]) -> bool:
+    first = flights[0]
+    for f in flights[1:]:
+        if set(f) != set(first):
+            return False
+        for topic, df in f.items():
+            a = df["Timestamp"].to_numpy()
+            b = first[topic]["Timestamp"].to_numpy()
+            k = min(len(a), len(b))
+            if not np.array_equal(a[:k], b[:k]):
+                return False
+    return True
+
+
+def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenario]], seeds: list[int]
+             ) -> list[tuple[dict[str, pd.DataFrame], list[tuple[int, int]], list[dict]]]:
+    """Replay recorded flights through the layer.
+
+    ``flights[i]`` maps topic -> table (``Timestamp`` in µs, fields; an ``Is_Anomaly`` column is
+    ignored). Returns per flight: the attacked (navigator-view) topic tables with labels, the
+    attack windows and the event log. Flights that share one message schedule (as the generator's
+    do) are replayed together as one batch; others one by one.
+    """
+    if len(flights) > 1 and not _same_schedule(flights):
+        out = []
+        for f, sc, sd in zip(flights, scenarios, seeds):
+            out.extend(csv_mode([f], [sc], [sd]))
+        return out
+    n = len(flights)
+    topics = list(flights[0])
+    fields = {t: tuple(c for c in flights[0][t].columns if c not in ("Timestamp", "Is_Anomaly")) for t in topics}
+    lengths = {t: np.array([len(f[t]) for f in flights]) for t in topics}
+    times = {t: max((f[t] for f in flights), key=len)["Timestamp"].to_numpy(np.int64) for t in topics}
+    values = {}
+    for t in topics:
+        arr = np.full((n, len(times[t]), len(fields[t])), np.nan)
+        for i, f in enumerate(flights):
+            arr[i, : len(f[t])] = f[t][list(fields[t])].to_numpy(np.float64)
+        values[t] = arr
+    rates = {t: (len(times[t]) - 1) / max((times[t][-1] - times[t][0]) / 1e6, 1e-9) if len(times[t]) > 1 else 1.0
+             for t in topics}
+    layer = AttackLayer(scenarios, seeds, fields=fields, rates=rates)
+    out_vals = {t: values[t].copy() for t in topics}
+    delivered = {t: np.ones((n, len(times[t])), dtype=bool) for t in topics}
+    # every (time, topic, index) message in timestamp order; topics at the same time go together
+    events = sorted((int(ts), t, k) for t in topics for k, ts in enumerate(times[t]))
+    j = 0
+    while j < len(events):
+        t_us = events[j][0]
+        batch = {}
+        while j < len(events) and events[j][0] == t_us:
+            _, t, k = events[j]
+            batch[t] = k
+            j += 1
+        msgs = {t: values[t][:, k, :] for t, k in batch.items()}
+        altered = layer.on_messages(None, 0, t_us, msgs)
+        for t, k in batch.items():
+            v, ok = altered[t]
+            out_vals[t][:, k, :] = v
+            delivered[t][:, k] = ok
+    results = []
+    for i, f in enumerate(flights):
+        end_us = int(max(f[t]["Timestamp"].iloc[-1] for t in topics if len(f[t]))) + 1
+        windows = layer.windows(i, end_us)
+        nav = {}
+        for t in topics:
+            k = lengths[t][i]
+            keep = delivered[t][i, :k]
+            df = pd.DataFrame(out_vals[t][i, :k][keep], columns=list(fields[t]))
+            ts = times[t][:k][keep]
+            df.insert(0, "Timestamp", ts)
+            df.insert(1, "Is_Anomaly", label_rows(ts, windows))
+            nav[t] = df
+        results.append((nav, windows, layer.event_log(i, end_us)))
+    return results
+
+
+def with_labels(topics: dict[str, pd.DataFrame], windows=()) -> dict[str, pd.DataFrame]:
+    """Topic tables with an ``Is_Anomaly`` column from ``windows`` (as the simulator view)."""
+    out = {}
+    for t, df in topics.items():
+        df = df.drop(columns=["Is_Anomaly"], errors="ignore").copy()
+        df.insert(1, "Is_Anomaly", label_rows(df["Timestamp"].to_numpy(), windows))
+        out[t] = df
+    return out

@@ -1,0 +1,155 @@
+"""Start and end conditions, vectorised over the flights of a scenario group.
+
+A condition receives the group context (time, History, rows of the batch, per-flight attack
+start) and returns one boolean per flight. Numeric parameters are arrays with one value per
+flight, so one group evaluates many parameter settings at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from generator.geo import latlon_to_ned
+from generator.scart.spec import Param
+
+
+class Condition:
+    """Base class; subclasses set ``name``, ``spec`` and implement ``__call__``."""
+
+    name = "condition"
+    spec: tuple[Param, ...] = ()
+    end_only = False
+
+    def __init__(self, params: dict, rng_uniform: np.ndarray):
+        self.params = params
+        self.u = rng_uniform  # (N,) per-flight uniform draw in [0, 1), for random conditions
+
+    def topics(self) -> set[str]:
+        topic = self.params.get("topic")
+        return {topic} if isinstance(topic, str) else set()
+
+    def __call__(self, ctx) -> np.ndarray:
+        raise NotImplementedError
+
+
+def _latest(ctx, topic: str) -> tuple[np.ndarray, tuple[str, ...]] | tuple[None, None]:
+    h = ctx.history.get(topic)
+    if h is None or h.count == 0:
+        return None, None
+    return h.latest()[ctx.rows], ctx.fields(topic)
+
+
+def position_ne(values: np.ndarray, fields: tuple[str, ...]) -> np.ndarray:
+    """(N, 2) north/east metres from a message with lat/lon or x/y fields."""
+    if "lat" in fields and "lon" in fields:
+        n, e = latlon_to_ned(values[:, fields.index("lat")], values[:, fields.index("lon")])
+        return np.column_stack([n, e])
+    if "latitude_deg" in fields:
+        n, e = latlon_to_ned(values[:, fields.index("latitude_deg")], values[:, fields.index("longitude_deg")])
+        return np.column_stack([n, e])
+    return np.column_stack([values[:, fields.index("x")], values[:, fields.index("y")]])
+
+
+def altitude(values: np.ndarray, fields: tuple[str, ...]) -> np.ndarray:
+    """(N,) altitude above home (m) from a position message."""
+    for name in ("relative_alt", "altitude_relative"):
+        if name in fields:
+            return values[:, fields.index(name)]
+    if "z" in fields:
+        return -values[:, fields.index("z")]
+    raise KeyError("no altitude field (relative_alt, altitude_relative or z)")
+
+
+class TimeWindow(Condition):
+    """Holds while ``start_s <= t < end_s`` (seconds from the start of the flight)."""
+
+    name = "time_window"
+    spec = (Param("start_s", float, 0.0, minimum=0.0), Param("end_s", float, float("inf"), minimum=0.0))
+
+    def __call__(self, ctx):
+        t = ctx.t_us / 1e6
+        return (t >= self.params["start_s"]) & (t < self.params["end_s"])
+
+
+class MessageCount(Condition):
+    """Holds once ``count`` messages of ``topic`` have been received."""
+
+    name = "message_count"
+    spec = (Param("topic", str, required=True, help="listened topic"),
+            Param("count", int, required=True, minimum=0))
+
+    def __call__(self, ctx):
+        return np.broadcast_to(ctx.history.count(self.params["topic"]) >= self.params["count"], ctx.rows.shape)
+
+
+class Geofence(Condition):
+    """Holds while the received position is within ``radius`` m of ``center`` [north, east] (or outside)."""
+
+    name = "geofence"
+    spec = (Param("center", list, required=True, help="[north_m, east_m] from home"),
+            Param("radius", float, required=True, minimum=0.0, exclusive_min=True),
+            Param("inside", bool, True), Param("topic", str, "local_position_ned"))
+
+    def __call__(self, ctx):
+        vals, fields = _latest(ctx, self.params["topic"])
+        if vals is None:
+            return np.zeros(ctx.rows.shape, bool)
+        pos = position_ne(vals, fields)
+        c = np.asarray(self.params["center"], dtype=float)
+        d = np.hypot(pos[:, 0] - c[..., 0], pos[:, 1] - c[..., 1])
+        inside = d <= self.params["radius"]
+        return inside if self.params["inside"] else ~inside
+
+
+class AltitudeAbove(Condition):
+    """Holds while the received altitude above home exceeds ``height`` m."""
+
+    name = "altitude_above"
+    spec = (Param("height", float, required=True), Param("topic", str, "local_position_ned"))
+
+    def __call__(self, ctx):
+        vals, fields = _latest(ctx, self.params["topic"])
+        if vals is None:
+            return np.zeros(ctx.rows.shape, bool)
+        return altitude(vals, fields) > self.params["height"]
+
+
+class MissionPhase(Condition):
+    """Holds once the mission has passed waypoint ``after_waypoint`` (current item > k)."""
+
+    name = "mission_phase"
+    spec = (Param("after_waypoint", int, required=True, minimum=0), Param("topic", str, "setpoint"),
+            Param("field", str, "seq"))
+
+    def __call__(self, ctx):
+        vals, fields = _latest(ctx, self.params["topic"])
+        if vals is None:
+            return np.zeros(ctx.rows.shape, bool)
+        return vals[:, fields.index(self.params["field"])] > self.params["after_waypoint"]
+
+
+class RandomStart(Condition):
+    """Holds from a time drawn per flight, uniformly in [low_s, high_s]."""
+
+    name = "random_start"
+    spec = (Param("low_s", float, required=True, minimum=0.0), Param("high_s", float, required=True, minimum=0.0))
+
+    def __call__(self, ctx):
+        lo, hi = self.params["low_s"], self.params["high_s"]
+        return ctx.t_us / 1e6 >= lo + (hi - lo) * self.u
+
+
+class Duration(Condition):
+    """End condition: holds ``seconds`` after the attack started."""
+
+    name = "duration"
+    spec = (Param("seconds", float, required=True, minimum=0.0, exclusive_min=True),)
+    end_only = True
+
+    def __call__(self, ctx):
+        return (ctx.start_us >= 0) & (ctx.t_us - ctx.start_us >= self.params["seconds"] * 1e6)
+
+
+CONDITIONS: dict[str, type[Condition]] = {
+    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, RandomStart, Duration)
+}

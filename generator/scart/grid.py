@@ -1,0 +1,143 @@
+"""Grid files: the Cartesian product of scenario parameters, with stable ids.
+
+```toml
+[grid]
+id = "paper"
+injection_point = "link"
+[grid.axes]                       # each axis a list; the product is the set of configurations
+action = ["add_white_noise", "bias"]
+target = ["position", "attitude"]
+level = [0, 1, 2, 3]              # index into the target's magnitudes (or the action's levels)
+duration_s = [10.0, 30.0]
+trigger = ["time", "waypoint"]
+
+[targets.position]                # fields an attack on "position" alters, and its magnitudes
+fields = ["global_position_int.lat", "global_position_int.lon"]
+magnitudes = [1.0, 3.0, 10.0, 30.0]     # physical units (m)
+
+[actions.add_white_noise]         # which parameter the level sets
+param = "std"                     # takes the target's magnitude (times `factor`, default 1)
+[actions.duplicate]
+param = "k"
+levels = [5, 10, 25, 50]          # absolute values, whatever the target
+targets = ["position"]            # optional: only these targets (other combinations are skipped)
+extra = { direction_deg = 90.0 }  # optional fixed parameters
+
+[triggers.time]
+start = [{ condition = "time_window", start_s = 20.0 }]
+```
+Each configuration's id is ``<grid id>-<action>-<target>-L<level>-d<duration>-<trigger>``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import tomllib
+from pathlib import Path
+
+from generator.scart.actions import ACTIONS
+from generator.scart.scenario import Scenario, scenario_from_dict
+from generator.scart.spec import ScenarioError
+
+AXES = ("action", "target", "level", "duration_s", "trigger")
+
+
+def _need(table: dict, key: str, where: str, kind: type | tuple):
+    if key not in table:
+        raise ScenarioError(f"{where}: missing required key {key!r}")
+    value = table[key]
+    if not isinstance(value, kind):
+        raise ScenarioError(f"{where}.{key}: expected {getattr(kind, '__name__', kind)}, got {value!r}")
+    return value
+
+
+def load_grid(path: str | Path) -> list[Scenario]:
+    """Expand a grid file into validated scenarios (one per configuration), in a stable order."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: no such grid file")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    src = str(path)
+    grid = _need(doc, "grid", src, dict)
+    gid = grid.get("id", path.stem)
+    point = grid.get("injection_point", "link")
+    axes = _need(grid, "axes", f"{src}: grid", dict)
+    unknown = [k for k in axes if k not in AXES]
+    if unknown:
+        raise ScenarioError(f"{src}: grid.axes: unknown axis {unknown[0]!r}; allowed: {', '.join(AXES)}")
+    for k in AXES:
+        v = axes.get(k)
+        if v is None:
+            raise ScenarioError(f"{src}: grid.axes: missing axis {k!r} (a list)")
+        if not isinstance(v, list) or not v:
+            raise ScenarioError(f"{src}: grid.axes.{k}: expected a non-empty list, got {v!r}")
+    targets = doc.get("targets", {})
+    actions = doc.get("actions", {})
+    triggers = doc.get("triggers", {})
+    for a in axes["action"]:
+        if a not in ACTIONS:
+            raise ScenarioError(f"{src}: grid.axes.action: unknown action {a!r}; allowed: {', '.join(sorted(ACTIONS))}")
+        if a not in actions:
+            raise ScenarioError(f"{src}: missing table [actions.{a}] (which parameter the level sets)")
+    for t in axes["target"]:
+        if t not in targets:
+            raise ScenarioError(f"{src}: grid.axes.target: {t!r} has no [targets.{t}] table; "
+                                f"defined: {', '.join(targets) or '(none)'}")
+    for tr in axes["trigger"]:
+        if tr not in triggers:
+            raise ScenarioError(f"{src}: grid.axes.trigger: {tr!r} has no [triggers.{tr}] table; "
+                                f"defined: {', '.join(triggers) or '(none)'}")
+    for d in axes["duration_s"]:
+        if isinstance(d, bool) or not isinstance(d, int | float) or d <= 0:
+            raise ScenarioError(f"{src}: grid.axes.duration_s: durations must be positive numbers, got {d!r}")
+    out: list[Scenario] = []
+    for action, target, level, duration, trigger in itertools.product(*(axes[k] for k in AXES)):
+        aspec = actions[action]
+        allowed_targets = aspec.get("targets")
+        if allowed_targets is not None and target not in allowed_targets:
+            continue
+        tspec = targets[target]
+        where = f"{src}: [actions.{action}]"
+        param = _need(aspec, "param", where, str)
+        if "levels" in aspec:
+            levels = aspec["levels"]
+        else:
+            mags = _need(tspec, "magnitudes", f"{src}: [targets.{target}]", list)
+            levels = [m * aspec.get("factor", 1.0) for m in mags]
+        if not isinstance(level, int) or not 0 <= level < len(levels):
+            raise ScenarioError(f"{src}: grid.axes.level: level {level!r} out of range for {action} on {target} "
+                                f"(0..{len(levels) - 1})")
+        act = {"action": action, "target": list(_need(tspec, "fields", f"{src}: [targets.{target}]", list)),
+               param: levels[level], **aspec.get("extra", {})}
+        trig = triggers[trigger]
+        dur = float(duration)
+        table = {
+            "id": f"{gid}-{action}-{target}-L{level}-d{dur:g}-{trigger}",
+            "injection_point": tspec.get("injection_point", point),
+            "start": trig.get("start", []),
+            "end": [{"condition": "duration", "seconds": dur}, *trig.get("end", [])],
+            "actions": [act],
+        }
+        out.append(scenario_from_dict(table, src, table["id"], f"grid[{table['id']}]"))
+    ids = [s.id for s in out]
+    if len(set(ids)) != len(ids):
+        raise ScenarioError(f"{src}: the grid expands to duplicate ids; make the axes' values distinct")
+    return out
+
+
+def load_any(path: str | Path) -> list[Scenario]:
+    """A scenario file or a grid file, by its top-level table."""
+    path = Path(path)
+    if path.is_file():
+        try:
+            doc = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+        if "grid" in doc:
+            return load_grid(path)
+    from generator.scart.scenario import load_scenarios
+
+    return load_scenarios(path)

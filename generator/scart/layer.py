@@ -1,0 +1,307 @@
+"""The SCART layer: a man-in-the-middle that runs scenarios on every message passing through it.
+
+For each batch of flights the layer holds scenario *groups*: flights whose scenarios differ only
+in numeric parameters run as one group with per-flight parameter arrays. On every call at an
+injection point the layer (1) appends the messages of listened topics to the History (before any
+change), (2) runs each group's callback: the vanilla one starts the attack when all start
+conditions hold and stops it when any end condition holds, (3) applies the active groups' actions.
+It records the attack event log and the windows that become the ``Is_Anomaly`` labels.
+"""
+
+from __future__ import annotations
+
+import importlib
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from generator.link import field_names as builtin_fields
+from generator.noise import NoiseStream
+from generator.scart.actions import ACTIONS, Action
+from generator.scart.conditions import CONDITIONS, Condition
+from generator.scart.history import History
+from generator.scart.scenario import Scenario, point_topics
+from generator.scart.spec import ScenarioError
+
+
+def _stack(items: list[dict]) -> dict:
+    """Per-flight parameter arrays from a list of parameter dicts of one structure."""
+    out = {}
+    for key in items[0]:
+        vals = [it[key] for it in items]
+        if isinstance(vals[0], int | float) and not isinstance(vals[0], bool):
+            out[key] = np.asarray(vals, dtype=float if isinstance(vals[0], float) else np.int64)
+        else:
+            out[key] = vals[0]
+    return out
+
+
+def vanilla_callback(ctx, start: np.ndarray, end: np.ndarray, active: np.ndarray, can_start: np.ndarray
+                     ) -> np.ndarray:
+    """The paper's callback: start when all start conditions hold, stop when any end condition holds."""
+    return np.where(active, ~end, start & can_start)
+
+
+class _Context:
+    """What conditions and actions see for one group at one call."""
+
+    def __init__(self, layer: AttackLayer, group: _Group, t_us: int):
+        self.layer = layer
+        self.group = group
+        self.t_us = t_us
+        self.history = layer.history
+        self.rows = group.rows
+        self.n_batch = layer.n
+        self.start_us = group.start_us
+
+    def fields(self, topic: str) -> tuple[str, ...]:
+        return self.layer.fields(topic)
+
+    def per_batch(self, values, fill) -> np.ndarray:
+        """A per-group parameter spread to the whole batch (other flights get ``fill``)."""
+        full = np.full(self.n_batch, fill, dtype=np.asarray(values).dtype)
+        full[self.rows] = values
+        return full
+
+    def normal(self, action: Action, topic: str, dim: int) -> np.ndarray:
+        return self.group.stream(action, topic, dim).next()
+
+    def scenario_state(self, scenario_id: str) -> dict[str, np.ndarray]:
+        return self.layer.state_of(scenario_id, self.rows)
+
+
+class _Group:
+    """Flights (rows of the batch) that run scenarios of one structure, in one slot."""
+
+    def __init__(self, layer: AttackLayer, slot: int, scenarios: list[Scenario], rows: np.ndarray,
+                 seeds: list[int]):
+        first = scenarios[0]
+        self.layer = layer
+        self.slot = slot
+        self.point = first.injection_point
+        self.kind = first.kind
+        self.ids = [s.id for s in scenarios]
+        self.rows = rows
+        self.seeds = seeds
+        self.max_windows = first.max_windows
+        n = len(rows)
+        key = zlib.crc32(first.structure_key().encode())
+        self._rngs = [np.random.default_rng(np.random.SeedSequence([int(s), slot, key])) for s in seeds]
+        u = np.array([g.uniform(size=len(first.start) + len(first.end) + 1) for g in self._rngs])
+        self.start_conds: list[Condition] = [
+            CONDITIONS[name](_stack([s.start[i][1] for s in scenarios]), u[:, i])
+            for i, (name, _) in enumerate(first.start)]
+        off = len(first.start)
+        self.end_conds: list[Condition] = [
+            CONDITIONS[name](_stack([s.end[i][1] for s in scenarios]), u[:, off + i])
+            for i, (name, _) in enumerate(first.end)]
+        self.actions: list[Action] = []
+        for i, (name, p) in enumerate(first.actions):
+            params = _stack([s.actions[i][1] for s in scenarios])
+            fields, names = {}, {}
+            for t in p["target"]:
+                topic, _, fld = t.partition(".")
+                all_f = layer.fields(topic)
+                names[topic] = all_f
+                sel = fields.setdefault(topic, [])
+                for f in (all_f if not fld else [fld]):
+                    if f not in all_f:
+                        raise ScenarioError(f"{first.source}: action {name!r} target {t!r}: no field {f!r} "
+                                            f"in {topic} ({', '.join(all_f)})")
+                    j = all_f.index(f)
+                    if j not in sel:
+                        sel.append(j)
+            self.actions.append(ACTIONS[name](params, {k: tuple(v) for k, v in fields.items()}, names))
+        self.callback = vanilla_callback
+        if first.callback:
+            mod, _, fn = first.callback.partition(":")
+            try:
+                self.callback = getattr(importlib.import_module(mod), fn)
+            except (ImportError, AttributeError) as exc:
+                raise ScenarioError(f"{first.source}: callback {first.callback!r} cannot be loaded: {exc}") from exc
+        self.listeners = set(first.used_topics())
+        for c in self.start_conds + self.end_conds:
+            self.listeners |= c.topics()
+        self.active = np.zeros(n, dtype=bool)
+        self.start_us = np.full(n, -1, dtype=np.int64)
+        self.end_us = np.full(n, -1, dtype=np.int64)
+        self.windows_used = np.zeros(n, dtype=np.int64)
+        self._streams: dict[tuple[int, str], NoiseStream] = {}
+
+    def stream(self, action: Action, topic: str, dim: int) -> NoiseStream:
+        key = (id(action), topic)
+        if key not in self._streams:
+            self._streams[key] = NoiseStream(self._rngs, dim, chunk=64)
+        return self._streams[key]
+
+    def targets(self) -> set[str]:
+        out = set()
+        for a in self.actions:
+            out |= set(a.fields)
+        return out
+
+    def lookback(self, rates: dict[str, float]) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for a in self.actions:
+            for topic in a.fields:
+                out[topic] = max(out.get(topic, 1), a.lookback(topic, rates.get(topic, 250.0)))
+        return out
+
+    def update(self, t_us: int) -> _Context:
+        """Evaluate the callback; log transitions."""
+        ctx = _Context(self.layer, self, t_us)
+        n = len(self.rows)
+        start = np.ones(n, dtype=bool)
+        for c in self.start_conds:
+            start &= np.asarray(c(ctx), dtype=bool)
+        end = np.zeros(n, dtype=bool)
+        for c in self.end_conds:
+            end |= np.asarray(c(ctx), dtype=bool)
+        can_start = self.windows_used < self.max_windows
+        new_active = np.asarray(self.callback(ctx, start, end, self.active, can_start), dtype=bool)
+        began = new_active & ~self.active
+        ended = self.active & ~new_active
+        if began.any():
+            self.start_us[began] = t_us
+            self.windows_used[began] += 1
+            for r in np.flatnonzero(began):
+                self.layer.log(int(self.rows[r]), t_us, "start", self.ids[r], self.kind)
+        if ended.any():
+            self.end_us[ended] = t_us
+            for r in np.flatnonzero(ended):
+                self.layer.log(int(self.rows[r]), t_us, "end", self.ids[r], self.kind)
+        self.active = new_active
+        ctx.start_us = self.start_us
+        return ctx
+
+
+@dataclass
+class Event:
+    """One entry of the attack event log."""
+
+    flight: int
+    timestamp_us: int
+    event: str
+    scenario_id: str
+    kind: str
+
+
+class AttackLayer:
+    """The layer for a batch: ``scenarios[i]`` is the list of scenarios of flight ``i``."""
+
+    def __init__(self, scenarios: list[list[Scenario]], seeds: list[int],
+                 fields: dict[str, tuple[str, ...]] | None = None, rates: dict[str, float] | None = None):
+        self.n = len(scenarios)
+        self._fields = dict(fields or {})
+        self.events: list[Event] = []
+        self.groups: list[_Group] = []
+        by_key: dict[tuple[int, str], list[int]] = {}
+        for i, lst in enumerate(scenarios):
+            for slot, sc in enumerate(lst):
+                by_key.setdefault((slot, sc.structure_key()), []).append(i)
+        for (slot, _), rows in sorted(by_key.items(), key=lambda kv: (kv[0][0], kv[1][0])):
+            scs = [scenarios[i][slot] for i in rows]
+            self.groups.append(_Group(self, slot, scs, np.asarray(rows), [seeds[i] for i in rows]))
+        self.points = frozenset(g.point for g in self.groups)
+        depths: dict[str, int] = {}
+        for g in self.groups:
+            for topic, d in g.lookback(rates or {}).items():
+                depths[topic] = max(depths.get(topic, 1), d)
+        self.history = History(self.n, depths)
+        self.listened = set().union(*(g.listeners | g.targets() for g in self.groups)) if self.groups else set()
+        # the simulator calls a point when a group acts there or a listener needs its messages
+        self.points = self.points | {p for p in ("link", "sensor", "command") if self.listened & set(point_topics(p))}
+        self.final_us: int | None = None
+
+    def fields(self, topic: str) -> tuple[str, ...]:
+        if topic not in self._fields:
+            self._fields[topic] = builtin_fields(topic)
+        return self._fields[topic]
+
+    def log(self, flight: int, t_us: int, event: str, scenario_id: str, kind: str) -> None:
+        self.events.append(Event(flight, t_us, event, scenario_id, kind))
+
+    def state_of(self, scenario_id: str, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """Active flag and end time of another scenario, for the flights in ``rows``."""
+        active = np.zeros(len(rows), dtype=bool)
+        end = np.full(len(rows), -1, dtype=np.int64)
+        for g in self.groups:
+            pos = {int(r): j for j, r in enumerate(g.rows)}
+            for k, r in enumerate(rows):
+                j = pos.get(int(r))
+                if j is not None and g.ids[j] == scenario_id:
+                    active[k] = g.active[j]
+                    end[k] = g.end_us[j]
+        return {"active": active, "end_us": end}
+
+    # -- the hooks the simulator (or the csv replayer) calls --------------------------------------
+    def on_messages(self, point: str | None, step: int, t_us: int, messages: dict[str, np.ndarray]
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Run the scenarios at ``point`` (None: every scenario, as in csv mode) on this step's messages."""
+        for topic, vals in messages.items():
+            if topic in self.listened:
+                self._fields.setdefault(topic, self.fields(topic))
+                self.history.append(topic, t_us, vals)
+        out = {t: (v, np.ones(self.n, dtype=bool)) for t, v in messages.items()}
+        for g in self.groups:
+            if point is not None and g.point != point:
+                continue
+            ctx = g.update(t_us)
+            for a in g.actions:
+                for topic in a.fields:
+                    if topic not in out:
+                        continue
+                    if not g.active.any() and not a.random:
+                        continue
+                    vals, ok = out[topic]
+                    sub = vals[g.rows].copy()
+                    new, delivered = a.apply(ctx, topic, sub, g.active)
+                    if vals is messages[topic]:
+                        vals = vals.copy()
+                        ok = ok.copy()
+                    vals[g.rows] = new
+                    ok[g.rows] &= delivered
+                    out[topic] = (vals, ok)
+        return out
+
+    def on_physics(self, step: int, t_us: int) -> dict[str, np.ndarray]:
+        return {}
+
+    def on_finish(self, step: int) -> None:
+        self.final_us = None
+
+    # -- labels -----------------------------------------------------------------------------------
+    def windows(self, flight: int, end_us: int) -> list[tuple[int, int]]:
+        """Attack windows [start, end) of one flight, closed at ``end_us`` if still open."""
+        out, open_at = [], {}
+        for e in self.events:
+            if e.flight != flight:
+                continue
+            if e.event == "start":
+                open_at[e.scenario_id] = e.timestamp_us
+            elif e.event == "end" and e.scenario_id in open_at:
+                s = open_at.pop(e.scenario_id)
+                if s < end_us:
+                    out.append((s, min(e.timestamp_us, end_us)))
+        for s in open_at.values():
+            if s < end_us:
+                out.append((s, end_us))
+        return sorted(out)
+
+    def event_log(self, flight: int, end_us: int) -> list[dict]:
+        """The attack event log of one flight (events after the flight ended are dropped)."""
+        rows = []
+        for e in self.events:
+            if e.flight == flight and e.timestamp_us < end_us:
+                rows.append({"timestamp_us": e.timestamp_us, "event": e.event, "scenario_id": e.scenario_id,
+                             "detail": e.kind})
+        balance: dict[str, int] = {}
+        kinds: dict[str, str] = {}
+        for r in rows:
+            balance[r["scenario_id"]] = balance.get(r["scenario_id"], 0) + (1 if r["event"] == "start" else -1)
+            kinds[r["scenario_id"]] = r["detail"]
+        for sid in sorted(k for k, v in balance.items() if v > 0):
+            rows.append({"timestamp_us": end_us, "event": "end", "scenario_id": sid,
+                         "detail": f"{kinds[sid]} (flight ended)"})
+        return rows

@@ -1,0 +1,237 @@
+"""Scenarios: the paper's three lists (listeners, start/end conditions, actions) from TOML files.
+
+```toml
+[scenario]
+id = "gps-spoof"                 # default: the file name
+injection_point = "link"         # link | sensor | command
+listeners = ["local_position_ned"]   # default: every topic the conditions and actions use
+max_windows = 1                  # attack windows per flight (one contiguous window by default)
+kind = "attack"                  # attack | fault (labels)
+callback = "package.module:function"   # optional custom callback
+
+[[scenario.start]]               # all must hold to start
+condition = "time_window"
+start_s = 20.0
+
+[[scenario.end]]                 # any one ends the attack
+condition = "duration"
+seconds = 30.0
+
+[[scenario.actions]]
+action = "gps_spoof"
+target = ["global_position_int", "local_position_ned", "gps_raw_int"]
+rate_deg_s = 2.0
+```
+A file holds one ``[scenario]`` or several ``[[scenario]]`` tables (applied together).
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from generator.link import SENSOR_TOPICS
+from generator.scart.actions import ACTIONS
+from generator.scart.conditions import CONDITIONS
+from generator.scart.spec import ScenarioError, validate_params
+from generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
+
+INJECTION_POINTS = ("link", "sensor", "command")
+KINDS = ("attack", "fault")
+
+
+def point_topics(point: str) -> dict[str, tuple[str, ...]]:
+    """Topics (with their fields) that pass an injection point of the built-in generator."""
+    if point == "link":
+        return {t: TOPICS[t].field_names for t in TELEMETRY_TOPICS}
+    if point == "command":
+        return {t: TOPICS[t].field_names for t in COMMAND_TOPICS}
+    if point == "sensor":
+        return {t: f for t, (_, f) in SENSOR_TOPICS.items()}
+    raise ScenarioError(f"injection_point {point!r}: expected one of {', '.join(INJECTION_POINTS)}")
+
+
+@dataclass
+class Scenario:
+    """A validated scenario. Conditions and actions are (name, params) pairs."""
+
+    id: str
+    injection_point: str = "link"
+    listeners: list[str] = field(default_factory=list)
+    start: list[tuple[str, dict]] = field(default_factory=list)
+    end: list[tuple[str, dict]] = field(default_factory=list)
+    actions: list[tuple[str, dict]] = field(default_factory=list)
+    max_windows: int = 1
+    kind: str = "attack"
+    callback: str | None = None
+    description: str = ""
+    source: str = "<memory>"
+
+    # -- identity ----------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "id": self.id, "injection_point": self.injection_point, "listeners": list(self.listeners),
+            "start": [{"condition": n, **p} for n, p in self.start],
+            "end": [{"condition": n, **p} for n, p in self.end],
+            "actions": [{"action": n, **p} for n, p in self.actions],
+            "max_windows": self.max_windows, "kind": self.kind, "callback": self.callback,
+        }
+
+    def params_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, default=_finite)
+
+    def structure_key(self) -> str:
+        """Everything but the numeric parameters: scenarios with the same key run as one group."""
+        def strip(items):
+            return [(n, {k: v for k, v in p.items() if not isinstance(v, int | float) or isinstance(v, bool)})
+                    for n, p in items]
+        return json.dumps([self.injection_point, sorted(self.listeners), strip(self.start), strip(self.end),
+                           strip(self.actions), self.max_windows, self.kind, self.callback], sort_keys=True,
+                          default=_finite)
+
+    # -- what it touches --------------------------------------------------------------------------
+    def targets(self) -> dict[str, list[str] | None]:
+        """topic -> target fields (None: every field of the topic), over all actions."""
+        out: dict[str, list[str] | None] = {}
+        for _, p in self.actions:
+            for t in p["target"]:
+                topic, _, fld = t.partition(".")
+                if not fld:
+                    out[topic] = None
+                elif out.get(topic, []) is not None:
+                    out.setdefault(topic, []).append(fld)
+        return out
+
+    def used_topics(self) -> set[str]:
+        topics = set(self.listeners) | set(self.targets())
+        for _n, p in self.start + self.end:
+            if isinstance(p.get("topic"), str):
+                topics.add(p["topic"])
+        return topics
+
+    def primary_action(self) -> str:
+        return self.actions[0][0] if self.actions else ""
+
+    def target_label(self) -> str:
+        return ",".join(sorted(self.targets()))
+
+    def validate_topics(self, available: dict[str, tuple[str, ...]], where: str | None = None) -> None:
+        """Check that every topic and field the scenario names exists in ``available``."""
+        where = where or self.source
+        allowed = ", ".join(sorted(available))
+        for i, (_, p) in enumerate(self.actions):
+            for t in p["target"]:
+                topic, _, fld = t.partition(".")
+                if topic not in available:
+                    raise ScenarioError(f"{where}: scenario.actions[{i}].target: unknown topic {topic!r} at "
+                                        f"injection point {self.injection_point!r}; allowed: {allowed}")
+                if fld and fld not in available[topic]:
+                    raise ScenarioError(f"{where}: scenario.actions[{i}].target: unknown field {t!r}; "
+                                        f"{topic} has: {', '.join(available[topic])}")
+        for key, items in (("start", self.start), ("end", self.end)):
+            for i, (_n, p) in enumerate(items):
+                topic = p.get("topic")
+                if isinstance(topic, str) and topic not in available and topic not in TOPICS:
+                    raise ScenarioError(f"{where}: scenario.{key}[{i}].topic: unknown topic {topic!r}; "
+                                        f"allowed: {allowed}")
+
+
+def _finite(obj):
+    raise TypeError(type(obj).__name__)
+
+
+def _items(table: dict, key: str, registry: dict, kind_key: str, where: str, end: bool = False) -> list:
+    raw = table.get(key, [])
+    if isinstance(raw, dict):
+        raw = [raw]
+    if not isinstance(raw, list):
+        raise ScenarioError(f"{where}.{key}: expected a list of tables ([[...{key}]]), got {raw!r}")
+    out = []
+    for i, item in enumerate(raw):
+        w = f"{where}.{key}[{i}]"
+        if not isinstance(item, dict):
+            raise ScenarioError(f"{w}: expected a table, got {item!r}")
+        name = item.get(kind_key)
+        if name not in registry:
+            raise ScenarioError(f"{w}.{kind_key}: unknown {kind_key} {name!r}; allowed: {', '.join(sorted(registry))}")
+        cls = registry[name]
+        if kind_key == "condition" and cls.end_only and not end:
+            raise ScenarioError(f"{w}: condition {name!r} can only end an attack (use it under [[...end]])")
+        out.append((name, validate_params(item, cls.spec, w, kind_key)))
+    return out
+
+
+_SCENARIO_KEYS = ("id", "injection_point", "listeners", "start", "end", "actions", "max_windows", "kind", "callback",
+                  "description")
+
+
+def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = "scenario",
+                       where: str = "scenario", check_topics: bool = True) -> Scenario:
+    """Validate one scenario table (as parsed from TOML)."""
+    loc = f"{source}: {where}"
+    if not isinstance(table, dict):
+        raise ScenarioError(f"{loc}: expected a table")
+    unknown = [k for k in table if k not in _SCENARIO_KEYS]
+    if unknown:
+        raise ScenarioError(f"{loc}: unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(_SCENARIO_KEYS)}")
+    point = table.get("injection_point", "link")
+    if point not in INJECTION_POINTS:
+        raise ScenarioError(f"{loc}.injection_point: {point!r} is not one of {', '.join(INJECTION_POINTS)}")
+    kind = table.get("kind", "attack")
+    if kind not in KINDS:
+        raise ScenarioError(f"{loc}.kind: {kind!r} is not one of {', '.join(KINDS)}")
+    max_windows = table.get("max_windows", 1)
+    if isinstance(max_windows, bool) or not isinstance(max_windows, int) or max_windows < 1:
+        raise ScenarioError(f"{loc}.max_windows: expected an integer >= 1, got {max_windows!r}")
+    sid = table.get("id", default_id)
+    if not isinstance(sid, str) or not sid:
+        raise ScenarioError(f"{loc}.id: expected a non-empty string, got {sid!r}")
+    listeners = table.get("listeners", [])
+    if isinstance(listeners, str):
+        listeners = [listeners]
+    if not isinstance(listeners, list) or not all(isinstance(x, str) for x in listeners):
+        raise ScenarioError(f"{loc}.listeners: expected a list of topic names, got {listeners!r}")
+    callback = table.get("callback")
+    if callback is not None and (not isinstance(callback, str) or ":" not in callback):
+        raise ScenarioError(f"{loc}.callback: expected 'module:function', got {callback!r}")
+    start = _items(table, "start", CONDITIONS, "condition", loc)
+    end = _items(table, "end", CONDITIONS, "condition", loc, end=True)
+    actions = _items(table, "actions", ACTIONS, "action", loc)
+    if not actions:
+        raise ScenarioError(f"{loc}.actions: a scenario needs at least one [[scenario.actions]] table; "
+                            f"allowed actions: {', '.join(sorted(ACTIONS))}")
+    sc = Scenario(id=sid, injection_point=point, listeners=list(listeners), start=start, end=end,
+                  actions=actions, max_windows=max_windows, kind=kind, callback=callback,
+                  description=str(table.get("description", "")), source=source)
+    if check_topics:
+        sc.validate_topics(point_topics(point), where=source)
+    return sc
+
+
+def load_scenarios(path: str | Path, check_topics: bool = True) -> list[Scenario]:
+    """Read and validate a scenario file (one [scenario] or several [[scenario]])."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: no such scenario file")
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    if "scenario" not in doc:
+        raise ScenarioError(f"{path}: expected a [scenario] table (or [[scenario]] tables); found keys: "
+                            f"{', '.join(doc) or '(none)'}")
+    extra = [k for k in doc if k != "scenario"]
+    if extra:
+        raise ScenarioError(f"{path}: unknown top-level key(s) {', '.join(map(repr, extra))}; allowed: 'scenario'")
+    tables = doc["scenario"] if isinstance(doc["scenario"], list) else [doc["scenario"]]
+    out = []
+    for i, t in enumerate(tables):
+        where = "scenario" if len(tables) == 1 else f"scenario[{i}]"
+        default_id = path.stem if len(tables) == 1 else f"{path.stem}-{i}"
+        out.append(scenario_from_dict(t, str(path), default_id, where, check_topics))
+    ids = [s.id for s in out]
+    if len(set(ids)) != len(ids):
+        raise ScenarioError(f"{path}: scenario ids must be unique, got {ids}")
+    return out

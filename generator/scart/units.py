@@ -1,0 +1,88 @@
+"""Converting attack magnitudes given in physical units (m, m/s, rad, ...) into a field's unit.
+
+A field's quantity comes from generator.topics for the project's own topics and is guessed
+from the field name for imported logs (PX4 uORB names); a scenario may override it.
+"""
+
+from __future__ import annotations
+
+import re
+
+from generator.geo import metres_per_degree
+from generator.topics import TOPICS
+
+M_PER_DEG_LAT, M_PER_DEG_LON = metres_per_degree()
+#: hPa per metre of altitude near the home altitude (ISA: rho * g)
+HPA_PER_M = 0.1127
+
+#: quantity -> (field units per physical unit, horizontal axis "n"/"e" or "", sign for "up")
+_QUANTITY = {
+    "latitude": (1.0 / M_PER_DEG_LAT, "n", 1.0),
+    "longitude": (1.0 / M_PER_DEG_LON, "e", 1.0),
+    "position_n": (1.0, "n", 1.0),
+    "position_e": (1.0, "e", 1.0),
+    "velocity_n": (1.0, "n", 1.0),
+    "velocity_e": (1.0, "e", 1.0),
+    "position_up": (1.0, "", 1.0),
+    "position_d": (1.0, "", -1.0),
+    "velocity_d": (1.0, "", -1.0),
+    "pressure": (HPA_PER_M, "", -1.0),
+}
+
+_GUESSES = [
+    (r"^(lat|latitude|latitude_deg)$", "latitude"),
+    (r"^(lon|longitude|longitude_deg)$", "longitude"),
+    (r"^(x|north|pos_n)$", "position_n"),
+    (r"^(y|east|pos_e)$", "position_e"),
+    (r"^(z|down|pos_d)$", "position_d"),
+    (r"^(vx|vn|vel_n_m_s|vel_n)$", "velocity_n"),
+    (r"^(vy|ve|vel_e_m_s|vel_e)$", "velocity_e"),
+    (r"^(vz|vd|vel_d_m_s|vel_d)$", "velocity_d"),
+    (r"^(alt|altitude.*|relative_alt|alt_ellipsoid|pressure_alt|baro_alt_meter)$", "position_up"),
+]
+
+
+def quantity(topic: str, field: str) -> str:
+    """The physical quantity of ``topic.field`` (see generator.topics.Field.quantity)."""
+    t = TOPICS.get(topic)
+    if t is not None and field in t.field_names:
+        return t.fields[t.field_names.index(field)].quantity
+    for pattern, q in _GUESSES:
+        if re.match(pattern, field):
+            return q
+    return "other"
+
+
+def scale(topic: str, field: str) -> float:
+    """Field units per physical unit, direction-free (for noise and ranges)."""
+    return _QUANTITY.get(quantity(topic, field), (1.0, "", 1.0))[0]
+
+
+def axis(topic: str, field: str) -> str:
+    """Horizontal axis of a position/velocity field: "n", "e" or ""."""
+    return _QUANTITY.get(quantity(topic, field), (1.0, "", 1.0))[1]
+
+
+def is_position(topic: str, field: str) -> bool:
+    return quantity(topic, field) in ("latitude", "longitude", "position_n", "position_e", "position_up",
+                                      "position_d")
+
+
+def is_velocity(topic: str, field: str) -> bool:
+    return quantity(topic, field).startswith("velocity")
+
+
+def signed(topic: str, field: str, direction: float) -> float:
+    """Field units per physical unit for a displacement along heading ``direction`` (rad).
+
+    Horizontal fields take the north or east component; vertical fields take an upward
+    displacement (so ``z`` and pressure move the other way); other fields take it as is.
+    """
+    unit, ax, sign = _QUANTITY.get(quantity(topic, field), (1.0, "", 1.0))
+    import math
+
+    if ax == "n":
+        return unit * math.cos(direction)
+    if ax == "e":
+        return unit * math.sin(direction)
+    return unit * sign
