@@ -55,6 +55,8 @@ class EstimatorState:
     baro_rejected: np.ndarray
     baro_offset: np.ndarray  # (N,) baro altitude of home (m AMSL), set at the first baro sample
     inertial_only_s: np.ndarray  # (N,) seconds since the last accepted horizontal aiding
+    since_pos_fusion_s: np.ndarray  # (N,) seconds since the last accepted GPS position
+    gps_resets: np.ndarray  # (N,) horizontal position resets to GPS
 
 
 class Estimator:
@@ -78,7 +80,7 @@ class Estimator:
             history=np.zeros((self.delay, n, 6)), rates=np.zeros((n, 3)), accel_ned=np.zeros((n, 3)),
             gps_pos_rejected=np.zeros(n, dtype=np.int64), gps_vel_rejected=np.zeros(n, dtype=np.int64),
             baro_rejected=np.zeros(n, dtype=np.int64), baro_offset=np.full(n, np.nan),
-            inertial_only_s=np.zeros(n),
+            inertial_only_s=np.zeros(n), since_pos_fusion_s=np.zeros(n), gps_resets=np.zeros(n, dtype=np.int64),
         )
 
     def predict(self, s: EstimatorState, step: int, accel: np.ndarray, gyro: np.ndarray,
@@ -111,6 +113,7 @@ class Estimator:
         s.history[slot, :, :3] = x[:, :, 0]
         s.history[slot, :, 3:] = x[:, :, 1]
         s.inertial_only_s += dt
+        s.since_pos_fusion_s += dt
         return R
 
     def fuse_mag(self, s: EstimatorState, mag: np.ndarray) -> None:
@@ -158,6 +161,17 @@ class Estimator:
         iv = iv * vel_ok[:, None]
         s.x[:, :2, :] += ip[:, :, None] * K[:, 0][None, None, :] + iv[:, :, None] * K[:, 1][None, None, :]
         s.inertial_only_s[pos_ok | vel_ok] = 0.0
+        s.since_pos_fusion_s[pos_ok] = 0.0
+        # EKF2: reset the horizontal position to GPS when it has not been fused for 2 x
+        # EKF2_RESET_TIMEOUT_MAX (7 s), or when no horizontal aiding was fused for 7 s
+        reset = (s.since_pos_fusion_s > 2 * p.reset_timeout_s) | (s.inertial_only_s > p.reset_timeout_s)
+        if reset.any():
+            s.x[reset, :2, 0] = pos[reset, :2]
+            s.x[reset, :2, 1] = np.where((s.inertial_only_s[reset] > p.reset_timeout_s)[:, None],
+                                         vel[reset, :2], s.x[reset, :2, 1])
+            s.since_pos_fusion_s[reset] = 0.0
+            s.inertial_only_s[reset] = 0.0
+            s.gps_resets += reset
         # vertical velocity
         Hv = np.array([[0.0, 1.0, 0.0]])
         Kv, _ = self.kf_v.update(Hv, np.array([[p.gps_vel_noise**2]]))

@@ -76,27 +76,24 @@ def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = N
     frames = []
     for name, df in topics.items():
         cols = [c for c in df.columns if c not in ("Timestamp", "Is_Anomaly")]
-        part = df[["Timestamp", *cols]].rename(columns={c: f"{name}.{c}" for c in cols})
-        frames.append((name, part.drop_duplicates("Timestamp", keep="last")))
+        part = df[["Timestamp", *cols]].drop_duplicates("Timestamp", keep="last").sort_values("Timestamp")
+        part = part.set_index("Timestamp").rename(columns={c: f"{name}.{c}" for c in cols})
+        frames.append((name, part))
     if not frames:
         raise DatasetError("cannot combine a flight with no topics")
-    times = np.unique(np.concatenate([p["Timestamp"].to_numpy(np.int64) for _, p in frames]))
-    all_sensors = pd.DataFrame({"Timestamp": times})
-    for _, part in frames:
-        all_sensors = all_sensors.merge(part, on="Timestamp", how="left")
+    all_sensors = pd.concat([p for _, p in frames], axis=1, join="outer").sort_index()
+    all_sensors.index.name = "Timestamp"
+    all_sensors = all_sensors.reset_index()
     if base_topic is None:
         base_topic = max(frames, key=lambda item: len(item[1]))[0]
-    base = pd.DataFrame({"Timestamp": topics[base_topic]["Timestamp"].to_numpy(np.int64)})
-    base = base.drop_duplicates().sort_values("Timestamp", kind="stable").reset_index(drop=True)
-    most = base
-    for _, part in frames:
-        most = pd.merge_asof(most, part.sort_values("Timestamp"), on="Timestamp", direction="backward")
+    base = pd.Index(np.unique(topics[base_topic]["Timestamp"].to_numpy(np.int64)), name="Timestamp")
+    most = pd.concat([p.reindex(base, method="ffill") for _, p in frames], axis=1).reset_index()
     out = {}
     for key, table in (("all_sensors", all_sensors), ("most_frequent", most)):
         ts = table["Timestamp"].to_numpy(np.int64)
-        table.insert(0, "Index", np.arange(len(table), dtype=np.int64))
-        table.insert(2, "Is_Anomaly", label_rows(ts, windows))
-        out[key] = table.reset_index(drop=True)
+        lead = pd.DataFrame({"Index": np.arange(len(table), dtype=np.int64), "Timestamp": ts,
+                             "Is_Anomaly": label_rows(ts, windows)})
+        out[key] = pd.concat([lead, table.drop(columns=["Timestamp"])], axis=1)
     return out
 
 

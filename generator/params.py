@@ -97,6 +97,7 @@ class ControllerParams:
 class EstimatorParams:
     """EKF2-like position/velocity filter and complementary attitude filter."""
 
+    reset_timeout_s: float = 7.0  # EKF2_RESET_TIMEOUT_MAX, s
     gate_sigma: float = 5.0  # EKF2_GPS_P_GATE / EKF2_GPS_V_GATE / EKF2_BARO_GATE
     accel_process_noise: float = 0.35  # m/s^2/sqrt(Hz), includes model error
     bias_process_noise: float = 0.003  # m/s^3/sqrt(Hz)

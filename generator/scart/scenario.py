@@ -120,7 +120,8 @@ class Scenario:
     def validate_topics(self, available: dict[str, tuple[str, ...]], where: str | None = None) -> None:
         """Check that every topic and field the scenario names exists in ``available``."""
         where = where or self.source
-        allowed = ", ".join(sorted(available))
+        names = sorted(available)
+        allowed = ", ".join(names[:40]) + (f", ... ({len(names)} topics)" if len(names) > 40 else "")
         for i, (_, p) in enumerate(self.actions):
             for t in p["target"]:
                 topic, _, fld = t.partition(".")

@@ -1,0 +1,73 @@
+"""``scart-bench generate`` and ``scart-bench attack``: datasets of normal and attacked flights."""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+from benchmark.errors import UsageError
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from generator.generate import PROFILES, generate_dataset
+
+    if args.profile not in PROFILES:
+        raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
+    if args.flights is not None and args.flights < 1:
+        raise UsageError(f"--flights must be at least 1, got {args.flights}")
+    out = Path(args.out)
+    existed = out.exists()
+    try:
+        generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
+                         overwrite=args.overwrite, with_attacks=not args.normal_only, log=_log)
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
+        raise
+    print(f"dataset written to {out}")
+    return 0
+
+
+def cmd_attack(args: argparse.Namespace) -> int:
+    from generator.offline import attack_file
+
+    out = Path(args.out)
+    existed = out.exists()
+    try:
+        attack_file(args.input, args.scenario, out, fmt=args.format, seed=args.seed, overwrite=args.overwrite,
+                    topics=args.topics.split(",") if args.topics else None)
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    print(f"attacked copy written to {out}")
+    return 0
+
+
+def register(sub) -> None:
+    g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
+    g.add_argument("--profile", default="quick", help="quick | standard | paper (flight counts and attack grid)")
+    g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    g.add_argument("--flights", type=int, default=None, help="number of normal flights (default: the profile's)")
+    g.add_argument("--normal-only", action="store_true", help="only normal flights, no attacks")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
+    g.set_defaults(func=cmd_generate)
+
+    a = sub.add_parser("attack", help="csv mode on your own log: inject a scenario into a recorded flight")
+    a.add_argument("--input", required=True, help="a CSV with a timestamp column, a PX4 ULog, a Parquet file "
+                   "or a dataset flight folder")
+    a.add_argument("--scenario", required=True, help="a scenario file or a grid file (TOML)")
+    a.add_argument("--out", required=True, help="output dataset folder")
+    a.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--topics", default=None, help="comma-separated topics to load from the input (default: all)")
+    a.add_argument("--overwrite", action="store_true")
+    a.set_defaults(func=cmd_attack)

@@ -1,0 +1,63 @@
+"""csv mode on a user's own data: attack a recorded flight file and write a labelled dataset."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from generator.dataset import DatasetWriter, FlightRecord, check_output_dir
+from generator.importers import load_flight_file
+from generator.modes import csv_mode, scenario_manifest, with_labels
+from generator.scart.grid import load_any
+
+
+def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",
+                seed: int = 0, overwrite: bool = False, topics: list[str] | None = None) -> Path:
+    """Replay ``input_path`` (CSV, ULog, Parquet or a dataset flight folder) through the scenario(s).
+
+    A scenario file's scenarios are applied together to one attacked copy; a grid file gives one
+    attacked copy per configuration. Everything is validated before anything is written.
+    """
+    input_path, out = Path(input_path), Path(out)
+    check_output_dir(out, overwrite=overwrite)
+    scenario_doc = Path(scenario_path)
+    scenarios = load_any_unchecked(scenario_doc)
+    needed = set()
+    for sc in scenarios:
+        needed |= sc.used_topics()
+    tables = load_flight_file(input_path, topics=topics)
+    available = {t: tuple(c for c in df.columns if c not in ("Timestamp", "Is_Anomaly")) for t, df in tables.items()}
+    for sc in scenarios:
+        sc.validate_topics(available)
+    is_grid = _is_grid(scenario_doc)
+    jobs = [[sc] for sc in scenarios] if is_grid else [scenarios]
+    results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
+    writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
+                           info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_doc)})
+    last = max(int(df["Timestamp"].iloc[-1]) for df in tables.values() if len(df))
+    for job, (nav, windows, events) in zip(jobs, results):
+        flight_id = "csv-" + "+".join(s.id for s in job)
+        manifest = scenario_manifest(job, "csv", seed, source=str(input_path))
+        manifest["duration_s"] = (last + 1) / 1e6
+        config = {"mode": "csv", "input": str(input_path), "seed": seed, "scenarios": [s.to_dict() for s in job],
+                  "input_origin_us": {t: df.attrs.get("origin_us") for t, df in tables.items()}}
+        writer.write(FlightRecord(flight_id=flight_id, navigator=nav, simulator=with_labels(tables, windows),
+                                  manifest=manifest, config=json.loads(json.dumps(config, default=str)),
+                                  windows=windows, events=events))
+    writer.close()
+    return out
+
+
+def _is_grid(path: Path) -> bool:
+    import tomllib
+
+    return "grid" in tomllib.loads(path.read_text())
+
+
+def load_any_unchecked(path: Path):
+    """Scenarios from a scenario or grid file, topics checked later against the input's."""
+    from generator.scart.scenario import load_scenarios
+
+    if path.is_file() and _is_grid(path):
+        return load_any(path)
+    return load_scenarios(path, check_topics=False)
