@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -127,8 +128,11 @@ def check_output_dir(out: Path, overwrite: bool = False) -> None:
     parent = out if out.exists() else out.parent
     while not parent.exists():
         parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise DatasetError(f"{out}: folder {parent} is not writable")
+    try:  # a real write: os.access says yes to root even where nothing can be written
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as exc:
+        raise DatasetError(f"{out}: folder {parent} is not writable ({exc.strerror})") from exc
 
 
 def is_dataset(path: Path) -> bool:
