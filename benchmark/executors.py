@@ -1,0 +1,292 @@
+"""How jobs run: each job in its own worker process, locally or on dask workers.
+
+A job always runs in a fresh ``python -m benchmark.executors SPEC RESULT`` process (its own
+session, so it can be killed with everything it started). Why a subprocess rather than a
+``ProcessPoolExecutor``: a pool cannot kill one hanging task, and dask worker processes are
+daemonic (``multiprocessing`` refuses to start children there) while ``subprocess`` works in both.
+
+- ``local``: up to ``--jobs`` worker processes at once; a worker past ``--timeout`` is killed
+  (SIGKILL to its process group) and the job becomes TIMEOUT. The timeout counts from the moment
+  the worker has started Python and imported the benchmark (at most ``STARTUP_GRACE_S`` later).
+- ``dask``: one dask task per job, each running the same isolated worker process on a dask worker
+  (``dask.distributed.Client(ADDRESS)``, or a ``LocalCluster`` with ``--jobs`` single-threaded
+  worker processes). The scheduler must see the dataset path.
+
+Workers get the same thread limits and hash seed everywhere, so both executors give identical
+scores. A worker whose parent dies exits by itself.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from benchmark.errors import UsageError
+
+#: Seconds allowed to connect to a dask scheduler.
+CONNECT_TIMEOUT_S = 5.0
+#: Seconds a worker may take to start Python and import the benchmark before its job begins; the
+#: job's own ``--timeout`` is counted from then, so a loaded machine does not time out fast jobs.
+STARTUP_GRACE_S = 120.0
+#: Largest part of a worker's log kept in the run folder.
+LOG_LIMIT = 256 * 1024
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS",
+                "VECLIB_MAXIMUM_THREADS")
+
+OnDone = Callable[[object, object], None]
+
+
+@dataclass
+class _Worker:
+    spec: object
+    proc: subprocess.Popen
+    folder: Path
+    log: object
+    started: float
+    timeout: float
+    job_started: float | None = None
+
+    def expired(self) -> bool:
+        """True when the job has run past its timeout (counted from the worker's start marker)."""
+        now = time.monotonic()
+        if self.job_started is None and (self.folder / "started").exists():
+            self.job_started = now
+        if self.job_started is None:
+            return now > self.started + self.timeout + STARTUP_GRACE_S
+        return now > self.job_started + self.timeout
+
+
+def _launch(spec, timeout: float) -> _Worker:
+    folder = Path(tempfile.mkdtemp(prefix="scart-job-"))
+    (folder / "spec.pkl").write_bytes(pickle.dumps(spec))
+    env = dict(os.environ)
+    env.update(dict.fromkeys(_THREAD_VARS, str(spec.threads)))
+    env["PYTHONHASHSEED"] = "0"
+    log = open(folder / "log.txt", "wb")  # closed by _read_log
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "benchmark.executors", str(folder / "spec.pkl"), str(folder / "result.pkl")],
+        stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+    )
+    return _Worker(spec, proc, folder, log, time.monotonic(), timeout)
+
+
+def _kill(w: _Worker) -> None:
+    try:
+        os.killpg(w.proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+    w.proc.wait()
+
+
+def _read_log(w: _Worker) -> str:
+    w.log.close()
+    data = (w.folder / "log.txt").read_bytes()
+    if len(data) > LOG_LIMIT:
+        data = b"[... log truncated ...]\n" + data[-LOG_LIMIT:]
+    return data.decode("utf-8", errors="replace")
+
+
+def _collect(w: _Worker, timed_out: bool = False, timeout: float = 0.0):
+    """The JobResult of a finished or killed worker; removes its temp folder."""
+    from benchmark.runner import JobResult
+
+    try:
+        log = _read_log(w)
+        result_path = w.folder / "result.pkl"
+        if timed_out:
+            res = JobResult("TIMEOUT", f"exceeded the {timeout:g} s timeout; the worker process was killed")
+        elif result_path.exists():
+            res = pickle.loads(result_path.read_bytes())
+        else:
+            rc = w.proc.returncode
+            why = f"killed by signal {-rc}" if rc is not None and rc < 0 else f"exit code {rc}"
+            res = JobResult("ERROR", f"the worker process ended without a result ({why}; see log.txt)")
+        res.log = log
+        res.wall_seconds = time.monotonic() - w.started
+        return res
+    finally:
+        shutil.rmtree(w.folder, ignore_errors=True)
+
+
+def run_isolated(spec, timeout: float):
+    """Run one job in its own worker process and wait (at most ``timeout`` s); used by dask tasks."""
+    w = _launch(spec, timeout)
+    try:
+        while w.proc.poll() is None:
+            if w.expired():
+                _kill(w)
+                return _collect(w, timed_out=True, timeout=timeout)
+            time.sleep(0.1)
+        return _collect(w)
+    except BaseException:
+        _kill(w)
+        shutil.rmtree(w.folder, ignore_errors=True)
+        raise
+
+
+class LocalExecutor:
+    """Up to ``jobs`` worker processes on this machine."""
+
+    def __init__(self, jobs: int = 1):
+        self.jobs = max(1, int(jobs))
+
+    def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
+        pending, running = deque(specs), []
+        try:
+            while pending or running:
+                while pending and len(running) < self.jobs:
+                    running.append(_launch(pending.popleft(), timeout))
+                time.sleep(0.05)
+                for w in list(running):
+                    if w.proc.poll() is not None:
+                        running.remove(w)
+                        on_done(w.spec, _collect(w))
+                    elif w.expired():
+                        _kill(w)
+                        running.remove(w)
+                        on_done(w.spec, _collect(w, timed_out=True, timeout=timeout))
+        finally:
+            for w in running:  # interrupted: no unfinished job leaves a process or a status
+                _kill(w)
+                w.log.close()
+                shutil.rmtree(w.folder, ignore_errors=True)
+
+    def close(self) -> None:
+        pass
+
+
+class DaskExecutor:
+    """One dask task per job; each task runs the job in an isolated worker process."""
+
+    def __init__(self, scheduler: str | None = None, jobs: int = 1, connect_timeout: float = CONNECT_TIMEOUT_S):
+        import logging
+
+        from distributed import Client, LocalCluster
+
+        self.cluster = None
+        if scheduler:
+            try:
+                self.client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
+            except Exception as exc:
+                raise UsageError(f"--scheduler {scheduler}: cannot reach a dask scheduler there within "
+                                 f"{connect_timeout:g} s ({type(exc).__name__}: {exc}); expected the address "
+                                 "of a running scheduler such as tcp://host:8786, or no --scheduler for a "
+                                 "local cluster") from None
+        else:
+            self.cluster = LocalCluster(n_workers=max(1, int(jobs)), threads_per_worker=1, processes=True,
+                                        dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
+            self.client = Client(self.cluster, set_as_default=False)
+
+    def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
+        import uuid
+
+        from distributed import as_completed
+
+        from benchmark.runner import JobResult
+
+        futures = {self.client.submit(run_isolated, spec, timeout, pure=False,
+                                      key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}"): spec
+                   for spec in specs}
+        try:
+            for fut in as_completed(futures, loop=self.client.loop):
+                spec = futures[fut]
+                try:
+                    res = fut.result()
+                except Exception as exc:
+                    res = JobResult("ERROR", f"the dask task failed: {type(exc).__name__}: {exc}")
+                on_done(spec, res)
+        finally:
+            for fut in futures:
+                fut.cancel()
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def make_executor(kind: str, scheduler: str | None = None, jobs: int = 1):
+    """A LocalExecutor or a connected DaskExecutor (UsageError when the scheduler is unreachable)."""
+    if kind == "local":
+        return LocalExecutor(jobs)
+    if kind == "dask":
+        return DaskExecutor(scheduler, jobs)
+    raise UsageError(f"--executor {kind!r}: expected local or dask")
+
+
+class Progress:
+    """A tqdm bar over jobs on a terminal; plain lines when stderr is not a TTY."""
+
+    def __init__(self, total: int, enabled: bool = True):
+        self.total, self.count, self.enabled = total, 0, enabled
+        self.bar = None
+        if enabled and total and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, unit="job", desc="jobs", file=sys.stderr)
+
+    def note(self, line: str) -> None:
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr, flush=True)
+
+    def done(self, name: str, res) -> None:
+        self.count += 1
+        detail = f"fit {res.fit_seconds:.1f} s, score {res.score_seconds:.1f} s" if res.status == "OK" else res.message
+        line = f"[{self.count}/{self.total}] {name}: {res.status} ({detail})"
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix_str(f"{name} {res.status}")
+            if res.status != "OK":
+                self.bar.write(line, file=sys.stderr)
+        else:
+            self.note(line)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _watch_parent() -> None:
+    """Exit when the launching process dies (so an orphaned job never runs on)."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(1.0)
+            if os.getppid() != parent:
+                os._exit(3)
+
+    threading.Thread(target=watch, daemon=True, name="parent-watch").start()
+
+
+def _worker_main(argv: list[str]) -> int:
+    spec_path, result_path = argv
+    _watch_parent()
+    spec = pickle.loads(Path(spec_path).read_bytes())
+    from benchmark.runner import run_job
+
+    Path(spec_path).with_name("started").touch()  # the job's timeout counts from here
+    res = run_job(spec)
+    tmp = Path(result_path + ".tmp")
+    tmp.write_bytes(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+    os.replace(tmp, result_path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_worker_main(sys.argv[1:]))

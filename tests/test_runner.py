@@ -1,0 +1,338 @@
+"""The benchmark run end to end on a small synthetic dataset with cheap plugin detectors."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from run_fixtures import ATTACKS, plugin, write_dataset
+from sklearn.metrics import roc_auc_score
+
+from benchmark.cli import main
+from benchmark.scoring import TIMING_COLUMNS
+from benchmark.store import RunStore, read_npz
+
+ZS, DIFF = plugin("ZScore"), plugin("Diff")
+OK_PAIR = ["--detectors", "zscore_test,diff_test", "--plugin", ZS, "--plugin", DIFF]
+
+
+@pytest.fixture(scope="session")
+def dataset(tmp_path_factory) -> Path:
+    return write_dataset(tmp_path_factory.mktemp("data") / "ds")
+
+
+@pytest.fixture(scope="session")
+def reference_run(dataset, tmp_path_factory) -> Path:
+    """An uninterrupted local run of the two working test detectors."""
+    out = tmp_path_factory.mktemp("runs") / "reference"
+    assert main(["run", *OK_PAIR, "--dataset", str(dataset), "--out", str(out), "--jobs", "2"]) == 0
+    return out
+
+
+def quality(run: Path) -> pd.DataFrame:
+    """metrics.csv without the timing columns (those differ between any two runs)."""
+    m = pd.read_csv(run / "metrics.csv")
+    return m.drop(columns=[c for c in (*TIMING_COLUMNS, "rows") if c in m.columns]).set_index("detector")
+
+
+def snapshot(folder: Path) -> dict[str, tuple[str, int]]:
+    """Content hash and mtime of every file under a folder."""
+    return {str(p.relative_to(folder)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+# -- a full run -------------------------------------------------------------------------------
+
+
+def test_run_folder_layout(reference_run, dataset):
+    names = {str(p.relative_to(reference_run)) for p in reference_run.rglob("*") if p.is_file()}
+    expected = {"config.json", "flights.csv", "truth.parquet", "results.csv", "metrics.csv", "metrics.md",
+                "breakdown.csv", "flight_scores.csv"}
+    for det in ("zscore_test", "diff_test"):
+        expected |= {f"jobs/{det}/{f}" for f in ("status.json", "params.json", "scores.npz", "log.txt")}
+    assert names == expected  # and no temp file left behind
+
+    config = json.loads((reference_run / "config.json").read_text())
+    assert config["seed"] == 0 and config["identity"]["seed"] == 0
+    assert config["dataset"]["path"] == str(dataset.resolve())
+    assert config["dataset"]["info"]["profile"] == "test"
+    assert config["dataset"]["flights"] == {"train": 4, "validation": 3, "test_normal": 3, "test_attacked": 6}
+    assert config["versions"]["numpy"] == np.__version__
+    assert "git" in config and config["detectors"] == ["zscore_test", "diff_test"]
+    assert config["jobs"]["zscore_test"]["params"]["random_state"] == 0
+
+    status = json.loads((reference_run / "jobs/zscore_test/status.json").read_text())
+    assert status["status"] == "OK" and status["rows_scored"] == 12 * 1000
+    assert status["n_train_flights"] == 4 and status["n_scored_flights"] == 12
+    scores = read_npz(reference_run / "jobs/zscore_test/scores.npz")
+    assert len(scores) == 12 and all(s.dtype == np.float64 and s.shape == (1000,) for s in scores.values())
+
+    metrics = pd.read_csv(reference_run / "metrics.csv")
+    assert metrics.columns.tolist() == [
+        "detector", "status", "message", "tp_simulation", "tp_csv", "tn_no_attack", "n_simulation", "n_csv",
+        "n_no_attack", "roc_auc", "roc_auc_simulation", "roc_auc_csv", "point_precision", "point_recall",
+        "point_f1", "range_precision", "range_recall", "range_f1", "delay_median_s", "delay_p90_s", "n_delay",
+        "false_alarms_per_hour", "normal_test_hours", "latency_us_per_row", "flight_threshold", "row_threshold",
+        "fit_s", "score_s", "rows"]
+
+    results = pd.read_csv(reference_run / "results.csv")
+    assert results["detector"].tolist() == ["zscore_test", "diff_test"]
+    assert (results["status"] == "OK").all() and (results["rows"] == 12000).all()
+
+
+def test_metrics_of_the_reference_run(reference_run):
+    m = pd.read_csv(reference_run / "metrics.csv").set_index("detector")
+    z = m.loc["zscore_test"]
+    # two of three attacks per mode are large; the third is far below the noise
+    assert (z["tp_simulation"], z["tp_csv"], z["tn_no_attack"]) == (2 / 3, 2 / 3, 1.0)
+    assert (z["n_simulation"], z["n_csv"], z["n_no_attack"]) == (3, 3, 3)
+    assert z["delay_median_s"] == pytest.approx(0.0)
+    assert z["false_alarms_per_hour"] == 0.0 and z["latency_us_per_row"] > 0
+
+    fs = pd.read_csv(reference_run / "flight_scores.csv")
+    for det in ("zscore_test", "diff_test"):
+        test = fs[(fs["detector"] == det) & fs["role"].isin(["test_normal", "test_attacked"])]
+        y = (test["role"] == "test_attacked").astype(int)
+        assert m.loc[det, "roc_auc"] == pytest.approx(roc_auc_score(y, test["score"]))
+        flagged = test[test["role"] == "test_attacked"].set_index("flight_id")["flagged"]
+        assert flagged.loc[[a[0] for a in ATTACKS if a[4] < 0.1]].sum() == 0  # the invisible ones
+
+    bd = pd.read_csv(reference_run / "breakdown.csv")
+    row = bd[(bd["detector"] == "zscore_test") & (bd["dimension"] == "action") & (bd["value"] == "bias")
+             & (bd["mode"] == "all")].iloc[0]
+    assert (row["n"], row["detected"]) == (4, 3)
+
+    md = (reference_run / "metrics.md").read_text()
+    assert "| zscore_test | 66.7% | 66.7% | 100.0% |" in md
+
+
+def test_score_recomputes_from_saved_scores(reference_run, tmp_path, capsys):
+    run = tmp_path / "copy"
+    shutil.copytree(reference_run, run)
+    for name in ("metrics.csv", "metrics.md", "breakdown.csv", "flight_scores.csv", "results.csv"):
+        (run / name).unlink()
+    assert main(["score", str(run)]) == 0
+    pd.testing.assert_frame_equal(pd.read_csv(run / "metrics.csv"), pd.read_csv(reference_run / "metrics.csv"))
+    pd.testing.assert_frame_equal(pd.read_csv(run / "breakdown.csv"), pd.read_csv(reference_run / "breakdown.csv"))
+    out = capsys.readouterr().out
+    assert out.splitlines()[0].startswith("| Detector | TP Simulation | TP CSV | TN No Attack | ROC-AUC")
+
+
+def test_saved_nan_scores_make_the_job_an_error(reference_run, tmp_path):
+    from benchmark.store import atomic_write_bytes, npz_bytes
+
+    run = tmp_path / "copy"
+    shutil.copytree(reference_run, run)
+    scores = read_npz(run / "jobs/diff_test/scores.npz")
+    scores["sim-000"][5] = np.nan
+    atomic_write_bytes(run / "jobs/diff_test/scores.npz", npz_bytes(scores))
+    assert main(["score", str(run)]) == 0
+    m = pd.read_csv(run / "metrics.csv").set_index("detector")
+    assert m.loc["diff_test", "status"] == "ERROR" and "NaN" in m.loc["diff_test", "message"]
+    assert np.isnan(m.loc["diff_test", "tp_simulation"])
+    assert m.loc["zscore_test", "status"] == "OK"
+
+
+# -- isolation --------------------------------------------------------------------------------
+
+
+def test_failing_detectors_become_status_rows(dataset, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SCART_TEST_PID_DIR", str(tmp_path))
+    out = tmp_path / "run"
+    t0 = time.monotonic()
+    rc = main(["run", "--detectors", "zscore_test,fail_fit_test,nan_score_test,hang_test",
+               *(x for c in ("ZScore", "FailFit", "NaNScore", "Hang") for x in ("--plugin", plugin(c))),
+               "--dataset", str(dataset), "--out", str(out), "--jobs", "2", "--timeout", "5"])
+    assert rc == 0
+    assert time.monotonic() - t0 < 60
+    res = pd.read_csv(out / "results.csv").set_index("detector")
+    assert res["status"].to_dict() == {"zscore_test": "OK", "fail_fit_test": "ERROR",
+                                       "nan_score_test": "ERROR", "hang_test": "TIMEOUT"}
+    assert "RuntimeError: boom in fit" in res.loc["fail_fit_test", "message"]
+    assert "NaN" in res.loc["nan_score_test", "message"]
+    assert "5 s timeout" in res.loc["hang_test", "message"]
+    assert "boom in fit" in (out / "jobs/fail_fit_test/log.txt").read_text()  # the traceback
+    for det in ("fail_fit_test", "nan_score_test", "hang_test"):
+        assert not (out / "jobs" / det / "scores.npz").exists()
+    # the hanging worker was really killed
+    pid = int((tmp_path / "hang.pid").read_text())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+    table = capsys.readouterr().out
+    assert "| hang_test | TIMEOUT | TIMEOUT |" in table
+    assert "| nan_score_test | ERROR |" in table
+    m = pd.read_csv(out / "metrics.csv").set_index("detector")
+    assert m.loc["zscore_test", "tp_simulation"] == pytest.approx(2 / 3)
+    assert m.loc[["fail_fit_test", "nan_score_test", "hang_test"], "tp_simulation"].isna().all()
+
+
+# -- resume -----------------------------------------------------------------------------------
+
+
+def test_interrupted_run_resumes_without_recomputing(dataset, reference_run, tmp_path, monkeypatch):
+    fit_log = tmp_path / "fits.txt"
+    monkeypatch.setenv("SCART_TEST_FIT_LOG", str(fit_log))
+    monkeypatch.setenv("SCART_TEST_INTERRUPT_MARKER", str(tmp_path / "interrupted"))
+    out = tmp_path / "run"
+    args = ["run", "--detectors", "zscore_test,interrupt_test,diff_test", "--plugin", ZS,
+            "--plugin", plugin("InterruptOnce"), "--plugin", DIFF, "--dataset", str(dataset),
+            "--out", str(out), "--jobs", "1"]
+    assert main(args) == 130  # Ctrl-C while interrupt_test runs
+    assert RunStore(out).read_status("zscore_test")["status"] == "OK"
+    assert RunStore(out).read_status("interrupt_test") is None  # unfinished: no status at all
+    assert RunStore(out).read_status("diff_test") is None
+    res = pd.read_csv(out / "results.csv").set_index("detector")
+    assert res.loc["interrupt_test", "status"] == "UNFINISHED"
+    assert fit_log.read_text().split() == ["zscore_test"]
+    before = snapshot(out / "jobs/zscore_test")
+
+    args[-1] = "2"  # the remaining jobs in parallel
+    assert main([*args, "--resume"]) == 0
+    assert snapshot(out / "jobs/zscore_test") == before  # not recomputed
+    assert sorted(fit_log.read_text().split()) == ["diff_test", "interrupt_test", "zscore_test"]
+    got = quality(out)
+    pd.testing.assert_frame_equal(got.loc[["zscore_test", "diff_test"]], quality(reference_run))
+    # interrupt_test scores like zscore_test once it stops interrupting
+    pd.testing.assert_series_equal(got.loc["interrupt_test", "tp_simulation":],
+                                   got.loc["zscore_test", "tp_simulation":], check_names=False)
+
+    # running the same config again without --resume recomputes everything
+    fit_log.write_text("")
+    assert main(args) == 0
+    assert sorted(fit_log.read_text().split()) == ["diff_test", "interrupt_test", "zscore_test"]
+
+
+def test_resume_reruns_a_job_whose_params_changed(reference_run, tmp_path, dataset):
+    run = tmp_path / "copy"
+    shutil.copytree(reference_run, run)
+    params = json.loads((run / "jobs/diff_test/params.json").read_text())
+    params["key"]["params"]["random_state"] = 99  # as if made with other parameters
+    (run / "jobs/diff_test/params.json").write_text(json.dumps(params))
+    kept, redone = snapshot(run / "jobs/zscore_test"), snapshot(run / "jobs/diff_test")
+    assert main(["run", *OK_PAIR, "--dataset", str(dataset), "--out", str(run), "--resume"]) == 0
+    assert snapshot(run / "jobs/zscore_test") == kept
+    assert snapshot(run / "jobs/diff_test")["status.json"] != redone["status.json"]
+    pd.testing.assert_frame_equal(quality(run), quality(reference_run))
+
+
+# -- dask -------------------------------------------------------------------------------------
+
+
+def test_dask_local_cluster_gives_identical_metrics(reference_run, dataset, tmp_path):
+    out = tmp_path / "dask"
+    assert main(["run", *OK_PAIR, "--dataset", str(dataset), "--out", str(out), "--jobs", "2",
+                 "--executor", "dask"]) == 0
+    pd.testing.assert_frame_equal(quality(out), quality(reference_run))
+    for det in ("zscore_test", "diff_test"):
+        a, b = read_npz(out / "jobs" / det / "scores.npz"), read_npz(reference_run / "jobs" / det / "scores.npz")
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+# -- bad input --------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def existing_run(reference_run, tmp_path) -> Path:
+    run = tmp_path / "existing"
+    shutil.copytree(reference_run, run)
+    return run
+
+
+def _bad(kind: str, dataset: Path, run: Path, tmp_path: Path) -> tuple[list[str], str]:
+    base = ["run", "--dataset", str(dataset), "--out", str(run), "--plugin", ZS, "--plugin", DIFF]
+    if kind == "unknown detector":
+        return [*base, "--detectors", "zscore_test,no_such_detector"], "unknown detector 'no_such_detector'"
+    if kind == "dataset without manifest":
+        empty = tmp_path / "not_a_dataset"
+        empty.mkdir()
+        args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(empty), "--out", str(run)]
+        return args, "no manifest"
+    if kind == "unreachable scheduler":
+        return [*base, "--detectors", "zscore_test", "--executor", "dask", "--scheduler",
+                "tcp://127.0.0.1:1"], "cannot reach a dask scheduler"
+    if kind == "different seed":
+        return [*base, "--detectors", "zscore_test", "--seed", "7"], "different config (seed: 0 -> 7)"
+    if kind == "different seed, --resume":
+        return [*base, "--detectors", "zscore_test", "--seed", "7", "--resume"], "different config"
+    if kind == "different dataset":
+        other = write_dataset(tmp_path / "other", seed=5)
+        return ["run", "--dataset", str(other), "--out", str(run), "--plugin", ZS, "--detectors",
+                "zscore_test"], "different config (dataset_fingerprint:"
+    if kind == "bad plugin":
+        return [*base, "--detectors", "zscore_test", "--plugin", str(tmp_path / "missing.py:X")], "does not exist"
+    if kind == "not a run folder":
+        stray = run / "jobs" / "zscore_test"
+        return [*base, "--detectors", "zscore_test", "--out", str(stray)], "no config.json"
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize("kind", ["unknown detector", "dataset without manifest", "unreachable scheduler",
+                                  "different seed", "different seed, --resume", "different dataset",
+                                  "bad plugin", "not a run folder"])
+def test_bad_input_exits_2_and_loses_nothing(kind, dataset, existing_run, tmp_path, capsys):
+    args, words = _bad(kind, dataset, existing_run, tmp_path)
+    before = snapshot(existing_run)
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err
+    assert len(err.splitlines()) == 1 and err.startswith("scart-bench run: error:")
+    assert snapshot(existing_run) == before
+
+
+def test_score_of_a_non_run_folder_exits_2(tmp_path, capsys):
+    assert main(["score", str(tmp_path)]) == 2
+    assert "not a scart-bench run folder" in capsys.readouterr().err
+
+
+# -- the profile's dataset --------------------------------------------------------------------
+
+
+def test_profile_dataset_is_generated_once_and_reused(dataset, tmp_path, monkeypatch):
+    calls = []
+
+    def generate_dataset(profile: str, out: Path, seed: int, fmt: str = "parquet") -> Path:
+        calls.append((profile, Path(out), seed))
+        shutil.copytree(dataset, out)
+        return Path(out)
+
+    fake = types.ModuleType("generator.generate")
+    fake.generate_dataset = generate_dataset
+    monkeypatch.setitem(sys.modules, "generator.generate", fake)
+    monkeypatch.chdir(tmp_path)
+    args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--seed", "3"]
+    assert main(args) == 0
+    assert calls == [("quick", Path("data/datasets/quick-seed3"), 3)]
+    config = json.loads((tmp_path / "runs/quick-seed3/config.json").read_text())
+    assert config["dataset"]["path"] == str((tmp_path / "data/datasets/quick-seed3").resolve())
+    assert main([*args, "--resume"]) == 0
+    assert len(calls) == 1
+
+
+# -- the console script -----------------------------------------------------------------------
+
+
+def test_console_script(reference_run, tmp_path):
+    exe = Path(sys.executable).with_name("scart-bench")
+    if not exe.exists():
+        pytest.skip("the scart-bench console script is not installed in this environment")
+    run = tmp_path / "copy"
+    shutil.copytree(reference_run, run)
+    done = subprocess.run([str(exe), "score", str(run)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "| zscore_test | 66.7% | 66.7% | 100.0% |" in done.stdout
+    bad = subprocess.run([str(exe), "run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(tmp_path),
+                          "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2
+    assert len(bad.stderr.strip().splitlines()) == 1
+    assert bad.stderr.startswith(f"scart-bench run: error: {tmp_path}: no manifest.parquet or manifest.csv")
+    assert not (tmp_path / "x").exists()
