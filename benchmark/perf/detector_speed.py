@@ -1,0 +1,219 @@
+"""Detector speed: fit time, batch scoring throughput and streaming latency per sample.
+
+    python -m benchmark.perf.detector_speed [--detectors all|a,b] [--flights N] [--rows R]
+
+For every detector (built-ins, entry-point plugins and ``--plugin`` specs) this fits on ``N``
+synthetic normal flights of ``R`` rows at 50 Hz, then measures on a held-out flight:
+
+- fit seconds;
+- batch throughput: rows per second when ``score`` gets the whole flight at once;
+- streaming latency: one sample at a time, each call scoring the trailing ``W`` rows of history
+  and keeping the last row's score, as a live 50 Hz monitor would; p50 and p99 in milliseconds,
+  and p99 as a fraction of the 20 ms between two samples of a 50 Hz stream (> 1: it falls behind).
+
+``W``, the history a detector needs, comes from the fitted detector's ``history_rows_``
+attribute when it sets one (the rows that reproduce the last row's score: e.g. Telemanom's LSTM
+history plus its EWMA memory); otherwise 500 rows (10 s). A detector whose import or fit fails
+is reported and skipped. Torch runs on one thread unless ``--threads`` says otherwise: small
+models gain little from more, and on shared cores extra threads stall each other. Run from the
+repository root, where ``tests.detector_data`` provides the
+synthetic flights (a small local stand-in is used when it is not importable).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+
+import numpy as np
+import pandas as pd
+
+from detectors import registry
+
+#: Seconds between two samples of a 50 Hz telemetry stream.
+BUDGET_MS = 20.0
+#: Streaming history when a detector does not say how much it needs (``history_rows_``).
+DEFAULT_HISTORY_ROWS = 500
+
+
+@dataclass
+class SpeedResult:
+    """Timings of one detector (NaN where not measured)."""
+
+    name: str
+    status: str = "ok"
+    fit_s: float = float("nan")
+    rows_per_s: float = float("nan")
+    history_rows: int = 0
+    p50_ms: float = float("nan")
+    p99_ms: float = float("nan")
+
+    @property
+    def budget_ratio(self) -> float:
+        return self.p99_ms / BUDGET_MS
+
+
+# -- flights --------------------------------------------------------------------------------------
+def _fallback_flights(n: int, seed: int, rows: int) -> list[pd.DataFrame]:
+    """Square-path flights with noise, used when ``tests.detector_data`` is not importable."""
+    from generator.topics import HOME_ALT, HOME_LAT, HOME_LON
+
+    flights = []
+    for i in range(n):
+        rng = np.random.default_rng([seed, i])
+        t = np.arange(rows) / 50.0
+        phase = 2.0 * np.pi * t / max(t[-1], 1.0)
+        x = 15.0 + 15.0 * np.clip(1.4 * np.sin(phase), -1, 1) + rng.normal(0, 0.05, rows)
+        y = 15.0 + 15.0 * np.clip(1.4 * np.cos(phase), -1, 1) + rng.normal(0, 0.05, rows)
+        z = -10.0 * np.clip(3.0 * np.sin(np.pi * t / max(t[-1], 1.0)), 0, 1) + rng.normal(0, 0.05, rows)
+        cols = {
+            "Index": np.arange(rows),
+            "Timestamp": (t * 1e6).astype(np.int64),
+            "Is_Anomaly": np.zeros(rows, dtype=np.int64),
+            "attitude.roll": rng.normal(0, 0.01, rows),
+            "attitude.pitch": rng.normal(0, 0.01, rows),
+            "attitude.yaw": 0.5 + rng.normal(0, 0.005, rows),
+            "highres_imu.zacc": -9.81 + rng.normal(0, 0.1, rows),
+            "local_position_ned.x": x,
+            "local_position_ned.y": y,
+            "local_position_ned.z": z,
+            "global_position_int.lat": HOME_LAT + x / 111_320.0,
+            "global_position_int.lon": HOME_LON + y / (111_320.0 * np.cos(np.radians(HOME_LAT))),
+            "global_position_int.alt": HOME_ALT - z,
+        }
+        flights.append(pd.DataFrame(cols))
+    return flights
+
+
+def synthetic_flights(n: int, seed: int, rows: int) -> list[pd.DataFrame]:
+    """``n`` normal synthetic flights: ``tests.detector_data.normal_flights`` when available."""
+    try:
+        from tests.detector_data import normal_flights
+    except ImportError:
+        return _fallback_flights(n, seed, rows)
+    return normal_flights(n, seed=seed, rows=rows)
+
+
+# -- detectors ------------------------------------------------------------------------------------
+def detector_names(spec: str) -> list[str]:
+    """Names for ``--detectors``: "all" is every built-in, entry-point and loaded plugin."""
+    if spec.strip() != "all":
+        return [s.strip() for s in spec.split(",") if s.strip()]
+    names = list(registry.BUILTINS)
+    for ep in entry_points(group=registry.ENTRY_POINT_GROUP):
+        try:
+            name = getattr(ep.load(), "name", ep.name)
+        except Exception as exc:  # a broken plugin must not hide the others
+            print(f"skip plugin entry point {ep.name!r}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            continue
+        names.append(name)
+    names += list(registry._PLUGINS)
+    return list(dict.fromkeys(names))
+
+
+def measure(
+    name: str,
+    train: list[pd.DataFrame],
+    flight: pd.DataFrame,
+    samples: int,
+    params: dict | None = None,
+) -> SpeedResult:
+    """Fit ``name`` on ``train`` and time batch and streaming scoring of ``flight``."""
+    res = SpeedResult(name)
+    try:
+        det = registry.make(name, **(params or {}))
+    except Exception as exc:
+        res.status = f"skipped: cannot import/make ({type(exc).__name__}: {exc})"
+        return res
+    try:
+        t0 = time.perf_counter()
+        det.fit(train)
+        res.fit_s = time.perf_counter() - t0
+
+        det.score(flight.iloc[:64])  # warm-up (lazy imports, model build, caches)
+        times = []
+        while len(times) < 3 and sum(times) < 2.0:
+            t0 = time.perf_counter()
+            scores = det.score(flight)
+            times.append(time.perf_counter() - t0)
+        if not np.all(np.isfinite(scores)):
+            res.status = "non-finite scores"
+        res.rows_per_s = len(flight) / float(np.median(times))
+
+        hist = getattr(det, "history_rows_", None)
+        res.history_rows = int(min(hist if hist else DEFAULT_HISTORY_ROWS, len(flight)))
+        ends = np.linspace(res.history_rows, len(flight), num=min(samples, len(flight)), dtype=int)
+        ends = np.unique(np.clip(ends, 1, len(flight)))
+        lat = []
+        for k, end in enumerate(ends):
+            window = flight.iloc[max(end - res.history_rows, 0) : end]
+            t0 = time.perf_counter()
+            float(det.score(window)[-1])
+            dt = time.perf_counter() - t0
+            if k >= 3:  # the first calls warm caches up
+                lat.append(dt * 1e3)
+        if lat:
+            res.p50_ms, res.p99_ms = (float(v) for v in np.percentile(lat, [50, 99]))
+    except Exception as exc:
+        res.status = f"failed: {type(exc).__name__}: {exc}"
+    return res
+
+
+def format_table(results: list[SpeedResult]) -> str:
+    """The results as an aligned text table."""
+    head = (
+        f"{'detector':<14} {'fit s':>8} {'score rows/s':>13} {'history':>8} "
+        f"{'p50 ms':>8} {'p99 ms':>8} {'p99/20ms':>9}  status"
+    )
+    lines = [head, "-" * len(head)]
+    for r in results:
+        lines.append(
+            f"{r.name:<14} {r.fit_s:>8.2f} {r.rows_per_s:>13,.0f} {r.history_rows:>8d} "
+            f"{r.p50_ms:>8.2f} {r.p99_ms:>8.2f} {r.budget_ratio:>9.2f}  {r.status}"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmark.perf.detector_speed", description=__doc__.split("\n")[0])
+    p.add_argument("--detectors", default="all", metavar="all|NAME,...", help="detectors to time (default all)")
+    p.add_argument("--flights", type=int, default=3, metavar="N", help="training flights (default 3)")
+    p.add_argument("--rows", type=int, default=1500, metavar="R", help="rows per flight (default 1500 = 30 s)")
+    p.add_argument("--samples", type=int, default=50, metavar="S", help="streaming samples timed (default 50)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic flights (default 0)")
+    p.add_argument("--threads", type=int, default=1, metavar="T",
+                   help="torch.set_num_threads(T) before timing (default 1, as one live monitor; 0: torch's default)")
+    p.add_argument("--plugin", action="append", metavar="SPEC", default=[],
+                   help="also load a detector from module:Class or path/to/file.py:Class (repeatable)")
+    args = p.parse_args(argv)
+    if args.flights < 1 or args.rows < 2 or args.samples < 4 or args.threads < 0:
+        p.error("need --flights >= 1, --rows >= 2, --samples >= 4 and --threads >= 0")
+
+    for spec in args.plugin:
+        registry.load_plugin(spec)
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    train = synthetic_flights(args.flights, args.seed, args.rows)
+    flight = synthetic_flights(1, args.seed + 1000, args.rows)[0]
+    n_cols = sum("." in c for c in flight.columns)
+    threads = f"{args.threads} torch thread(s)" if args.threads else "torch's default threads"
+    print(
+        f"{args.flights} training flights x {args.rows} rows, {n_cols} channels; held-out flight of "
+        f"{len(flight)} rows; {args.samples} streaming samples; {threads}; "
+        f"budget {BUDGET_MS:g} ms/sample (50 Hz)"
+    )
+    results = []
+    for name in detector_names(args.detectors):
+        print(f"... {name}", file=sys.stderr, flush=True)
+        results.append(measure(name, train, flight, args.samples))
+    print(format_table(results))
+    return 0 if all(r.status == "ok" or r.status.startswith("skipped") for r in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
