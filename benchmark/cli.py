@@ -16,6 +16,7 @@ from benchmark.errors import UsageError
 #: Modules that each add one or more sub-commands.
 COMMAND_MODULES = (
     "benchmark.cli_detectors",
+    "benchmark.cli_generate",
     "benchmark.cli_run",
 )
 

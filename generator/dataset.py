@@ -83,18 +83,16 @@ def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = N
     if not frames:
         raise DatasetError("cannot combine a flight with no topics")
     all_sensors = pd.concat([p for _, p in frames], axis=1, join="outer").sort_index()
-    all_sensors.index.name = "Timestamp"
-    all_sensors = all_sensors.reset_index()
     if base_topic is None:
         base_topic = max(frames, key=lambda item: len(item[1]))[0]
     base = pd.Index(np.unique(topics[base_topic]["Timestamp"].to_numpy(np.int64)), name="Timestamp")
-    most = pd.concat([p.reindex(base, method="ffill") for _, p in frames], axis=1).reset_index()
+    most = pd.concat([p.reindex(base, method="ffill") for _, p in frames], axis=1)
     out = {}
     for key, table in (("all_sensors", all_sensors), ("most_frequent", most)):
-        ts = table["Timestamp"].to_numpy(np.int64)
+        ts = table.index.to_numpy(np.int64)
         lead = pd.DataFrame({"Index": np.arange(len(table), dtype=np.int64), "Timestamp": ts,
                              "Is_Anomaly": label_rows(ts, windows)})
-        out[key] = pd.concat([lead, table.drop(columns=["Timestamp"])], axis=1)
+        out[key] = pd.concat([lead, table.reset_index(drop=True)], axis=1)
     return out
 
 
@@ -105,11 +103,13 @@ def _write_table(df: pd.DataFrame, path: Path, fmt: str) -> None:
         df.to_csv(path.with_suffix(".csv"), index=False, float_format=None)
 
 
-def _read_table(path: Path) -> pd.DataFrame:
+def _read_table(path: Path, columns: list[str] | None = None) -> pd.DataFrame:
     for suffix in (".parquet", ".csv"):
         p = path.with_suffix(suffix)
         if p.exists():
-            return pd.read_parquet(p) if suffix == ".parquet" else pd.read_csv(p)
+            if suffix == ".parquet":
+                return pd.read_parquet(p, columns=columns)
+            return pd.read_csv(p, usecols=columns, float_precision="round_trip")
     raise DatasetError(f"{path}.(parquet|csv): no such table")
 
 
@@ -240,13 +240,15 @@ class Dataset:
     def flight_dir(self, flight_id: str) -> Path:
         return self.path / "flights" / flight_id
 
-    def flight(self, flight_id: str, view: str = "navigator", table: str = "most_frequent") -> pd.DataFrame:
-        """A combined table of one flight (``view`` navigator|simulator, ``table`` most_frequent|all_sensors)."""
+    def flight(self, flight_id: str, view: str = "navigator", table: str = "most_frequent",
+               columns: list[str] | None = None) -> pd.DataFrame:
+        """A combined table of one flight (``view`` navigator|simulator, ``table`` most_frequent|all_sensors);
+        ``columns`` reads only those columns."""
         if view not in VIEWS:
             raise DatasetError(f"view {view!r}: expected one of {VIEWS}")
         if table not in TABLES:
             raise DatasetError(f"table {table!r}: expected one of {TABLES}")
-        return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}")
+        return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}", columns)
 
     def topic(self, flight_id: str, topic: str, view: str = "navigator") -> pd.DataFrame:
         """One topic table of one flight."""

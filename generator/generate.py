@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import platform
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -85,7 +87,23 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     seeds = normal_seeds(seed, count)
     split_of = splits(count, n_train, n_val)
     config_dict = {"flight_config": dataclasses.asdict(cfg), "versions": versions(), "profile": prof.name}
-    writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
+    # write into a hidden sibling folder and move it into place at the end: an interrupted
+    # generation leaves nothing at ``out``, and an existing dataset stays until the new one is done
+    partial = out.parent / f".{out.name}.partial"
+    shutil.rmtree(partial, ignore_errors=True)
+    try:
+        _write_all(partial, prof, cfg, config_dict, seeds, split_of, count, seed, fmt, with_attacks, log)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(partial, out)
+    finally:
+        shutil.rmtree(partial, ignore_errors=True)
+    return out
+
+
+def _write_all(partial: Path, prof: Profile, cfg: FlightConfig, config_dict: dict, seeds: list[int],
+               split_of: list[str], count: int, seed: int, fmt: str, with_attacks: bool, log) -> None:
+    writer = DatasetWriter(partial, fmt=fmt,
                            info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions()})
     say = log or (lambda msg: None)
     sources: dict[str, list] = {"test": [], "validation": []}
@@ -102,4 +120,3 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     if with_attacks and prof.scenario_grid is not None:
         attack_flights(writer, prof, sources["test"] + sources["validation"], seed, cfg, config_dict, say)
     writer.close()
-    return out

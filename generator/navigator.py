@@ -27,6 +27,7 @@ class NavigatorState:
     pos: np.ndarray  # (N, 3) last received LOCAL_POSITION_NED position
     vel: np.ndarray  # (N, 3)
     yaw: np.ndarray  # (N,) last received ATTITUDE yaw
+    xt_int: np.ndarray  # (N,) integral of the cross-track error on the current leg (m s)
 
 
 def mission_waypoints(mission: MissionParams, rngs: list[np.random.Generator]) -> tuple[np.ndarray, np.ndarray]:
@@ -61,6 +62,7 @@ class Navigator:
         return NavigatorState(
             phase=np.zeros(n, dtype=np.int64), seq=np.zeros(n, dtype=np.int64), hold_until=np.zeros(n),
             yaw_sp=yaw0.copy(), pos=np.zeros((n, 3)), vel=np.zeros((n, 3)), yaw=yaw0.copy(),
+            xt_int=np.zeros(n),
         )
 
     def receive(self, s: NavigatorState, topic: str, values: np.ndarray, delivered: np.ndarray,
@@ -89,6 +91,21 @@ class Navigator:
         speed = np.where(s.phase == PHASE_TAKEOFF, np.minimum(speed, 1.0), speed)
         dir_h = d[:, :2] / np.maximum(dist_h, 1e-6)[:, None]
         vh = dir_h * speed[:, None]
+        # on a leg, follow the line from the previous item (PI on the cross-track error), as a
+        # mission computer does; the integral carries over legs (a steady sideways push stays one)
+        prev = self.wps[np.arange(n), np.clip(s.seq - 1, 0, k_last)]
+        leg = target[:, :2] - prev[:, :2]
+        leg_len = np.linalg.norm(leg, axis=1)
+        u = leg / np.maximum(leg_len, 1e-6)[:, None]
+        normal = np.column_stack([-u[:, 1], u[:, 0]])
+        xt = np.einsum("ni,ni->n", s.pos[:, :2] - prev[:, :2], normal)
+        on_leg = (s.phase == PHASE_MISSION) & (leg_len > 1.0)
+        dt = 1.0 / 50.0
+        s.xt_int = np.where(on_leg, np.clip(s.xt_int + xt * dt * (np.abs(xt) < 5.0), -10.0, 10.0), 0.0)
+        side = np.clip(-(0.8 * xt + 0.3 * s.xt_int), -0.7 * speed, 0.7 * speed)
+        along = np.sqrt(np.maximum(speed**2 - side**2, 0.0))
+        v_line = along[:, None] * dir_h + side[:, None] * normal
+        vh = np.where(on_leg[:, None], v_line, vh)
         vz = np.clip(1.0 * d[:, 2], -m.climb_speed, 1.5)
         out[:, 0:2] = np.where(flying[:, None], vh, 0.0)
         out[:, 2] = np.where(flying, vz, 0.0)
