@@ -1,0 +1,343 @@
+"""Adapters over the tabular models of DeepOD (Xu et al., https://github.com/xuhongzuo/DeepOD).
+
+Each row is scored by the window of the last ``window`` rows that ends at it. The window is
+flattened into one feature vector: the means of ``segments`` equal parts of it for every
+channel (a piecewise aggregate approximation; ``segments = window`` keeps every row) plus, with
+``window_stats``, each channel's standard deviation and that of its row-to-row increments (the
+spread and noise level the means average out). Features are standardised with the training
+windows' statistics, since the DeepOD networks expect comparable input scales. Rows before a
+full window see the first row repeated, so the score of row ``i`` depends only on rows
+``0..i``. Training uses windows every ``stride`` rows of the normal flights, at most
+``max_train_windows`` of them (a deterministic subsample). DeepOD's published settings are kept
+(networks, batch size 64, learning rate 1e-3) except for fewer epochs (10 instead of 100) and,
+for GOAD, fewer transformations, to fit in seconds on a CPU.
+
+The models, with their papers:
+
+- DeepSVDD: Ruff et al., "Deep one-class classification", ICML 2018.
+- RDP: Wang et al., "Unsupervised representation learning by predicting random distances",
+  IJCAI 2020.
+- RCA: Liu et al., "RCA: a deep collaborative autoencoder approach for anomaly detection",
+  IJCAI 2021.
+- GOAD: Bergman and Hoshen, "Classification-based anomaly detection for general data",
+  ICLR 2020.
+- NeuTraL: Qiu et al., "Neural transformation learning for deep anomaly detection beyond
+  images", ICML 2021.
+
+DeepOD 0.4.1 needs three changes to score causally and reproducibly, made in small private
+subclasses: RDP is scored by the gap between the learned and the random projection of each
+sample alone, as in the RDP authors' code (DeepOD also pairs each sample with a random other one
+of its batch); RCA is scored without dropout (DeepOD averages random dropout masks); GOAD
+computes its transformation centres once after training (DeepOD recomputes them from shuffled
+batches at every call). DeepOD also reseeds the global numpy / torch / ``random`` generators;
+the adapters save and restore them, and the torch thread count, around every call.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import random
+from collections.abc import Iterator
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from deepod.core.base_model import BaseDeepAD
+from deepod.models.tabular import GOAD as _DeepODGOAD
+from deepod.models.tabular import RCA as _DeepODRCA
+from deepod.models.tabular import RDP as _DeepODRDP
+from deepod.models.tabular import DeepSVDD as _DeepODDeepSVDD
+from deepod.models.tabular import NeuTraL as _DeepODNeuTraL
+from numpy.lib.stride_tricks import sliding_window_view
+from torch.utils.data import DataLoader
+
+from detectors.base import Detector, DetectorError
+from detectors.statistical import pad_start
+
+#: Floor of a feature's training spread, in units of the channel's standard deviation: keeps
+#: features that barely vary in training (a still channel's noise level) from exploding.
+_MIN_FEATURE_SCALE = 0.01
+
+# -- DeepOD models made causal and reproducible ------------------------------------------------
+
+
+class _RDPModel(_DeepODRDP):
+    """RDP scored per sample: mean squared gap between the learned and the random projection."""
+
+    def inference_forward(self, batch_x, net, criterion):
+        x = batch_x.float().to(self.device)
+        z = net(x)
+        return z, torch.mean((z - criterion.rp_net(x)) ** 2, dim=1)
+
+
+class _RCAModel(_DeepODRCA):
+    """RCA scored with dropout off (the expectation of DeepOD's random dropout ensemble)."""
+
+    def _inference(self):
+        return BaseDeepAD._inference(self)
+
+
+class _GOADModel(_DeepODGOAD):
+    """GOAD whose transformation centres are computed once, right after training."""
+
+    def training_prepare(self, X, y):
+        self.rep_means = None
+        return super().training_prepare(X, y)
+
+    def inference_prepare(self, X):
+        if self.rep_means is None:  # first call, inside fit: compute the centres
+            return super().inference_prepare(X)
+        x_trans = np.stack([X.dot(rot) for rot in self.affine_weights], 2)
+        self.net.eval()
+        return DataLoader(torch.from_numpy(x_trans).float(), batch_size=self.batch_size, shuffle=False)
+
+
+# -- isolation of global state ---------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def _isolated_global_state(n_threads: int) -> Iterator[None]:
+    """Run DeepOD code with ``n_threads`` torch threads and restore every global RNG afterwards."""
+    np_state = np.random.get_state()
+    py_state = random.getstate()
+    torch_state = torch.get_rng_state()
+    cuda_states = torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None
+    threads = torch.get_num_threads()
+    torch.set_num_threads(n_threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+        np.random.set_state(np_state)
+        random.setstate(py_state)
+        torch.set_rng_state(torch_state)
+        if cuda_states is not None:
+            torch.cuda.set_rng_state_all(cuda_states)
+
+
+# -- the shared adapter ------------------------------------------------------------------------
+
+
+class _DeepODDetector(Detector):
+    """Windowed adapter over a DeepOD tabular model (shared by the five built-ins).
+
+    Parameters
+    ----------
+    window : int
+        Rows per window (25 = 0.5 s at 50 Hz); the score of a row is that of the window ending at it.
+    segments : int
+        The window is flattened as the means of this many equal segments of it (piecewise
+        aggregate approximation); ``segments = window`` flattens every row.
+    stride : int
+        Rows between consecutive training windows.
+    epochs : int
+        Training epochs.
+    batch_size : int
+        Mini-batch size for training and scoring.
+    lr : float
+        Adam learning rate.
+    max_train_windows : int
+        Cap on training windows; more are subsampled deterministically with ``random_state``.
+    window_stats : bool
+        Append each channel's standard deviation over the window and that of its row-to-row
+        increments (the spread and the noise level that the segment means average out).
+    model_params : dict or None
+        Extra keyword arguments of the DeepOD model, over the adapter's defaults (see the class).
+    device : str or None
+        Torch device; None for "cuda" when available, else "cpu".
+    n_threads : int
+        Torch CPU threads while fitting and scoring. These small networks gain nothing from
+        more, and extra threads spin and slow down badly when the cores are shared.
+    columns : list of str or None
+        Sensor columns to use; None for every ``topic.field`` column.
+    random_state : int
+        Seed of the model initialisation, the training shuffles and the window subsample.
+
+    Attributes
+    ----------
+    model_ : deepod model
+        The fitted DeepOD model (training data stripped).
+    feature_mean_, feature_scale_ : ndarray (features,)
+        Standardisation of the window features, learned on the training windows.
+    n_train_windows_ : int
+        Windows the model was trained on.
+    """
+
+    #: The DeepOD model class (a module-level class, so that fitted detectors pickle).
+    _model_class: ClassVar[type]
+    #: Model keyword arguments that differ from DeepOD's defaults.
+    _model_defaults: ClassVar[dict[str, Any]] = {}
+
+    def __init__(
+        self,
+        window: int = 25,
+        segments: int = 5,
+        stride: int = 5,
+        epochs: int = 10,
+        batch_size: int = 64,
+        lr: float = 1e-3,
+        max_train_windows: int = 2000,
+        window_stats: bool = True,
+        model_params: dict[str, Any] | None = None,
+        device: str | None = None,
+        n_threads: int = 1,
+        columns: list[str] | None = None,
+        random_state: int = 0,
+    ):
+        self.window = window
+        self.segments = segments
+        self.stride = stride
+        self.epochs = epochs
+        self.batch_size = batch_size
+        self.lr = lr
+        self.max_train_windows = max_train_windows
+        self.window_stats = window_stats
+        self.model_params = model_params
+        self.device = device
+        self.n_threads = n_threads
+        self.columns = columns
+        self.random_state = random_state
+
+    # -- features --------------------------------------------------------------------------------
+    def _windows(self, X: np.ndarray, step: int = 1) -> np.ndarray:
+        """Raw feature vectors (float32) of the windows ending at rows 0, step, 2 step, ..."""
+        w, k = int(self.window), int(self.segments)
+        X = pad_start(X.astype(np.float32), w - 1)
+        view = sliding_window_view(X, w, axis=0)[::step]  # (n, channels, w)
+        bounds = np.linspace(0, w, k + 1).round().astype(int)
+        paa = np.add.reduceat(view, bounds[:-1], axis=2) / np.diff(bounds).astype(np.float32)
+        parts = [paa.transpose(0, 2, 1).reshape(view.shape[0], -1)]
+        if self.window_stats:
+            parts += [view.std(axis=2), np.diff(view, axis=2).std(axis=2)]
+        return np.concatenate(parts, axis=1)
+
+    def _features(self, X: np.ndarray, step: int = 1) -> np.ndarray:
+        """Window features standardised with the training windows' mean and spread."""
+        return ((self._windows(X, step) - self.feature_mean_) / self.feature_scale_).astype(np.float32)
+
+    def _check_params(self) -> None:
+        if int(self.window) < 2:
+            raise DetectorError(f"{self.name}: window must be at least 2 rows, got {self.window!r}")
+        if not 1 <= int(self.segments) <= int(self.window):
+            raise DetectorError(f"{self.name}: segments must be in 1..window, got {self.segments!r}")
+        for key in ("stride", "epochs", "batch_size", "max_train_windows", "n_threads"):
+            if int(getattr(self, key)) < 1:
+                raise DetectorError(
+                    f"{self.name}: {key} must be a positive integer, got {getattr(self, key)!r}"
+                )
+
+    # -- Detector hooks ----------------------------------------------------------------------------
+    def _fit(self, X_list: list[np.ndarray]) -> None:
+        self._check_params()
+        train = np.concatenate([self._windows(x, int(self.stride)) for x in X_list], axis=0)
+        cap = int(self.max_train_windows)
+        if train.shape[0] > cap:
+            train = train[np.sort(self._rng().choice(train.shape[0], size=cap, replace=False))]
+        self.feature_mean_ = train.mean(axis=0)
+        self.feature_scale_ = np.maximum(train.std(axis=0), _MIN_FEATURE_SCALE)
+        train = ((train - self.feature_mean_) / self.feature_scale_).astype(np.float32)
+        device = self.device or ("cuda" if torch.cuda.is_available() else "cpu")
+        kwargs = {
+            "epochs": int(self.epochs),
+            "batch_size": int(self.batch_size),
+            "lr": float(self.lr),
+            "device": device,
+            "verbose": 0,
+            "random_state": int(self.random_state),
+            **self._model_defaults,
+            **(self.model_params or {}),
+        }
+        with _isolated_global_state(int(self.n_threads)):
+            try:
+                model = self._model_class(**kwargs)
+            except TypeError as exc:
+                raise DetectorError(
+                    f"{self.name}: invalid model_params {self.model_params!r}: {exc}"
+                ) from exc
+            model.fit(train)
+        # Drop what only training needs: the data (it would be pickled with the detector).
+        model.train_data = model.train_loader = model.test_loader = None
+        model.decision_scores_ = model.labels_ = None
+        self.model_ = model
+        self.n_train_windows_ = int(train.shape[0])
+
+    def _score(self, X: np.ndarray) -> np.ndarray:
+        feats = self._features(X)
+        n = feats.shape[0]
+        # Score in full batches only, so a window's float32 result never depends on how many
+        # windows follow it (batch shapes change the kernels' rounding): pad with the last window.
+        b = int(self.batch_size)
+        padded = np.concatenate([feats, np.repeat(feats[-1:], (-n) % b, axis=0)], axis=0)
+        with _isolated_global_state(int(self.n_threads)):
+            scores = self.model_.decision_function(padded)
+        return np.asarray(scores, dtype=np.float64)[:n]
+
+
+# -- the five built-ins ------------------------------------------------------------------------
+
+
+class DeepSVDD(_DeepODDetector):
+    """Deep SVDD (Ruff et al. 2018): distance of a window's embedding to a hypersphere centre.
+
+    Parameters: see ``_DeepODDetector``; ``model_params`` are DeepOD ``DeepSVDD`` arguments
+    (``rep_dim``, ``hidden_dims``, ``act``, ``bias``).
+    """
+
+    name = "deepsvdd"
+    description = (
+        "Deep SVDD (Ruff et al. 2018) on flattened windows: distance to a learned hypersphere centre"
+    )
+    _model_class = _DeepODDeepSVDD
+
+
+class RDP(_DeepODDetector):
+    """RDP (Wang et al. 2020): error in predicting a random projection of a window.
+
+    Parameters: see ``_DeepODDetector``; ``model_params`` are DeepOD ``RDP`` arguments
+    (``rep_dim``, ``hidden_dims``, ``act``, ``bias``).
+    """
+
+    name = "rdp"
+    description = "RDP (Wang et al. 2020) on flattened windows: random-distance prediction error"
+    _model_class = _RDPModel
+
+
+class RCA(_DeepODDetector):
+    """RCA (Liu et al. 2021): reconstruction error of two collaborative autoencoders.
+
+    Parameters: see ``_DeepODDetector``; ``model_params`` are DeepOD ``RCA`` arguments
+    (``rep_dim``, ``hidden_dims``, ``act``, ``alpha``, ``anom_ratio``, ``dropout``).
+    """
+
+    name = "rca"
+    description = (
+        "RCA (Liu et al. 2021) on flattened windows: collaborative autoencoders' reconstruction error"
+    )
+    _model_class = _RCAModel
+
+
+class GOAD(_DeepODDetector):
+    """GOAD (Bergman and Hoshen 2020): how badly random affine transformations are recognised.
+
+    Parameters: see ``_DeepODDetector``; ``model_params`` are DeepOD ``GOAD`` arguments
+    (``n_trans``, ``trans_dim``, ``alpha``, ``margin``, ``hidden_dim``, ``n_layers``). The
+    adapter uses 32 transformations instead of DeepOD's 256: the training loss grows with the
+    square of their number.
+    """
+
+    name = "goad"
+    description = "GOAD (Bergman & Hoshen 2020) on flattened windows: transformation-classification error"
+    _model_class = _GOADModel
+    _model_defaults = {"n_trans": 32}
+
+
+class NeuTraL(_DeepODDetector):
+    """NeuTraL AD (Qiu et al. 2021): contrastive loss of learned neural transformations.
+
+    Parameters: see ``_DeepODDetector``; ``model_params`` are DeepOD ``NeuTraL`` arguments
+    (``n_trans``, ``trans_type``, ``temp``, ``rep_dim``, ``hidden_dims``, ``trans_hidden_dims``).
+    """
+
+    name = "neutral"
+    description = "NeuTraL AD (Qiu et al. 2021) on windows: contrastive loss of learned transformations"
+    _model_class = _DeepODNeuTraL
