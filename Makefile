@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml Makefile
 	touch $(STAMP)
 
 run: setup
-	$(BIN)/scart-bench run --detectors all
+	$(BIN)/scart-bench run --detectors all --jobs 2
 
 test: setup
 	$(BIN)/pytest -q

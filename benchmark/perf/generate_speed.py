@@ -1,0 +1,51 @@
+"""Wall time and peak memory of generating a profile's dataset (normal + attacked in both modes).
+
+    python -m benchmark.perf.generate_speed [--profile paper] [--out DIR] [--seed 0]
+
+Prints the time of each phase as it goes and, at the end, total wall time, peak resident memory
+and the number of flights and bytes written. The goal for ``paper`` (100 normal flights + 2048
+configurations x 2 modes) is under 5 minutes and 8 GB on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from generator.dataset import open_dataset
+from generator.generate import generate_dataset
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--profile", default="paper")
+    p.add_argument("--out", default=None, help="dataset folder (default: a temporary folder, removed after)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--format", default="parquet")
+    args = p.parse_args(argv)
+    tmp = None
+    out = Path(args.out) if args.out else Path(tmp := tempfile.mkdtemp()) / args.profile
+    t0 = time.perf_counter()
+
+    def log(msg: str) -> None:
+        print(f"[{time.perf_counter() - t0:8.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, overwrite=True, log=log)
+    wall = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    ds = open_dataset(out)
+    size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
+    counts = ds.manifest["mode"].value_counts().to_dict()
+    print(f"profile {args.profile}: {len(ds)} flights {counts}; wall {wall:.1f} s "
+          f"({wall / 60:.1f} min); peak memory {peak:.0f} MiB; {size / 2**20:.0f} MiB on disk")
+    if tmp:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
