@@ -12,11 +12,13 @@ Modelled on scikit-learn estimators: constructor arguments are plain parameters 
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator
 
-from generator.topics import sensor_columns
+from generator.topics import TOPICS, sensor_columns
 
 
 class DetectorError(ValueError):
@@ -37,6 +39,11 @@ class Detector(BaseEstimator):
 
     Parameters shared by all detectors (define them in the subclass ``__init__``):
     ``columns`` (list of column names or None for every sensor column) and ``random_state``.
+
+    Fitted attributes set by the base class (reserved names): ``columns_``, ``mean_``,
+    ``scale_``, ``n_features_in_``. A detector may also set ``history_rows_``: how many trailing
+    rows reproduce the score of the last row when streaming (used by the latency benchmark and
+    the live proxy).
     """
 
     name: str = "detector"
@@ -82,6 +89,9 @@ class Detector(BaseEstimator):
         s = np.asarray(self._score(X), dtype=np.float64).reshape(-1)
         if s.shape[0] != X.shape[0]:
             raise DetectorError(f"{self.name}: produced {s.shape[0]} scores for {X.shape[0]} rows")
+        if not np.all(np.isfinite(s)):
+            bad = int(np.flatnonzero(~np.isfinite(s))[0])
+            raise DetectorError(f"{self.name}: non-finite score {s[bad]} at row {bad} (NaN is a failure, not a 0)")
         return s
 
     def alarms(self, flight: pd.DataFrame) -> np.ndarray:  # pragma: no cover - optional
@@ -120,10 +130,40 @@ class Detector(BaseEstimator):
 
     @staticmethod
     def _raw_matrix(flight: pd.DataFrame, cols: list[str]) -> np.ndarray:
-        """Selected columns as float64, NaN filled causally (last value, then 0 at the start)."""
-        block = flight[cols].apply(pd.to_numeric, errors="coerce").astype(np.float64)
-        block = block.ffill().fillna(0.0)
-        return block.to_numpy(dtype=np.float64, copy=True)
+        """Selected columns as float64, NaN filled causally (last value, then 0 at the start).
+
+        Angle fields (yaw, heading, course: ``quantity == "angle"`` in generator.topics) wrap
+        around; each is replaced by its sine and cosine so that a wrap is not a jump.
+        """
+        block = flight[cols]
+        if all(pd.api.types.is_numeric_dtype(d) for d in block.dtypes):
+            arr = block.to_numpy(dtype=np.float64, copy=True)
+        else:
+            arr = block.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+        if np.isnan(arr).any():
+            arr = pd.DataFrame(arr).ffill().fillna(0.0).to_numpy()
+        angles = _angle_columns(tuple(cols))
+        if angles:
+            a = arr[:, angles]
+            arr = np.concatenate([np.delete(arr, angles, axis=1), np.sin(a), np.cos(a)], axis=1)
+        return arr
+
+
+@lru_cache(maxsize=64)
+def _angle_columns(cols: tuple[str, ...]) -> list[int]:
+    """Indices of the columns whose field is an angle that wraps (yaw, hdg, cog)."""
+    out = []
+    for i, c in enumerate(cols):
+        topic, _, field = c.partition(".")
+        t = TOPICS.get(topic)
+        if t is not None and field in t.field_names:
+            if t.fields[t.field_names.index(field)].quantity == "angle" and field in WRAPPING_ANGLES:
+                out.append(i)
+    return out
+
+
+#: Angle fields that wrap around (roll and pitch stay far from +-pi in flight).
+WRAPPING_ANGLES = ("yaw", "hdg", "cog")
 
 
 def flight_score(row_scores: np.ndarray) -> float:

@@ -12,7 +12,7 @@ import importlib
 import importlib.util
 import inspect
 import sys
-from dataclasses import dataclass
+import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -33,13 +33,22 @@ BUILTINS: dict[str, str] = {
 }
 
 
-@dataclass(frozen=True)
 class DetectorInfo:
-    """A detector class and where it came from ("built-in" or the plugin's origin)."""
+    """A detector and where it came from ("built-in" or the plugin's origin).
 
-    name: str
-    cls: type
-    source: str
+    The class is imported on first use of ``cls``, so listing detectors does not load torch.
+    """
+
+    def __init__(self, name: str, spec: str | type, source: str):
+        self.name = name
+        self.source = source
+        self._spec = spec
+
+    @property
+    def cls(self) -> type:
+        if isinstance(self._spec, str):
+            self._spec = _import_spec(self._spec)
+        return self._spec
 
     @property
     def description(self) -> str:
@@ -86,21 +95,37 @@ def _import_spec(spec: str) -> type:
 def load_plugin(spec: str) -> DetectorInfo:
     """Import a detector class from ``module:Class`` or ``file.py:Class`` and register it."""
     cls = _import_spec(spec)
-    info = DetectorInfo(cls.name, cls, f"plugin ({spec})")
-    _PLUGINS[cls.name] = info
+    name = cls.__dict__.get("name")
+    if not isinstance(name, str) or not name:
+        raise DetectorError(f"plugin spec {spec!r}: {cls.__name__} must set a class attribute `name`")
+    if name in BUILTINS:
+        raise DetectorError(f"plugin spec {spec!r}: name {name!r} is taken by a built-in detector")
+    info = DetectorInfo(name, cls, f"plugin ({spec})")
+    _PLUGINS[name] = info
     return info
+
+
+def plugin_names() -> list[str]:
+    """Names of the detectors loaded with ``load_plugin``."""
+    return list(_PLUGINS)
 
 
 def available() -> dict[str, DetectorInfo]:
     """Every known detector: built-ins, entry-point plugins, then ``load_plugin`` ones."""
-    found: dict[str, DetectorInfo] = {}
-    for name, spec in BUILTINS.items():
-        found[name] = DetectorInfo(name, _import_spec(spec), "built-in")
+    found: dict[str, DetectorInfo] = {name: DetectorInfo(name, spec, "built-in") for name, spec in BUILTINS.items()}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
-        cls = ep.load()
         dist = getattr(ep, "dist", None)
         origin = f"plugin ({dist.name} {dist.version})" if dist is not None else f"plugin ({ep.value})"
-        found[getattr(cls, "name", ep.name)] = DetectorInfo(getattr(cls, "name", ep.name), cls, origin)
+        try:
+            cls = ep.load()
+        except Exception as exc:  # a broken plugin must not hide the others
+            warnings.warn(f"detector plugin {ep.name} ({ep.value}) cannot be loaded: {exc}", stacklevel=2)
+            continue
+        name = getattr(cls, "name", ep.name)
+        if name in BUILTINS:
+            warnings.warn(f"detector plugin {ep.value} uses the built-in name {name!r}; skipped", stacklevel=2)
+            continue
+        found[name] = DetectorInfo(name, cls, origin)
     found.update(_PLUGINS)
     return found
 
@@ -114,6 +139,8 @@ def make(name: str, **params) -> Detector:
     """A new, unfitted detector by name."""
     if name in BUILTINS:
         return _import_spec(BUILTINS[name])(**params)
+    if name in _PLUGINS:
+        return _PLUGINS[name].cls(**params)
     known = available()
     if name not in known:
         raise DetectorError(f"unknown detector {name!r}; known: {', '.join(known)}")

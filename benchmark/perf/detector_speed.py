@@ -110,7 +110,7 @@ def detector_names(spec: str) -> list[str]:
             print(f"skip plugin entry point {ep.name!r}: {type(exc).__name__}: {exc}", file=sys.stderr)
             continue
         names.append(name)
-    names += list(registry._PLUGINS)
+    names += registry.plugin_names()
     return list(dict.fromkeys(names))
 
 
