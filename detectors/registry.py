@@ -99,6 +99,8 @@ def load_plugin(spec: str) -> DetectorInfo:
     if not isinstance(name, str) or not name:
         raise DetectorError(f"plugin spec {spec!r}: {cls.__name__} must set a class attribute `name`")
     if name in BUILTINS:
+        if _import_spec(BUILTINS[name]) is cls:  # the built-in itself, named by its module
+            return DetectorInfo(name, cls, "built-in")
         raise DetectorError(f"plugin spec {spec!r}: name {name!r} is taken by a built-in detector")
     info = DetectorInfo(name, cls, f"plugin ({spec})")
     _PLUGINS[name] = info
