@@ -18,6 +18,7 @@ COMMAND_MODULES = (
     "benchmark.cli_detectors",
     "benchmark.cli_generate",
     "benchmark.cli_run",
+    "benchmark.cli_report",
 )
 
 

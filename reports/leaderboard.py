@@ -1,0 +1,232 @@
+"""The leaderboard: one row per detector over one or many runs, ranked by a headline score.
+
+Headline score (per detector and run): the mean of the paper's three rates, TP Simulation, TP CSV
+and TN No Attack (fractions 0..1). A rate that is undefined in a run (no attacked flight of that
+mode) is left out of the mean; the other detectors of the run share the same flights, so they
+are compared on the same terms. Detectors are ranked by the mean headline score over the runs in
+which they finished OK.
+
+Several runs of the same configuration (e.g. seeds) give, per metric, the mean over the runs where
+the detector finished OK, the sample standard deviation (``ddof=1``; NaN with a single run) and
+the number of those runs. A detector missing from a run, or whose job failed there, contributes
+nothing to the mean: it is shown by its status in that run (``missing``, ``ERROR``, ``TIMEOUT``,
+``UNFINISHED``), never as zero.
+
+Columns of :func:`build_leaderboard`'s table: ``rank``, ``detector``, ``n_runs`` (OK runs),
+``runs`` (runs given), ``headline_mean``, ``headline_std``, then per run ``status[<run>]`` and
+``headline[<run>]``, then ``<metric>_mean`` / ``<metric>_std`` for every metric of
+:data:`METRICS`.
+"""
+
+from __future__ import annotations
+
+import html
+import os
+from pathlib import Path
+from urllib.parse import quote
+
+import numpy as np
+import pandas as pd
+
+from reports.results import RunResults, load_runs
+
+#: The three rates averaged into the headline score.
+HEADLINE_PARTS = ("tp_simulation", "tp_csv", "tn_no_attack")
+MISSING = "missing"
+
+#: (column, label, format) of the metrics shown and aggregated: ``pct`` = percent of a fraction,
+#: ``fN`` = N decimals.
+METRICS: tuple[tuple[str, str, str], ...] = (
+    ("headline", "Headline", "pct"),
+    ("tp_simulation", "TP Simulation", "pct"),
+    ("tp_csv", "TP CSV", "pct"),
+    ("tn_no_attack", "TN No Attack", "pct"),
+    ("roc_auc", "ROC-AUC", "f3"),
+    ("point_f1", "Point F1", "f3"),
+    ("range_f1", "Range F1", "f3"),
+    ("delay_median_s", "Median delay (s)", "f2"),
+    ("false_alarms_per_hour", "False alarms / h", "f2"),
+    ("latency_us_per_row", "Latency (us/row)", "f1"),
+    ("fit_s", "Fit (s)", "f1"),
+)
+#: Metrics shown in the Markdown and HTML tables (all of METRICS are in the CSV).
+SHOWN = ("tp_simulation", "tp_csv", "tn_no_attack", "roc_auc", "point_f1", "range_f1", "delay_median_s",
+         "false_alarms_per_hour")
+HEADLINE_DOC = ("Headline score = mean of TP Simulation, TP CSV and TN No Attack (a rate undefined in a run is "
+                "left out); detectors are ranked by its mean over the runs where they finished OK. "
+                "With several runs a cell shows mean ± sample standard deviation; n = runs where the detector "
+                "finished OK. A detector that is missing or failed in a run shows that status, never 0.")
+
+
+def headline(metrics: pd.DataFrame) -> pd.Series:
+    """The headline score of each row of a metrics table (NaN for a detector that did not finish OK)."""
+    parts = metrics.reindex(columns=list(HEADLINE_PARTS)).astype(float)
+    return parts.mean(axis=1, skipna=True).where(metrics["status"] == "OK")
+
+
+def status_column(label: str) -> str:
+    return f"status[{label}]"
+
+
+def headline_column(label: str) -> str:
+    return f"headline[{label}]"
+
+
+def _per_run(run: RunResults) -> pd.DataFrame:
+    """One run's metrics indexed by detector, with the headline score; failed rows hold NaN values."""
+    m = run.metrics.drop_duplicates("detector", keep="last").set_index("detector")
+    m = m.assign(headline=headline(m.reset_index()).to_numpy())
+    keys = [k for k, _, _ in METRICS]
+    values = m.reindex(columns=keys).astype(float)
+    values[m["status"] != "OK"] = np.nan
+    values["status"] = m["status"]
+    return values
+
+
+def leaderboard_of(runs: list[RunResults]) -> pd.DataFrame:
+    """The leaderboard of already loaded runs (see the module docstring for its columns)."""
+    tables = [_per_run(r) for r in runs]
+    detectors = list(dict.fromkeys(d for t in tables for d in t.index))
+    keys = [k for k, _, _ in METRICS]
+    rows = []
+    for det in detectors:
+        row: dict = {"detector": det}
+        per_run = []
+        for run, table in zip(runs, tables):
+            present = det in table.index
+            row[status_column(run.label)] = table.at[det, "status"] if present else MISSING
+            row[headline_column(run.label)] = table.at[det, "headline"] if present else np.nan
+            if present and table.at[det, "status"] == "OK":
+                per_run.append(table.loc[det, keys].astype(float))
+        ok = pd.DataFrame(per_run, columns=keys)
+        row["n_runs"] = len(ok)
+        row["runs"] = len(runs)
+        for k in keys:
+            row[f"{k}_mean"] = ok[k].mean() if len(ok) else np.nan
+            row[f"{k}_std"] = ok[k].std(ddof=1) if len(ok) > 1 else np.nan
+        rows.append(row)
+    per_run_cols = [c for r in runs for c in (status_column(r.label), headline_column(r.label))]
+    columns = ["detector", "n_runs", "runs", *per_run_cols, *(f"{k}_{s}" for k in keys for s in ("mean", "std"))]
+    board = pd.DataFrame(rows, columns=columns)
+    board = board.sort_values("headline_mean", ascending=False, na_position="last", kind="stable")
+    scored = board["headline_mean"].notna().to_numpy()
+    board.insert(0, "rank", pd.array(np.where(scored, np.cumsum(scored), 0), dtype="Int64"))
+    board.loc[~scored, "rank"] = pd.NA
+    lead = ["rank", "detector", "n_runs", "runs", "headline_mean", "headline_std"]
+    rest = [c for c in board.columns if c not in lead and c not in per_run_cols]
+    return board[lead + per_run_cols + rest].reset_index(drop=True)
+
+
+def build_leaderboard(runs: list[Path]) -> pd.DataFrame:
+    """One row per detector over the given run folders, ranked by the headline score."""
+    return leaderboard_of(load_runs(list(runs)))
+
+
+# -- formatting -------------------------------------------------------------------------------
+
+def fmt(value, kind: str) -> str:
+    """A number as shown in the tables (``n/a`` for NaN)."""
+    if value is None or pd.isna(value):
+        return "n/a"
+    v = float(value)
+    return f"{100 * v:.1f}%" if kind == "pct" else f"{v:.{kind[1:]}f}"
+
+
+def fmt_spread(mean, std, kind: str) -> str:
+    """``mean ± std`` (just the mean when there is no spread)."""
+    if pd.isna(mean):
+        return "n/a"
+    if std is None or pd.isna(std):
+        return fmt(mean, kind)
+    return f"{fmt(mean, kind)} ± {fmt(std, kind)}"
+
+
+def run_cell(row: pd.Series, label: str) -> str:
+    """A detector's headline score in one run, or its status there (missing / ERROR / ...)."""
+    status = row[status_column(label)]
+    if status != "OK":
+        return str(status)
+    return fmt(row[headline_column(label)], "pct")
+
+
+def display_table(board: pd.DataFrame, runs: list[RunResults]) -> tuple[list[str], list[list[str]]]:
+    """Header and text cells of the leaderboard as shown in Markdown and HTML (not escaped)."""
+    labels = dict((k, (lab, kind)) for k, lab, kind in METRICS)
+    head = ["Rank", "Detector", "Headline", "n runs", *(f"Headline [{r.label}]" for r in runs),
+            *(labels[k][0] for k in SHOWN)]
+    body = []
+    for _, row in board.iterrows():
+        cells = ["–" if pd.isna(row["rank"]) else str(int(row["rank"])), str(row["detector"]),
+                 fmt_spread(row["headline_mean"], row["headline_std"], "pct"), f"{row['n_runs']}/{row['runs']}"]
+        cells += [run_cell(row, r.label) for r in runs]
+        cells += [fmt_spread(row[f"{k}_mean"], row[f"{k}_std"], labels[k][1]) for k in SHOWN]
+        body.append(cells)
+    return head, body
+
+
+def md_text(text: str) -> str:
+    """Text safe in Markdown: HTML-escaped (renderers show it as text), pipes and brackets escaped."""
+    text = html.escape(str(text), quote=False).replace("\n", " ")
+    return "".join("\\" + ch if ch in "|[]" else ch for ch in text)
+
+
+def to_markdown(board: pd.DataFrame, runs: list[RunResults], out: Path | None = None,
+                notes: list[str] = ()) -> str:
+    """leaderboard.md: the ranked table, the runs (with links to their configs), failures and notes."""
+    head, body = display_table(board, runs)
+    lines = ["# scart-bench leaderboard", "", HEADLINE_DOC, "",
+             "| " + " | ".join(md_text(h) for h in head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    lines += ["| " + " | ".join(md_text(c) for c in cells) + " |" for cells in body]
+    lines += ["", "## Runs", "", "| Run | Profile | Seed | Dataset | Detectors | Config |", "|---|---|---|---|---|---|"]
+    for r in runs:
+        link = config_link(r, out)
+        ds = r.config.get("dataset", {}) or {}
+        lines.append(f"| {md_text(r.label)} | {md_text(r.config.get('profile', ''))} | {md_text(r.config.get('seed', ''))} | "
+                     f"{md_text(ds.get('path', ''))} | {len(r.metrics)} | [config.json]({link}) |")
+    fails = failures(runs)
+    if fails:
+        lines += ["", "## Failed or unfinished jobs", ""]
+        lines += [f"- {md_text(run)}: **{md_text(det)}** {md_text(status)}: {md_text(msg)}" for run, det, status, msg in fails]
+    diffs = config_differences(runs)
+    notes = ([f"The runs differ in: {', '.join(diffs)}; their mean mixes configurations."] if diffs else []) + list(notes)
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {md_text(n)}" for n in notes]
+    return "\n".join(lines) + "\n"
+
+
+def config_link(run: RunResults, out: Path | None) -> str:
+    """URL of the run's config.json relative to the report folder (percent-encoded, POSIX separators)."""
+    target = run.config_path.resolve()
+    rel = target if out is None else Path(os.path.relpath(target, Path(out).resolve()))
+    return quote(rel.as_posix())
+
+
+def failures(runs: list[RunResults]) -> list[tuple[str, str, str, str]]:
+    """(run, detector, status, message) of every job that did not finish OK."""
+    out = []
+    for r in runs:
+        bad = r.metrics[r.metrics["status"] != "OK"]
+        out += [(r.label, str(x["detector"]), str(x["status"]), str(x.get("message", ""))) for _, x in bad.iterrows()]
+    return out
+
+
+def config_differences(runs: list[RunResults]) -> list[str]:
+    """Settings that differ between the runs besides the seed and dataset (empty for repeats)."""
+    keys = {"profile": lambda c: c.get("profile"),
+            "protocol": lambda c: (c.get("identity") or {}).get("protocol"),
+            "detector parameters": lambda c: {k: (v or {}).get("params") for k, v in (c.get("jobs") or {}).items()}}
+    out = []
+    for name, get in keys.items():
+        values = [get(r.config) for r in runs]
+        if name == "detector parameters":  # compare only detectors present in several runs
+            common = [set(v) for v in values]
+            shared = set.intersection(*common) if common else set()
+            values = [{k: v[k] for k in shared} for v in values]
+        if any(v != values[0] for v in values[1:]):
+            out.append(name)
+    return out
+
+
+def to_csv(board: pd.DataFrame) -> str:
+    """leaderboard.csv: the full table (fractions 0..1, every metric's mean and std)."""
+    return board.to_csv(index=False)

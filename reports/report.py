@@ -1,0 +1,113 @@
+"""``scart-bench report``: the leaderboard of one or many runs as Markdown, CSV and a self-contained
+HTML page, with the figures (``<out>/figures/*.png``, also embedded in the HTML).
+
+Figures: the headline score per detector; per run, flight-level ROC curves and the TP-rate heatmap;
+for the first run, one example attacked flight (flagged by the top-ranked detector when possible,
+simulation mode first): its path, a sensor trace and that detector's score. The flight's path and
+trace need the run's dataset (``config.json`` ``dataset.path``); when it is gone they are skipped
+with a note.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from benchmark.errors import UsageError
+from benchmark.store import atomic_write_text
+from generator.dataset import is_dataset, open_dataset
+from reports import figures as fg
+from reports import html as html_page
+from reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown
+from reports.results import RunResults, load_runs
+
+
+@dataclass
+class ReportFiles:
+    """What :func:`write_report` wrote."""
+
+    markdown: Path
+    csv: Path
+    html: Path
+    figures: list[Path] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def example_flight(run: RunResults, board: pd.DataFrame) -> tuple[str | None, str | None]:
+    """(detector, flight id) for the example figures: the best-ranked detector that finished OK in the
+    run and an attacked test flight it flagged (simulation mode first), else any attacked flight."""
+    ok = set(run.metrics.loc[run.metrics["status"] == "OK", "detector"].astype(str))
+    ranked = [d for d in board["detector"].astype(str) if d in ok]
+    if not ranked or not (run.path / "flight_scores.csv").exists():
+        return None, None
+    fs = run.table("flight_scores.csv")
+    att = fs[(fs["detector"] == ranked[0]) & (fs["role"] == "test_attacked")]
+    if att.empty:
+        return ranked[0], None
+    att = att.assign(order=~att["flagged"].astype(bool), sim=att["mode"] != "simulation")
+    return ranked[0], str(att.sort_values(["order", "sim"], kind="stable")["flight_id"].iloc[0])
+
+
+def _flight_figures(run: RunResults, board: pd.DataFrame, out: Path) -> tuple[list[tuple[str, Path]], list[str]]:
+    det, fid = example_flight(run, board)
+    if fid is None:
+        return [], [f"{run.label}: no attacked test flight scored by a detector; no flight figures"]
+    figs, notes = [], []
+    ds_path = Path(str((run.config.get("dataset") or {}).get("path", "")))
+    if is_dataset(ds_path):
+        ds = open_dataset(ds_path)
+        figs.append((f"Flight path of attacked flight {fid} ({run.label})", fg.flight_path(ds, fid, out)))
+        figs.append((f"Sensor trace of {fid}, navigator vs simulator view, attack window shaded",
+                     fg.sensor_trace(ds, fid, out)))
+    else:
+        notes.append(f"{run.label}: dataset {ds_path} is not available; flight path and sensor trace skipped")
+    try:
+        figs.append((f"Score of {det} on {fid} with its row threshold, alarms and the attack window shaded",
+                     fg.score_trace(run, det, fid, out)))
+    except UsageError as exc:  # e.g. the job folder was removed: the tables still make a report
+        notes.append(f"{run.label}: score figure of {det} skipped: {exc}")
+    return figs, notes
+
+
+def draw_figures(board: pd.DataFrame, runs: list[RunResults], out: Path) -> tuple[list[tuple[str, Path]], list[str]]:
+    """Every report figure as (caption, PNG path), and notes on what was skipped."""
+    figs: list[tuple[str, Path]] = []
+    notes: list[str] = []
+    if board["headline_mean"].notna().any():
+        figs.append(("Headline score per detector (mean ± std over runs)", fg.headline_bars(board, out)))
+    for run in runs:
+        if not (run.path / "flight_scores.csv").exists():
+            notes.append(f"{run.label}: no flight_scores.csv; ROC and heatmap skipped")
+            continue
+        figs.append((f"Flight-level ROC curves: {run.label}", fg.roc_curves(run, out)))
+        figs.append((f"TP rate by action x target: {run.label}", fg.tp_heatmap(run, out)))
+    more, why = _flight_figures(runs[0], board, out)
+    return figs + more, notes + why
+
+
+def write_report(run_paths: list[str | Path], out: str | Path, figures: bool = True) -> ReportFiles:
+    """Write leaderboard.md, leaderboard.csv, leaderboard.html and figures/ into ``out``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: exists and is not a folder")
+    runs = load_runs(list(run_paths))
+    board = leaderboard_of(runs)
+    out.mkdir(parents=True, exist_ok=True)
+    figs, notes = draw_figures(board, runs, out / "figures") if figures else ([], [])
+    md = to_markdown(board, runs, out, notes)
+    if figs:
+        md += "\n## Figures\n\n" + "".join(f"![{md_text(cap)}]({p.relative_to(out).as_posix()})\n\n"
+                                           for cap, p in figs)
+    diffs = config_differences(runs)
+    if diffs:
+        notes.insert(0, f"The runs differ in: {', '.join(diffs)}; their mean mixes configurations.")
+    files = ReportFiles(out / "leaderboard.md", out / "leaderboard.csv", out / "leaderboard.html",
+                        [p for _, p in figs], notes)
+    for path, text in ((files.markdown, md), (files.csv, to_csv(board)),
+                       (files.html, html_page.page(board, runs, figs, out, notes))):
+        atomic_write_text(path, text)
+        os.chmod(path, 0o644)  # a report is meant to be shared (the temp file was private)
+    return files

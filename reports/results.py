@@ -1,0 +1,94 @@
+"""Reading finished benchmark runs for reports: config, metrics and score tables, never detector code.
+
+A run folder (see :mod:`benchmark.store`) is usable by a report when it has ``config.json`` and
+``metrics.csv`` (written by ``scart-bench run`` or ``scart-bench score``). Text columns (detector
+names, statuses, messages) are read as text, so a detector called ``NA`` or ``nan`` stays a name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from benchmark.errors import UsageError
+from benchmark.store import RunStore, RunStoreError
+
+#: Columns of the run tables that hold text, not numbers.
+TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value")
+
+
+def read_table(path: Path) -> pd.DataFrame:
+    """A CSV table of a run with text columns kept as text and every other column numeric or bool."""
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    for col in df.columns:
+        if col in TEXT_COLUMNS:
+            continue
+        low = df[col].str.lower()
+        if len(df) and low.isin(["true", "false"]).all():
+            df[col] = low == "true"
+        else:
+            df[col] = pd.to_numeric(df[col].replace("", None), errors="coerce")
+    return df
+
+
+@dataclass
+class RunResults:
+    """One run folder as a report sees it."""
+
+    path: Path
+    label: str
+    config: dict
+    metrics: pd.DataFrame  # metrics.csv, one row per detector, in run order
+
+    @property
+    def store(self) -> RunStore:
+        return RunStore(self.path)
+
+    @property
+    def config_path(self) -> Path:
+        return self.path / "config.json"
+
+    def table(self, name: str) -> pd.DataFrame:
+        """Another table of the run (``flight_scores.csv``, ``breakdown.csv``, ``flights.csv``)."""
+        path = self.path / name
+        if not path.is_file():
+            raise UsageError(f"{path}: no such file in the run folder; rerun `scart-bench score {self.path}`")
+        if name == "flights.csv":
+            return self.store.read_flights()
+        return read_table(path)
+
+
+def load_run(path: str | Path, label: str | None = None) -> RunResults:
+    """Read a run folder's config and metrics (UsageError naming the path when it is not a finished run)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise UsageError(f"{path}: no such run folder")
+    try:
+        config = RunStore(path).read_config()
+    except RunStoreError as exc:
+        raise UsageError(str(exc)) from exc
+    except ValueError as exc:
+        raise UsageError(f"{path / 'config.json'}: not valid JSON ({exc})") from exc
+    if not (path / "metrics.csv").is_file():
+        raise UsageError(f"{path}: no metrics.csv; the run has not been scored "
+                         f"(run `scart-bench score {path}` first)")
+    metrics = read_table(path / "metrics.csv")
+    for col in ("detector", "status"):
+        if col not in metrics.columns:
+            raise UsageError(f"{path / 'metrics.csv'}: missing column {col!r}; not a scart-bench metrics table")
+    return RunResults(path, label or str(config.get("name") or path.name), config, metrics)
+
+
+def load_runs(paths: list[str | Path]) -> list[RunResults]:
+    """Load several runs, giving each a distinct label (``name``, ``name #2``, ...)."""
+    if not paths:
+        raise UsageError("expected at least one run folder")
+    runs = [load_run(p) for p in paths]
+    seen: dict[str, int] = {}
+    for run in runs:
+        seen[run.label] = seen.get(run.label, 0) + 1
+        if seen[run.label] > 1:
+            run.label = f"{run.label} #{seen[run.label]}"
+    return runs
