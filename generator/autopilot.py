@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from generator.params import GRAVITY, ControllerParams, EstimatorParams, VehicleParams
-from generator.rotation import euler_from_quat, quat_integrate, quat_to_rot, rotate, wrap_pi
+from generator.rotation import cross, euler_from_quat, quat_integrate, quat_to_rot, rotate, wrap_pi
 
 
 class _SharedKF:
@@ -57,6 +57,7 @@ class EstimatorState:
     inertial_only_s: np.ndarray  # (N,) seconds since the last accepted horizontal aiding
     since_pos_fusion_s: np.ndarray  # (N,) seconds since the last accepted GPS position
     gps_resets: np.ndarray  # (N,) horizontal position resets to GPS
+    R: np.ndarray | None = None  # (N, 3, 3) rotation of ``quat`` (None when stale)
 
 
 class Estimator:
@@ -87,17 +88,17 @@ class Estimator:
                 on_ground: np.ndarray) -> np.ndarray:
         """Propagate with one IMU sample; returns the estimated rotation matrices."""
         p, dt = self.p, self.dt
-        R = quat_to_rot(s.quat)
+        R = s.R if s.R is not None else quat_to_rot(s.quat)
         # tilt correction: measured "down" vs estimated "down" in the body frame
         norm = np.linalg.norm(accel, axis=1)
         trust = (np.abs(norm - GRAVITY) < 0.15 * GRAVITY).astype(float)
         meas_down = -accel / np.maximum(norm, 1e-6)[:, None]
         est_down = R[:, 2, :]  # R^T e3
-        err = np.cross(meas_down, est_down) * (p.att_accel_gain * trust)[:, None]
+        err = cross(meas_down, est_down) * (p.att_accel_gain * trust)[:, None]
         s.gyro_bias -= p.gyro_bias_gain * err * dt
         s.rates = gyro - s.gyro_bias
         s.quat = quat_integrate(s.quat, s.rates + err, dt)
-        R = quat_to_rot(s.quat)
+        R = s.R = quat_to_rot(s.quat)
         # translation: accelerometer in NED minus the estimated bias
         a_ned = rotate(R, accel)
         a_ned[:, 2] += GRAVITY
@@ -125,9 +126,10 @@ class Estimator:
         my = mag[:, 1] * cr - mag[:, 2] * sr
         yaw_mag = np.arctan2(-my, mx) + self.decl
         err = wrap_pi(yaw_mag - eul[:, 2])
-        R = quat_to_rot(s.quat)
+        R = s.R if s.R is not None else quat_to_rot(s.quat)
         axis = R[:, 2, :]  # world down axis in body
         s.quat = quat_integrate(s.quat, axis * (self.p.att_mag_gain * err)[:, None], 0.01)
+        s.R = None
 
     def fuse_baro(self, s: EstimatorState, baro_alt: np.ndarray) -> None:
         """Height from the barometer (altitude AMSL), referenced to the first sample."""
@@ -256,9 +258,9 @@ class Controller:
         f[:, 2] = np.minimum(f[:, 2], -0.3 * GRAVITY)
         b3 = -f / np.linalg.norm(f, axis=1, keepdims=True)
         xc = np.column_stack([np.cos(yaw_sp), np.sin(yaw_sp), np.zeros_like(yaw_sp)])
-        y = np.cross(b3, xc)
+        y = cross(b3, xc)
         y /= np.linalg.norm(y, axis=1, keepdims=True)
-        x = np.cross(y, b3)
+        x = cross(y, b3)
         c.att_quat_sp = np.stack([x, y, b3], axis=2)
         thrust = m * np.einsum("ni,ni->n", f, -R_est[:, :, 2])
         c.thrust_sp = np.clip(thrust, self.p.thrust_min * self.max_total, 0.95 * self.max_total)
@@ -266,7 +268,8 @@ class Controller:
     def attitude_control(self, c: ControllerState, R_est: np.ndarray) -> None:
         """Attitude error -> body-rate setpoint (geometric attitude error, PX4 P gains)."""
         Rd = c.att_quat_sp
-        E = np.einsum("nji,njk->nik", Rd, R_est) - np.einsum("nji,njk->nik", R_est, Rd)
+        A = np.matmul(Rd.transpose(0, 2, 1), R_est)
+        E = A - A.transpose(0, 2, 1)
         e = 0.5 * np.column_stack([E[:, 2, 1], E[:, 0, 2], E[:, 1, 0]])
         rate = -np.array(self.p.att_p) * e
         rmax = np.array(self.p.rate_max)
@@ -279,7 +282,7 @@ class Controller:
         c.rate_int = np.clip(c.rate_int + err * dt * c.armed[:, None], -0.5, 0.5)
         J = self.inertia
         torque = J * (np.array(p.rate_p) * err + np.array(p.rate_i) * c.rate_int)
-        torque += np.cross(rates, rates * J)
+        torque += cross(rates, rates * J)
         wrench = np.column_stack([c.thrust_sp, torque])
         thrusts = wrench @ self.alloc_inv.T
         thrusts = np.clip(thrusts, 0.02 * self.v.max_thrust, self.v.max_thrust)

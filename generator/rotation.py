@@ -72,9 +72,18 @@ def wrap_pi(a: np.ndarray) -> np.ndarray:
 
 def rotate(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """R @ v for (N, 3, 3) and (N, 3)."""
-    return np.einsum("nij,nj->ni", R, v)
+    return np.matmul(R, v[:, :, None])[:, :, 0]
 
 
 def rotate_t(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """R^T @ v for (N, 3, 3) and (N, 3)."""
-    return np.einsum("nji,nj->ni", R, v)
+    return np.matmul(v[:, None, :], R)[:, 0, :]
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross without its axis handling)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out

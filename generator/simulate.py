@@ -354,7 +354,9 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
 def _rot(es):
     from generator.rotation import quat_to_rot
 
-    return quat_to_rot(es.quat)
+    if es.R is None:
+        es.R = quat_to_rot(es.quat)
+    return es.R
 
 
 def _no_gps(n: int) -> dict:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from generator.params import GRAVITY, VehicleParams
-from generator.rotation import quat_integrate, quat_to_rot, rotate, rotate_t
+from generator.rotation import cross, quat_integrate, quat_to_rot, rotate, rotate_t
 
 
 @dataclass
@@ -100,7 +100,7 @@ class Vehicle:
         J = self.inertia
         torque = wrench[:, 1:]
         w = s.omega
-        gyro = np.cross(w, w * J)
+        gyro = cross(w, w * J)
         s.omega = w + (torque - gyro) / J * dt
         s.omega[touching] = 0.0
         s.quat = quat_integrate(s.quat, s.omega, dt)
