@@ -8,7 +8,7 @@ from pathlib import Path
 from generator.dataset import DatasetWriter, FlightRecord, check_output_dir
 from generator.importers import load_flight_file
 from generator.modes import csv_mode, scenario_manifest, with_labels
-from generator.scart.grid import load_any
+from generator.scart.grid import is_grid, load_grid
 
 
 def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",
@@ -29,8 +29,7 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     available = {t: tuple(c for c in df.columns if c not in ("Timestamp", "Is_Anomaly")) for t, df in tables.items()}
     for sc in scenarios:
         sc.validate_topics(available)
-    is_grid = _is_grid(scenario_doc)
-    jobs = [[sc] for sc in scenarios] if is_grid else [scenarios]
+    jobs = [[sc] for sc in scenarios] if is_grid(scenario_doc) else [scenarios]
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
     writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
                            info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_doc)})
@@ -48,16 +47,10 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     return out
 
 
-def _is_grid(path: Path) -> bool:
-    import tomllib
-
-    return "grid" in tomllib.loads(path.read_text())
-
-
 def load_any_unchecked(path: Path):
     """Scenarios from a scenario or grid file, topics checked later against the input's."""
     from generator.scart.scenario import load_scenarios
 
-    if path.is_file() and _is_grid(path):
-        return load_any(path)
+    if is_grid(path):
+        return load_grid(path)
     return load_scenarios(path, check_topics=False)

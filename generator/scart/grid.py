@@ -32,12 +32,11 @@ Each configuration's id is ``<grid id>-<action>-<target>-L<level>-d<duration>-<t
 from __future__ import annotations
 
 import itertools
-import tomllib
 from pathlib import Path
 
 from generator.scart.actions import ACTIONS
 from generator.scart.scenario import Scenario, scenario_from_dict
-from generator.scart.spec import ScenarioError
+from generator.scart.spec import ScenarioError, read_toml
 
 AXES = ("action", "target", "level", "duration_s", "trigger")
 
@@ -54,12 +53,7 @@ def _need(table: dict, key: str, where: str, kind: type | tuple):
 def load_grid(path: str | Path) -> list[Scenario]:
     """Expand a grid file into validated scenarios (one per configuration), in a stable order."""
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(f"{path}: no such grid file")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    doc = read_toml(path, "grid file")
     src = str(path)
     grid = _need(doc, "grid", src, dict)
     gid = grid.get("id", path.stem)
@@ -130,14 +124,13 @@ def load_grid(path: str | Path) -> list[Scenario]:
 
 def load_any(path: str | Path) -> list[Scenario]:
     """A scenario file or a grid file, by its top-level table."""
-    path = Path(path)
-    if path.is_file():
-        try:
-            doc = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
-        if "grid" in doc:
-            return load_grid(path)
+    if is_grid(path):
+        return load_grid(path)
     from generator.scart.scenario import load_scenarios
 
     return load_scenarios(path)
+
+
+def is_grid(path: str | Path) -> bool:
+    """True when the file is a grid file (has a [grid] table)."""
+    return "grid" in read_toml(path)

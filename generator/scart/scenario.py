@@ -28,14 +28,13 @@ A file holds one ``[scenario]`` or several ``[[scenario]]`` tables (applied toge
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from generator.link import SENSOR_TOPICS
 from generator.scart.actions import ACTIONS
 from generator.scart.conditions import CONDITIONS
-from generator.scart.spec import ScenarioError, validate_params
+from generator.scart.spec import ScenarioError, read_toml, validate_params
 from generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
 
 INJECTION_POINTS = ("link", "sensor", "command")
@@ -214,12 +213,7 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
 def load_scenarios(path: str | Path, check_topics: bool = True) -> list[Scenario]:
     """Read and validate a scenario file (one [scenario] or several [[scenario]])."""
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(f"{path}: no such scenario file")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    doc = read_toml(path)
     if "scenario" not in doc:
         raise ScenarioError(f"{path}: expected a [scenario] table (or [[scenario]] tables); found keys: "
                             f"{', '.join(doc) or '(none)'}")

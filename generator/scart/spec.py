@@ -3,12 +3,25 @@
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 
 class ScenarioError(ValueError):
     """A scenario or grid file is invalid; the message names the file, the key and what is allowed."""
+
+
+def read_toml(path: str | Path, what: str = "scenario file") -> dict:
+    """Parse a TOML file, turning a missing file or a syntax error into a ScenarioError."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"{path}: no such {what}")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
 
 
 @dataclass(frozen=True)
