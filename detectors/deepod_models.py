@@ -233,6 +233,7 @@ class _DeepODDetector(Detector):
         cap = int(self.max_train_windows)
         if train.shape[0] > cap:
             train = train[np.sort(self._rng().choice(train.shape[0], size=cap, replace=False))]
+        self.history_rows_ = int(self.window)  # the window ending at a row decides its score
         self.feature_mean_ = train.mean(axis=0)
         self.feature_scale_ = np.maximum(train.std(axis=0), _MIN_FEATURE_SCALE)
         train = ((train - self.feature_mean_) / self.feature_scale_).astype(np.float32)

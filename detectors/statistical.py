@@ -140,6 +140,7 @@ class Statistical(Detector):
         X = np.concatenate(X_list, axis=0)
         stats = [self._rolling_statistics(x) for x in X_list]
         ma, inc_std, var = (np.concatenate(parts, axis=0) for parts in zip(*stats))
+        self.history_rows_ = int(self.window) + 1  # the trailing window and one row for its increments
         self.value_mean_ = X.mean(axis=0)
         self.value_std_ = np.maximum(X.std(axis=0), _EPS)
         self.ma_mean_ = ma.mean(axis=0)

@@ -194,6 +194,9 @@ class TSBitmaps(Detector):
     def _fit(self, X_list: list[np.ndarray]) -> None:
         self._check_params()
         self.breakpoints_ = sax_breakpoints(int(self.alphabet_size))
+        # rows a live monitor keeps; symbols are aligned to the start of the series, so a trailing
+        # window reproduces the batch score only approximately (within ~10 % here)
+        self.history_rows_ = int(self.lag_window_size) + int(self.lead_window_size) + int(self.feature_window_size)
         train = np.concatenate([self._channel_distances(x) for x in X_list], axis=0)
         self.unit_ = np.maximum(np.percentile(train, float(self.q), axis=0), _MIN_UNIT)
 
