@@ -179,6 +179,14 @@ def test_duplicate_returns_the_value_k_messages_back():
     np.testing.assert_array_equal(nav["local_position_ned"]["x"].to_numpy()[m], x[m - 7])
 
 
+def test_avg_sensors_is_the_mean_of_the_last_n_messages():
+    src, nav, w = _attack({"action": "avg_sensors", "target": ["local_position_ned.x"], "window": 5})
+    m = np.flatnonzero(_in_window(nav["local_position_ned"], w))
+    x = src["local_position_ned"]["x"].to_numpy()
+    expect = np.array([x[i - 4:i + 1].mean() for i in m])
+    np.testing.assert_allclose(nav["local_position_ned"]["x"].to_numpy()[m], expect, rtol=1e-12)
+
+
 def test_stuck_holds_and_delayed_shifts_by_d():
     src, nav, w = _attack({"action": "stuck", "target": ["local_position_ned.x"]})
     m = np.flatnonzero(_in_window(nav["local_position_ned"], w))

@@ -45,10 +45,10 @@ class TopicHistory:
         """(N, F) mean of the last ``n`` messages per flight (n clamped to what is kept)."""
         avail = min(self.count, self.depth)
         n = np.clip(np.asarray(n, dtype=np.int64), 1, max(avail, 1))
-        total = np.zeros_like(self.values[0])
-        for k in range(int(n.max())):
-            use = (k < n)[:, None]
-            total += np.where(use, self.back(k), 0.0)
+        m = int(n.max())
+        slots = (self.count - 1 - np.arange(m)) % self.depth  # newest first
+        use = np.arange(m)[:, None] < n[None, :]  # (m, N)
+        total = np.where(use[:, :, None], self.values[slots], 0.0).sum(axis=0)
         return total / n[:, None]
 
     def at_time(self, t_us: np.ndarray) -> np.ndarray:
