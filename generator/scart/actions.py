@@ -154,8 +154,9 @@ class AvgSensors(Action):
         return int(np.max(self.params["window"])) + 1
 
     def alter(self, ctx, topic, cur, active):
-        mean = ctx.history.get(topic).mean_last(ctx.per_batch(self.params["window"], 1))
-        return mean[ctx.rows][:, list(self.fields[topic])], _keep(cur.shape[0])
+        n = np.broadcast_to(np.asarray(self.params["window"]).reshape(-1), ctx.rows.shape)
+        mean = ctx.history.get(topic).mean_last(n, ctx.rows)
+        return mean[:, list(self.fields[topic])], _keep(cur.shape[0])
 
 
 class GpsSpoof(Action):

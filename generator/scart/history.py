@@ -41,14 +41,15 @@ class TopicHistory:
             return self.values[int(slots)]
         return self.values[slots, np.arange(slots.shape[0])]
 
-    def mean_last(self, n: np.ndarray) -> np.ndarray:
-        """(N, F) mean of the last ``n`` messages per flight (n clamped to what is kept)."""
+    def mean_last(self, n: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(R, F) mean of the last ``n`` (R,) messages of the flights ``rows`` (default: all)."""
         avail = min(self.count, self.depth)
         n = np.clip(np.asarray(n, dtype=np.int64), 1, max(avail, 1))
         m = int(n.max())
         slots = (self.count - 1 - np.arange(m)) % self.depth  # newest first
-        use = np.arange(m)[:, None] < n[None, :]  # (m, N)
-        total = np.where(use[:, :, None], self.values[slots], 0.0).sum(axis=0)
+        block = self.values[slots] if rows is None else self.values[slots][:, rows]
+        use = np.arange(m)[:, None] < n[None, :]  # (m, R)
+        total = np.where(use[:, :, None], block, 0.0).sum(axis=0)
         return total / n[:, None]
 
     def at_time(self, t_us: np.ndarray) -> np.ndarray:
