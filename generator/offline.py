@@ -52,5 +52,5 @@ def load_any_unchecked(path: Path):
     from generator.scart.scenario import load_scenarios
 
     if is_grid(path):
-        return load_grid(path)
+        return load_grid(path, check_topics=False)
     return load_scenarios(path, check_topics=False)

@@ -329,3 +329,33 @@ def test_bad_scenario_files_name_file_key_and_allowed_values(tmp_path, capsys, n
     assert main(["attack", "--input", str(flight), "--scenario", str(path), "--out", str(out)]) == 2
     assert str(path) in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_attack_with_a_grid_gives_one_copy_per_configuration(tmp_path):
+    grid = tmp_path / "grid.toml"
+    grid.write_text("""
+[grid]
+id = "ulog"
+[grid.axes]
+action = ["bias", "add_white_noise"]
+target = ["gps"]
+level = [0, 1]
+duration_s = [3.0]
+trigger = ["t"]
+[targets.gps]
+fields = ["vehicle_gps_position.lat", "vehicle_gps_position.lon"]
+magnitudes = [5.0, 20.0]
+[actions.bias]
+param = "offset"
+[actions.add_white_noise]
+param = "std"
+[triggers.t]
+start = [{ condition = "time_window", start_s = 15.0 }]
+""")
+    out = tmp_path / "out"
+    assert main(["attack", "--input", str(RFLYMAD), "--scenario", str(grid), "--out", str(out),
+                 "--topics", "vehicle_gps_position,sensor_combined"]) == 0
+    ds = open_dataset(out)
+    assert sorted(ds.manifest["flight_id"]) == sorted(f"csv-ulog-{a}-gps-L{k}-d3-t" for a in ("bias", "add_white_noise")
+                                                      for k in (0, 1))
+    assert (ds.manifest["attack_start_us"] == 15_000_000).all()
