@@ -147,7 +147,7 @@ class DatasetWriter:
     """
 
     def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
-                 overwrite: bool = False):
+                 overwrite: bool = False, workers: int = 0):
         if fmt not in FORMATS:
             raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
         self.out = Path(out)
@@ -160,35 +160,42 @@ class DatasetWriter:
             shutil.rmtree(self.out / "flights", ignore_errors=True)
         (self.out / "flights").mkdir(parents=True, exist_ok=True)
         self.rows: list[dict] = []
+        self.workers = int(workers)
+        self._pending: list = []
+        self._pool = None
+        if self.workers > 0:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
 
     def write(self, record: FlightRecord) -> None:
-        """Write one flight's raw, sensors and combined folders."""
-        root = self.out / "flights" / record.flight_id
-        for sub in ("raw", "sensors/navigator", "sensors/simulator", "combined"):
-            (root / sub).mkdir(parents=True, exist_ok=True)
-        (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
-                                                             default=_json_default))
-        events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
-        events.to_csv(root / "raw" / "events.csv", index=False)
-        n_rows = 0
-        for view, topics in (("navigator", record.navigator), ("simulator", record.simulator)):
-            for name, df in topics.items():
-                _write_table(df, root / "sensors" / view / name, self.fmt)
-            link_topics = {k: v for k, v in topics.items() if k != "truth"}
-            for table, df in combine(link_topics, record.windows).items():
-                _write_table(df, root / "combined" / f"{view}_{table}", self.fmt)
-                if view == "navigator" and table == "most_frequent":
-                    n_rows = len(df)
-        row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
-        row["flight_id"] = record.flight_id
-        row["rows"] = n_rows
-        if record.windows:
-            row["attack_start_us"] = int(min(s for s, _ in record.windows))
-            row["attack_end_us"] = int(max(e for _, e in record.windows))
-        self.rows.append(row)
+        """Write one flight's raw, sensors and combined folders (in a worker process if any)."""
+        if self._pool is None:
+            self.rows.append(write_flight(self.out, self.fmt, record))
+            return
+        while len(self._pending) >= 2 * self.workers:  # bound the records held in memory
+            self.rows.append(self._pending.pop(0).result())
+        self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record))
+
+    def abort(self) -> None:
+        """Stop the worker processes without writing a manifest (the folder stays incomplete)."""
+        if self._pool is not None:
+            for f in self._pending:
+                f.cancel()
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+            self._pending = []
 
     def close(self) -> Path:
         """Write dataset.json and, last, the manifest. Returns the manifest path."""
+        if self._pool is not None:
+            try:
+                self.rows.extend(f.result() for f in self._pending)
+            finally:
+                self._pending = []
+                self._pool.shutdown()
+                self._pool = None
         (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt}, indent=2,
                                                           sort_keys=True, default=_json_default))
         manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
@@ -202,6 +209,33 @@ class DatasetWriter:
             manifest.to_csv(tmp, index=False)
         os.replace(tmp, final)
         return final
+
+
+def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
+    """Write one flight's raw, sensors and combined folders; returns its manifest row."""
+    root = out / "flights" / record.flight_id
+    for sub in ("raw", "sensors/navigator", "sensors/simulator", "combined"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
+                                                         default=_json_default))
+    events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
+    events.to_csv(root / "raw" / "events.csv", index=False)
+    n_rows = 0
+    for view, topics in (("navigator", record.navigator), ("simulator", record.simulator)):
+        for name, df in topics.items():
+            _write_table(df, root / "sensors" / view / name, fmt)
+        link_topics = {k: v for k, v in topics.items() if k != "truth"}
+        for table, df in combine(link_topics, record.windows).items():
+            _write_table(df, root / "combined" / f"{view}_{table}", fmt)
+            if view == "navigator" and table == "most_frequent":
+                n_rows = len(df)
+    row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
+    row["flight_id"] = record.flight_id
+    row["rows"] = n_rows
+    if record.windows:
+        row["attack_start_us"] = int(min(s for s, _ in record.windows))
+        row["attack_end_us"] = int(max(e for _, e in record.windows))
+    return row
 
 
 def _json_default(obj):

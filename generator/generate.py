@@ -103,8 +103,19 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
 
 def _write_all(partial: Path, prof: Profile, cfg: FlightConfig, config_dict: dict, seeds: list[int],
                split_of: list[str], count: int, seed: int, fmt: str, with_attacks: bool, log) -> None:
-    writer = DatasetWriter(partial, fmt=fmt,
+    # one worker process writes flights while this one simulates the next batch
+    writer = DatasetWriter(partial, fmt=fmt, workers=1,
                            info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions()})
+    try:
+        _fly_and_write(writer, prof, cfg, config_dict, seeds, split_of, count, seed, with_attacks, log)
+    except BaseException:
+        writer.abort()
+        raise
+    writer.close()
+
+
+def _fly_and_write(writer: DatasetWriter, prof: Profile, cfg: FlightConfig, config_dict: dict, seeds: list[int],
+                   split_of: list[str], count: int, seed: int, with_attacks: bool, log) -> None:
     say = log or (lambda msg: None)
     sources: dict[str, list] = {"test": [], "validation": []}
     for start in range(0, count, prof.batch_size):
@@ -119,4 +130,3 @@ def _write_all(partial: Path, prof: Profile, cfg: FlightConfig, config_dict: dic
                 sources[split_of[i]].append((record.flight_id, strip_labels(record.navigator), seeds[i]))
     if with_attacks and prof.scenario_grid is not None:
         attack_flights(writer, prof, sources["test"] + sources["validation"], seed, cfg, config_dict, say)
-    writer.close()
