@@ -1,0 +1,29 @@
+"""MAVLink 2 on the Simulator <-> Navigator link: the codec, the live proxy and the generator's endpoints.
+
+- :mod:`generator.mavlink.codec`: frame splitting and checking, topic <-> MAVLink message mapping;
+- :mod:`generator.mavlink.proxy`: the man-in-the-middle that runs the SCART layer on a live link;
+- :mod:`generator.mavlink.link`: hooks that make the built-in generator speak MAVLink over UDP
+  (flight-controller side and mission-computer side as two endpoints);
+- :mod:`generator.mavlink.monitor`: a fitted detector scoring the navigator-side stream online;
+- :mod:`generator.mavlink.recording`: the proxied flight in the dataset layout.
+
+pymavlink is an optional dependency (``pip install scart-bench[mavlink]``); importing these
+modules without it raises :class:`MavlinkMissing`.
+"""
+
+from __future__ import annotations
+
+INSTALL_HINT = "pip install scart-bench[mavlink]"
+
+
+class MavlinkMissing(ImportError):
+    """pymavlink is not installed."""
+
+
+def require_pymavlink():
+    """The pymavlink MAVLink 2 ``common`` dialect module, or a clear MavlinkMissing error."""
+    try:
+        from pymavlink.dialects.v20 import common
+    except ImportError as exc:
+        raise MavlinkMissing(f"the MAVLink proxy needs pymavlink: {INSTALL_HINT}") from exc
+    return common

@@ -1,0 +1,369 @@
+"""The live MAVLink man-in-the-middle: the SCART layer on a real autopilot <-> mission-computer link.
+
+::
+
+    autopilot --telemetry--> [listen]  proxy  [forward] --telemetry--> mission computer
+    autopilot <--commands--- [listen]  proxy  [forward] <--commands--- mission computer
+
+The proxy receives the autopilot's datagrams on the ``listen`` address (it learns the autopilot's
+address from them) and sends telemetry on to the ``forward`` address from a second socket, on
+which the mission computer's commands come back. Each datagram is cut into frames
+(:func:`generator.mavlink.codec.split_frames`); malformed pieces are counted and dropped. A
+frame of a topic the scenarios use is decoded, passed through the same
+:class:`generator.scart.layer.AttackLayer` as in simulation mode (a batch of one flight, point
+``link`` for telemetry and ``command`` for setpoints), and forwarded: the received bytes when the
+layer left the values as they were, a re-encoded frame (same header, only the changed fields
+rewritten) when it altered them, nothing when it dropped the message. Every other frame, in
+both directions, is forwarded byte for byte; a datagram whose frames all pass is forwarded as
+received.
+
+The layer's clock is the autopilot's: the message timestamps (``time_boot_ms``/``time_usec``),
+counted from the first one seen, never decreasing; messages without a timestamp take the last.
+"""
+
+from __future__ import annotations
+
+import math
+import selectors
+import socket
+import sys
+import threading
+import time
+from array import array
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from generator.mavlink.codec import (
+    BY_MSGID,
+    CODECS,
+    KNOWN,
+    STATE_MESSAGES,
+    LinkState,
+    Packer,
+    split_frames,
+)
+from generator.scart.layer import AttackLayer
+from generator.scart.scenario import Scenario
+from generator.topics import TOPICS
+
+#: default addresses: PX4's onboard (mission computer) link, on loopback
+DEFAULT_LISTEN = "udp:127.0.0.1:14540"
+DEFAULT_FORWARD = "udp:127.0.0.1:14541"
+_MAX_DATAGRAM = 65535
+_DRAIN = 64  # datagrams read from one socket before looking at the other
+
+
+class ProxyError(ValueError):
+    """The proxy cannot be set up as asked (bad address, unusable scenario, port in use)."""
+
+
+def parse_endpoint(text: str, option: str = "address") -> tuple[str, int]:
+    """``udp:HOST:PORT`` (or ``HOST:PORT``) as ``(host, port)``."""
+    spec = text[4:] if text.startswith("udp:") else text
+    host, sep, port = spec.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ProxyError(f"{option} {text!r}: expected udp:HOST:PORT, e.g. udp:127.0.0.1:14540")
+    return host, int(port)
+
+
+def _is_loopback(host: str) -> bool:
+    return host == "localhost" or host.startswith("127.") or host == "::1"
+
+
+@dataclass
+class ProxyStats:
+    """Counters of a proxy run and the time it took to handle each datagram."""
+
+    datagrams: int = 0
+    frames: int = 0
+    forwarded: int = 0
+    decoded: int = 0
+    altered: int = 0
+    dropped: int = 0  # by a scenario action
+    malformed: int = 0
+    unknown: int = 0  # message ids the dialect does not know, passed unchecked
+    telemetry: int = 0
+    commands: int = 0
+    no_autopilot: int = 0  # command datagrams before the autopilot was heard from (dropped)
+    errors: int = 0  # datagrams passed unchanged because handling them raised
+    handle_ns: array = field(default_factory=lambda: array("q"))
+
+    def latency_ms(self, q: float) -> float:
+        """The ``q`` quantile (0..1) of the per-datagram handling time, in milliseconds."""
+        if not len(self.handle_ns):
+            return float("nan")
+        return float(np.quantile(np.frombuffer(self.handle_ns, dtype=np.int64), q)) / 1e6
+
+    def summary(self) -> str:
+        return (f"{self.datagrams} datagrams, {self.frames} frames: {self.forwarded} forwarded "
+                f"({self.altered} altered), {self.dropped} dropped by the scenario, {self.malformed} malformed "
+                f"dropped, {self.unknown} of unknown message ids passed; handling p50 "
+                f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms")
+
+    def to_dict(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k != "handle_ns"}
+        d["handle_p50_ms"] = self.latency_ms(0.5)
+        d["handle_p99_ms"] = self.latency_ms(0.99)
+        return d
+
+
+class _Views:
+    """Per topic, the messages received (simulator view) and forwarded (navigator view)."""
+
+    def __init__(self) -> None:
+        self.received: dict[str, tuple[list[int], list[np.ndarray]]] = {}
+        self.forwarded: dict[str, tuple[list[int], list[np.ndarray]]] = {}
+
+    @staticmethod
+    def _add(store, topic: str, t_us: int, values: np.ndarray) -> None:
+        ts, vals = store.setdefault(topic, ([], []))
+        ts.append(t_us)
+        vals.append(values)
+
+
+class MavlinkProxy:
+    """A MAVLink proxy that runs ``scenarios`` (one flight's scenario list) on the link.
+
+    ``record``: keep both views for :meth:`record`; ``monitor``: an object with
+    ``on_message(topic, t_us, values, layer)`` fed with every forwarded topic message (see
+    :class:`generator.mavlink.monitor.StreamMonitor`). Use :meth:`open` then :meth:`serve`
+    (blocking until ``stop`` is set) or :meth:`start`/:meth:`stop` for a background thread.
+    """
+
+    def __init__(self, listen: tuple[str, int], forward: tuple[str, int], scenarios: list[Scenario],
+                 seed: int = 0, record: bool = False, monitor=None, log: Callable[[str], None] | None = None):
+        for sc in scenarios:
+            if sc.injection_point == "sensor":
+                raise ProxyError(f"scenario {sc.id!r} ({sc.source}): injection point 'sensor' is inside the "
+                                 "flight controller; the proxy sits on the link (use 'link' or 'command')")
+        self.listen = listen
+        self.forward = forward
+        self.scenarios = list(scenarios)
+        self.seed = int(seed)
+        self.layer = AttackLayer([self.scenarios], [self.seed], rates={t: v.rate_hz for t, v in TOPICS.items()})
+        self.monitor = monitor
+        self.recording = bool(record)
+        self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+        self.layer_topics = frozenset(t for t in self.layer.listened if t in CODECS)
+        topics = set(CODECS) if (record or monitor is not None) else set(self.layer_topics)
+        self._codecs = {c.msgid: c for c in BY_MSGID.values() if c.topic in topics}
+        self._state_ids = STATE_MESSAGES if "setpoint" in topics else frozenset()
+        self.stats = ProxyStats()
+        self.views = _Views()
+        self.state_in = LinkState()  # decodes what arrives (simulator view)
+        self.state_out = LinkState()  # decodes what is forwarded (navigator view)
+        self.packer = Packer()
+        self.autopilot: tuple[str, int] | None = None
+        self.mission_computer: tuple[str, int] = forward
+        self.first_time_us: int | None = None
+        self.clock_us = 0
+        self.started_wall = time.time()
+        self._up: socket.socket | None = None
+        self._down: socket.socket | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._error_logged = 0
+
+    # -- sockets ----------------------------------------------------------------------------------
+    def open(self) -> MavlinkProxy:
+        """Bind the two sockets (the listen address, and an ephemeral port for the forward side)."""
+        try:
+            self._up = _udp_socket(self.listen)
+            down_host = self.listen[0] if _is_loopback(self.forward[0]) else ""
+            self._down = _udp_socket((down_host, 0))
+        except OSError as exc:
+            self.close()
+            raise ProxyError(f"cannot bind udp:{self.listen[0]}:{self.listen[1]}: {exc.strerror or exc}") from exc
+        return self
+
+    @property
+    def listen_address(self) -> tuple[str, int]:
+        """The bound listen address (the real port when 0 was asked for)."""
+        return self._up.getsockname()[:2]
+
+    @property
+    def forward_side_address(self) -> tuple[str, int]:
+        """The address telemetry is sent from and commands come back to."""
+        return self._down.getsockname()[:2]
+
+    def close(self) -> None:
+        for s in (self._up, self._down):
+            if s is not None:
+                s.close()
+        self._up = self._down = None
+
+    # -- running ----------------------------------------------------------------------------------
+    def serve(self, stop: threading.Event | None = None, poll_s: float = 0.1) -> ProxyStats:
+        """Forward traffic until ``stop`` (or :meth:`stop`) is set; returns the counters."""
+        if self._up is None:
+            self.open()
+        stop = stop or self._stop
+        sel = selectors.DefaultSelector()
+        sel.register(self._up, selectors.EVENT_READ, True)
+        sel.register(self._down, selectors.EVENT_READ, False)
+        try:
+            while not stop.is_set() and not self._stop.is_set():
+                for key, _ in sel.select(poll_s):
+                    self._drain(key.fileobj, key.data)
+        finally:
+            sel.close()
+        return self.stats
+
+    def start(self) -> MavlinkProxy:
+        """Serve in a background thread (for tests and the generator's loopback)."""
+        if self._up is None:
+            self.open()
+        self._thread = threading.Thread(target=self.serve, name="mavlink-proxy", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    def _drain(self, sock: socket.socket, from_autopilot: bool) -> None:
+        for _ in range(_DRAIN):
+            try:
+                data, addr = sock.recvfrom(_MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                return
+            except ConnectionError:  # ICMP port unreachable from an earlier send: not fatal for UDP
+                continue
+            t0 = time.perf_counter_ns()
+            self.stats.datagrams += 1
+            if from_autopilot:
+                self.autopilot = addr
+                out = self._guarded(data, True)
+                if out:
+                    self._send(self._down, out, self.mission_computer)
+            else:
+                out = self._guarded(data, False)
+                if out:
+                    if self.autopilot is None:
+                        self.stats.no_autopilot += 1
+                    else:
+                        self._send(self._up, out, self.autopilot)
+            self.stats.handle_ns.append(time.perf_counter_ns() - t0)
+
+    def _send(self, sock: socket.socket, data: bytes, addr) -> None:
+        try:
+            sock.sendto(data, addr)
+        except OSError:  # peer not there (yet): UDP semantics, the datagram is lost
+            pass
+
+    def _guarded(self, data: bytes, telemetry: bool) -> bytes:
+        try:
+            return self.handle(data, telemetry)
+        except Exception as exc:  # fail open: a bug in an action must not cut the link
+            self.stats.errors += 1
+            if self._error_logged < 5:
+                self._error_logged += 1
+                self.log(f"proxy: error handling a datagram ({type(exc).__name__}: {exc}); passed unchanged")
+            return data
+
+    # -- one datagram -----------------------------------------------------------------------------
+    def handle(self, data: bytes, telemetry: bool) -> bytes:
+        """The datagram to forward for one received datagram (empty: nothing to forward)."""
+        frames, bad = split_frames(data)
+        st = self.stats
+        st.malformed += bad
+        st.frames += len(frames)
+        if telemetry:
+            st.telemetry += len(frames)
+        else:
+            st.commands += len(frames)
+        changed = bad > 0
+        parts: list[bytes] = []
+        for f in frames:
+            raw = data[f.start:f.end]
+            codec = self._codecs.get(f.msgid)
+            if codec is None or (codec.topic == "setpoint") == telemetry:
+                if f.msgid in self._state_ids:
+                    msg = self.packer.decode(raw)
+                    self.state_in.observe(f.msgid, msg)
+                    self.state_out.observe(f.msgid, msg)
+                elif f.msgid not in KNOWN:
+                    st.unknown += 1
+                parts.append(raw)
+                continue
+            out = self._topic_frame(codec, raw, f.version, f.signed)
+            if out is None:
+                changed = True
+                continue
+            if out is not raw:
+                changed = True
+            parts.append(out)
+        st.forwarded += len(parts)
+        if not changed:
+            return data
+        return b"".join(parts)
+
+    def _tick(self, t_msg: int | None) -> int:
+        if t_msg is not None:
+            if self.first_time_us is None:
+                self.first_time_us = t_msg
+            self.clock_us = max(self.clock_us, t_msg - self.first_time_us)
+        return self.clock_us
+
+    def _topic_frame(self, codec, raw: bytes, version: int, signed: bool) -> bytes | None:
+        msg = self.packer.decode(raw)
+        self.stats.decoded += 1
+        topic = codec.topic
+        t_us = self._tick(codec.time_us(msg))
+        values = np.asarray(codec.decode(msg, self.state_in), dtype=np.float64)
+        new, ok = values, True
+        if topic in self.layer_topics:
+            point = "command" if topic == "setpoint" else "link"
+            vals, delivered = self.layer.on_messages(point, 0, t_us, {topic: values[None, :]})[topic]
+            new, ok = vals[0], bool(delivered[0])
+        if self.recording:
+            _Views._add(self.views.received, topic, t_us, values)
+        if not ok:
+            self.stats.dropped += 1
+            return None
+        out = raw
+        if new is not values and not signed and not np.array_equal(new, values, equal_nan=True):
+            if codec.alter(msg, new, values):
+                out = self.packer.repack(msg, version)
+                self.stats.altered += 1
+        if self.recording or self.monitor is not None:
+            seen = np.asarray(codec.decode(msg, self.state_out), dtype=np.float64)
+            if self.recording:
+                _Views._add(self.views.forwarded, topic, t_us, seen)
+            if self.monitor is not None:
+                self.monitor.on_message(topic, t_us, seen, self.layer)
+        return out
+
+    # -- the recorded flight --------------------------------------------------------------------
+    @property
+    def end_us(self) -> int:
+        return self.clock_us + 1
+
+    def windows(self) -> list[tuple[int, int]]:
+        """Attack windows so far (an open one is closed at the current clock)."""
+        return self.layer.windows(0, self.end_us)
+
+    def record(self, flight_id: str, extra_config: dict | None = None):
+        """The proxied flight as a :class:`generator.dataset.FlightRecord` (both views, labels, events)."""
+        from generator.mavlink.recording import proxy_record
+
+        return proxy_record(self, flight_id, extra_config or {})
+
+
+def _udp_socket(addr: tuple[str, int]) -> socket.socket:
+    family = socket.AF_INET6 if ":" in addr[0] else socket.AF_INET
+    s = socket.socket(family, socket.SOCK_DGRAM)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+    s.bind(addr)
+    s.setblocking(False)
+    return s
+
+
+def stats_line(stats: ProxyStats, wall_s: float) -> str:
+    """One line for the log: counters and rate."""
+    rate = stats.frames / wall_s if wall_s > 0 and math.isfinite(wall_s) else float("nan")
+    return f"{stats.summary()}; {rate:.0f} frames/s"
