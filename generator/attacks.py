@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from generator.dataset import DatasetWriter, FlightRecord
+from generator.dataset import LABEL_COLUMNS, DatasetWriter, FlightRecord
 from generator.modes import csv_mode, scenario_manifest, simulation_mode, simulation_record, with_labels
 from generator.scart.grid import load_any
 from generator.scart.scenario import Scenario
@@ -77,4 +77,4 @@ def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[st
 
 
 def strip_labels(topics: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
-    return {t: df.drop(columns=["Is_Anomaly"], errors="ignore") for t, df in topics.items()}
+    return {t: df.drop(columns=list(LABEL_COLUMNS), errors="ignore") for t, df in topics.items()}

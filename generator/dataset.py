@@ -9,9 +9,11 @@
 <dataset>/flights/<id>/combined/     navigator_all_sensors, navigator_most_frequent,
                                      simulator_all_sensors, simulator_most_frequent
 ```
-Topic tables have columns ``Timestamp`` (integer microseconds from the start of the run),
-``Is_Anomaly`` and the topic's fields. Combined tables start with ``Index``, ``Timestamp``,
-``Is_Anomaly`` and then one ``topic.field`` column per field of every topic.
+Topic tables have columns ``Timestamp`` (integer microseconds from the start of the run), the
+labels and the topic's fields. Combined tables start with ``Index``, ``Timestamp``, the labels and
+then one ``topic.field`` column per field of every topic. The labels: ``Is_Anomaly`` (1 inside
+any window), ``Anomaly_Ids`` (the active scenario ids, joined by "+", empty outside windows) and
+``Anomaly_Kind`` ("attack", "fault" or "attack+fault"; empty outside windows).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ VIEWS = ("navigator", "simulator")
 TABLES = ("most_frequent", "all_sensors")
 MANIFEST_COLUMNS = (
     "flight_id", "mode", "scenario_id", "action", "target", "injection_point", "params", "seed",
-    "split", "rows", "duration_s", "attack_start_us", "attack_end_us", "source_flight",
+    "split", "rows", "duration_s", "attack_start_us", "attack_end_us", "source_flight", "kind",
 )
 
 
@@ -54,17 +56,54 @@ class FlightRecord:
     simulator: dict[str, pd.DataFrame]
     manifest: dict
     config: dict
-    windows: list[tuple[int, int]] = field(default_factory=list)
+    windows: list[tuple] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
 
 
-def label_rows(timestamps: np.ndarray, windows: Iterable[tuple[int, int]]) -> np.ndarray:
+#: The label columns of every table, in order, after ``Timestamp``.
+LABEL_COLUMNS = ("Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
+
+
+def label_rows(timestamps: np.ndarray, windows: Iterable[tuple]) -> np.ndarray:
     """``Is_Anomaly`` for the given timestamps: 1 inside any ``[start, end)`` window."""
     ts = np.asarray(timestamps, dtype=np.int64)
     out = np.zeros(ts.shape[0], dtype=np.int8)
-    for start, end in windows:
-        out[(ts >= start) & (ts < end)] = 1
+    for w in windows:
+        out[(ts >= w[0]) & (ts < w[1])] = 1
     return out
+
+
+def label_columns(timestamps: np.ndarray, windows: Iterable[tuple]) -> dict[str, np.ndarray]:
+    """The three label columns for the given timestamps.
+
+    ``windows`` are ``(start, end)`` or ``(start, end, scenario_id, kind)``; a plain window counts
+    as an attack with no id.
+    """
+    ts = np.asarray(timestamps, dtype=np.int64)
+    n = ts.shape[0]
+    flag = np.zeros(n, dtype=np.int8)
+    ids = np.full(n, "", dtype=object)
+    kinds = np.full(n, "", dtype=object)
+    for w in windows:
+        m = (ts >= w[0]) & (ts < w[1])
+        if not m.any():
+            continue
+        flag[m] = 1
+        sid = str(w[2]) if len(w) > 2 else ""
+        kind = str(w[3]) if len(w) > 3 else "attack"
+        if sid:
+            ids[m] = [sid if not old else old if sid in old.split("+") else f"{old}+{sid}" for old in ids[m]]
+        kinds[m] = [kind if not old else old if kind in old.split("+") else "+".join(sorted({*old.split("+"), kind}))
+                    for old in kinds[m]]
+    return {"Is_Anomaly": flag, "Anomaly_Ids": ids, "Anomaly_Kind": kinds}
+
+
+def insert_labels(df: pd.DataFrame, timestamps: np.ndarray, windows: Iterable[tuple], at: int = 1) -> pd.DataFrame:
+    """Put the label columns into ``df`` at position ``at`` (replacing any there were)."""
+    df = df.drop(columns=[c for c in LABEL_COLUMNS if c in df.columns])
+    for k, (name, col) in enumerate(label_columns(timestamps, list(windows)).items()):
+        df.insert(at + k, name, col)
+    return df
 
 
 def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = None) -> dict[str, pd.DataFrame]:
@@ -76,7 +115,7 @@ def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = N
     """
     frames = []
     for name, df in topics.items():
-        cols = [c for c in df.columns if c not in ("Timestamp", "Is_Anomaly")]
+        cols = [c for c in df.columns if c != "Timestamp" and c not in LABEL_COLUMNS]
         part = df[["Timestamp", *cols]].drop_duplicates("Timestamp", keep="last").sort_values("Timestamp")
         part = part.set_index("Timestamp").rename(columns={c: f"{name}.{c}" for c in cols})
         frames.append((name, part))
@@ -91,7 +130,7 @@ def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = N
     for key, table in (("all_sensors", all_sensors), ("most_frequent", most)):
         ts = table.index.to_numpy(np.int64)
         lead = pd.DataFrame({"Index": np.arange(len(table), dtype=np.int64), "Timestamp": ts,
-                             "Is_Anomaly": label_rows(ts, windows)})
+                             **label_columns(ts, windows)})
         out[key] = pd.concat([lead, table.reset_index(drop=True)], axis=1)
     return out
 
@@ -233,8 +272,8 @@ def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
     row["flight_id"] = record.flight_id
     row["rows"] = n_rows
     if record.windows:
-        row["attack_start_us"] = int(min(s for s, _ in record.windows))
-        row["attack_end_us"] = int(max(e for _, e in record.windows))
+        row["attack_start_us"] = int(min(w[0] for w in record.windows))
+        row["attack_end_us"] = int(max(w[1] for w in record.windows))
     return row
 
 

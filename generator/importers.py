@@ -29,7 +29,7 @@ logger = logging.getLogger(__name__)
 TIME_COLUMNS_US = ("timestamp", "time_us", "timestamp_us", "time_usec")
 TIME_COLUMNS_S = ("time", "time_s", "t")
 #: Columns of scart-bench tables that are not sensor data.
-IGNORED_COLUMNS = ("index", "is_anomaly")
+IGNORED_COLUMNS = ("index", "is_anomaly", "anomaly_ids", "anomaly_kind")
 _UNNAMED = re.compile(r"^Unnamed: \d+$")  # pandas' name for a written index without a name
 
 CSV_SUFFIXES = (".csv",)
@@ -484,7 +484,7 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
     * CSV / Parquet: the time column is the first of ``Timestamp``/``timestamp``, ``time_us``,
       ``timestamp_us``, ``time_usec`` (integer microseconds) or ``time``, ``time_s``, ``t``
       (seconds, rounded to microseconds), compared case-insensitively. ``Index``,
-      ``Is_Anomaly`` and pandas ``Unnamed: N`` columns are ignored. If every other column is
+      the label columns and pandas ``Unnamed: N`` columns are ignored. If every other column is
       ``topic.field`` (scart-bench's combined tables), there is one topic per prefix and rows
       where all of that topic's fields are empty are dropped; otherwise the table is one topic
       named after the file stem (sanitised to ``[a-z0-9_]``). Load a flight's ``all_sensors``

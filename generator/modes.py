@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from generator.dataset import FlightRecord, label_rows
+from generator.dataset import LABEL_COLUMNS, FlightRecord, insert_labels
 from generator.records import flight_views
 from generator.scart.layer import AttackLayer
 from generator.scart.scenario import Scenario
@@ -40,6 +40,7 @@ def scenario_manifest(scenarios: list[Scenario], mode: str, seed: int, source: s
 
     return {
         "mode": mode, "scenario_id": "+".join(s.id for s in scenarios),
+        "kind": "+".join(sorted({s.kind for s in scenarios})),
         "action": "+".join(s.primary_action() for s in scenarios),
         "target": "+".join(s.target_label() for s in scenarios),
         "injection_point": "+".join(s.injection_point for s in scenarios),
@@ -52,7 +53,7 @@ def simulation_record(batch: BatchResult, layer: AttackLayer, i: int, flight_id:
                       scenarios: list[Scenario], config: dict) -> FlightRecord:
     """An attacked simulation-mode flight ready for the dataset writer."""
     end_us = (int(batch.exit_step[i]) + 1) * STEP_US
-    windows = layer.windows(i, end_us)
+    windows = layer.labelled_windows(i, end_us)
     nav, sim = flight_views(batch, i, windows)
     manifest = scenario_manifest(scenarios, "simulation", batch.seeds[i])
     manifest["duration_s"] = end_us / 1e6
@@ -93,7 +94,7 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
         return out
     n = len(flights)
     topics = list(flights[0])
-    fields = {t: tuple(c for c in flights[0][t].columns if c not in ("Timestamp", "Is_Anomaly")) for t in topics}
+    fields = {t: tuple(c for c in flights[0][t].columns if c != "Timestamp" and c not in LABEL_COLUMNS) for t in topics}
     lengths = {t: np.array([len(f[t]) for f in flights]) for t in topics}
     times = {t: max((f[t] for f in flights), key=len)["Timestamp"].to_numpy(np.int64) for t in topics}
     values = {}
@@ -104,7 +105,7 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
         values[t] = arr
     rates = {t: (len(times[t]) - 1) / max((times[t][-1] - times[t][0]) / 1e6, 1e-9) if len(times[t]) > 1 else 1.0
              for t in topics}
-    layer = AttackLayer(scenarios, seeds, fields=fields, rates=rates)
+    layer = AttackLayer(scenarios, seeds, fields=fields, rates=rates, physics=False)
     out_vals = {t: values[t].copy() for t in topics}
     delivered = {t: np.ones((n, len(times[t])), dtype=bool) for t in topics}
     # every (time, topic, index) message in timestamp order; topics at the same time go together
@@ -126,7 +127,7 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
     results = []
     for i, f in enumerate(flights):
         end_us = int(max(f[t]["Timestamp"].iloc[-1] for t in topics if len(f[t]))) + 1
-        windows = layer.windows(i, end_us)
+        windows = layer.labelled_windows(i, end_us)
         nav = {}
         for t in topics:
             k = lengths[t][i]
@@ -134,17 +135,11 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
             df = pd.DataFrame(out_vals[t][i, :k][keep], columns=list(fields[t]))
             ts = times[t][:k][keep]
             df.insert(0, "Timestamp", ts)
-            df.insert(1, "Is_Anomaly", label_rows(ts, windows))
-            nav[t] = df
+            nav[t] = insert_labels(df, ts, windows)
         results.append((nav, windows, layer.event_log(i, end_us)))
     return results
 
 
 def with_labels(topics: dict[str, pd.DataFrame], windows=()) -> dict[str, pd.DataFrame]:
-    """Topic tables with an ``Is_Anomaly`` column from ``windows`` (as the simulator view)."""
-    out = {}
-    for t, df in topics.items():
-        df = df.drop(columns=["Is_Anomaly"], errors="ignore").copy()
-        df.insert(1, "Is_Anomaly", label_rows(df["Timestamp"].to_numpy(), windows))
-        out[t] = df
-    return out
+    """Topic tables with the label columns from ``windows`` (as the simulator view)."""
+    return {t: insert_labels(df, df["Timestamp"].to_numpy(), windows) for t, df in topics.items()}

@@ -104,6 +104,8 @@ class EstimatorParams:
     gps_pos_noise: float = 0.5  # m, assumed measurement sigma (EKF2_GPS_P_NOISE)
     gps_vel_noise: float = 0.3  # m/s (EKF2_GPS_V_NOISE)
     baro_noise: float = 0.3  # m (EKF2_BARO_NOISE)
+    gps_min_satellites: int = 6  # EKF2_REQ_NSATS: fewer satellites and GPS is not fused
+    gps_max_eph: float = 3.0  # m, EKF2_REQ_EPH: a worse horizontal accuracy and GPS is not fused
     att_accel_gain: float = 0.2  # 1/s, tilt correction from the accelerometer
     att_mag_gain: float = 0.3  # 1/s, heading correction from the magnetometer
     gyro_bias_gain: float = 0.002

@@ -5,22 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from generator.dataset import FlightRecord, label_rows
+from generator.dataset import FlightRecord, insert_labels
 from generator.link import field_names
 from generator.simulate import STEP_US, BatchResult
 
 
 def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | None, fields, windows,
                 last_step: int) -> pd.DataFrame:
-    """One flight's table of one topic: Timestamp, Is_Anomaly, fields (undelivered rows dropped)."""
+    """One flight's table of one topic: Timestamp, labels, fields (undelivered rows dropped)."""
     keep = steps <= last_step
     if delivered is not None:
         keep = keep & delivered
     ts = steps[keep] * STEP_US
     df = pd.DataFrame(values[keep], columns=list(fields))
     df.insert(0, "Timestamp", ts.astype(np.int64))
-    df.insert(1, "Is_Anomaly", label_rows(ts, windows))
-    return df
+    return insert_labels(df, ts, windows)
 
 
 def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:

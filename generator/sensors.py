@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from generator.disturbances import Disturbances, gps_signal_quality
 from generator.geo import HOME_ALT, pressure_at
 from generator.params import GRAVITY, SensorParams
 from generator.rotation import rotate_t
@@ -26,6 +27,7 @@ class SensorState:
     satellites: np.ndarray  # (N,) satellites in view
     truth_buffer: np.ndarray  # (delay_steps, N, 6) true pos/vel, for the GPS delay
     temperature: np.ndarray  # (N,) degC
+    last_fix: np.ndarray | None = None  # (N, 3) last fixed position, reported while the fix is lost
 
 
 class Sensors:
@@ -63,9 +65,11 @@ class Sensors:
         gyro = omega + st.gyro_bias + p.gyro_noise_density * np.sqrt(1 / dt) * noise[:, 3:6]
         return acc, gyro
 
-    def mag(self, R: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        """Magnetometer (gauss, FRD)."""
+    def mag(self, R: np.ndarray, noise: np.ndarray, disturbance: np.ndarray | None = None) -> np.ndarray:
+        """Magnetometer (gauss, FRD); ``disturbance`` (N, 3) is a local field added to the earth's (NED)."""
         field = np.broadcast_to(self.mag_field, (R.shape[0], 3))
+        if disturbance is not None:
+            field = field + disturbance
         return rotate_t(R, field) + self.params.mag_noise * noise
 
     def baro(self, st: SensorState, pos: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -79,18 +83,46 @@ class Sensors:
         st.truth_buffer[step % self.delay_steps, :, :3] = pos
         st.truth_buffer[step % self.delay_steps, :, 3:] = vel
 
-    def gps(self, st: SensorState, step: int, noise: np.ndarray, dt_gps: float) -> dict[str, np.ndarray]:
-        """GPS fix of the delayed true state: NED position (m), NED velocity, accuracies."""
+    def gps(self, st: SensorState, step: int, noise: np.ndarray, dt_gps: float,
+            env: Disturbances | None = None) -> dict[str, np.ndarray]:
+        """GPS fix of the delayed true state: NED position (m), NED velocity, accuracies.
+
+        ``env`` carries RF-level attacks: a spoofer's offsets (and its simulated constellation)
+        and jamming, which costs satellites and accuracy and, below 4 satellites, the fix.
+        """
         p = self.params
         old = st.truth_buffer[(step + 1) % self.delay_steps] if step + 1 >= self.delay_steps else st.truth_buffer[0]
         a = np.exp(-dt_gps / p.gps_bias_tau)
         scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
         st.gps_bias = a * st.gps_bias + np.sqrt(1 - a * a) * scale * noise[:, 0:3]
         white = np.array([p.gps_noise_h, p.gps_noise_h, p.gps_noise_v]) * noise[:, 3:6]
+        vel_noise = p.gps_vel_noise * noise[:, 6:9]
+        sats = st.satellites
+        growth = None
+        if env is not None:
+            sats = np.where(env.gps_spoofed, env.gps_spoof_satellites, st.satellites)
+            sats, growth = gps_signal_quality(sats, env.gps_js_db)
+            white = white * growth[:, None]
+            vel_noise = vel_noise * growth[:, None]
         pos = old[:, :3] + st.gps_bias + white
-        vel = old[:, 3:] + p.gps_vel_noise * noise[:, 6:9]
+        vel = old[:, 3:] + vel_noise
         n = pos.shape[0]
-        eph = np.full(n, np.hypot(p.gps_noise_h, p.gps_bias_h)) * (12.0 / st.satellites)
-        epv = np.full(n, np.hypot(p.gps_noise_v, p.gps_bias_v)) * (12.0 / st.satellites)
-        return {"pos": pos, "vel": vel, "eph": eph, "epv": epv, "satellites": st.satellites.copy(),
-                "fix_type": np.full(n, 3.0)}
+        eph = np.full(n, np.hypot(p.gps_noise_h, p.gps_bias_h)) * (12.0 / np.maximum(sats, 1.0))
+        epv = np.full(n, np.hypot(p.gps_noise_v, p.gps_bias_v)) * (12.0 / np.maximum(sats, 1.0))
+        fix = np.full(n, 3.0)
+        if env is not None:
+            pos = pos + env.gps_offset
+            vel = vel + env.gps_vel_offset
+            eph, epv = eph * growth, epv * growth
+            fixed = sats >= 4
+            fix = np.where(fixed, 3.0, 1.0)  # MAVLink GPS_FIX_TYPE: 3 = 3D fix, 1 = no fix
+            if st.last_fix is None:
+                st.last_fix = pos.copy()
+            st.last_fix[fixed] = pos[fixed]
+            if not fixed.all():
+                lost = ~fixed
+                pos[lost] = st.last_fix[lost]
+                vel[lost] = 0.0
+                eph[lost], epv[lost] = 99.99, 99.99
+        return {"pos": pos, "vel": vel, "eph": eph, "epv": epv, "satellites": np.asarray(sats, dtype=float).copy(),
+                "fix_type": fix}

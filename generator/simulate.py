@@ -14,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from generator.autopilot import Controller, Estimator
+from generator.disturbances import Disturbances
 from generator.geo import HOME_ALT, altitude_at, latlon_to_ned, ned_to_latlon
 from generator.link import SENSOR_TOPICS, FCSnapshot, compose, due_steps
 from generator.navigator import Navigator, mission_waypoints
@@ -46,8 +47,8 @@ class AttackHooks(Protocol):
                     ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Return, per topic, the (possibly altered) values and the per-flight delivered mask."""
 
-    def on_physics(self, step: int, t_us: int) -> dict[str, np.ndarray]:
-        """Physical disturbances for this step (e.g. motor efficiency), or an empty dict."""
+    def on_physics(self, step: int, t_us: int) -> Disturbances | dict:
+        """Physical disturbances for this step (environment attacks, faults), or an empty dict."""
 
 
 @dataclass
@@ -179,11 +180,15 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
     vel_sp = np.zeros((n, 3))
     yaw_sp = yaw0.copy()
     setpoint_in = np.zeros((n, 6))
+    accel = np.zeros((n, 3))
+    gyro = np.zeros((n, 3))
     mag = np.zeros((n, 3))
     pressure = np.zeros(n)
     baro_temp = np.zeros(n)
     gps = None
     efficiency = None
+    env: Disturbances | None = None
+    max_rotor = cfg.vehicle.max_rot_velocity
     hover_thrust = cfg.vehicle.mass * GRAVITY
     tail_steps = int(0.5 * SIM_RATE_HZ)
     landed_at = np.full(n, -1, dtype=np.int64)
@@ -195,28 +200,46 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
         w = noise.next()
         if layer is not None:
             phys = layer.on_physics(step, t_us)
-            efficiency = phys.get("motor_efficiency")
+            env = phys if isinstance(phys, Disturbances) else None
+            efficiency = env.motor_efficiency if env is not None else phys.get("motor_efficiency")
         wind_now = wind.step(w[:, 26:29], DT)
-        R_true = vehicle.step(vs, ctrl.rate_control(cs, es.rates), wind_now, DT, efficiency)
+        rotor_cmd = ctrl.rate_control(cs, es.rates)
+        if env is not None:
+            env.resolve(vs.pos)
+            wind_now = wind_now + env.wind
+            rotor_cmd = np.minimum(rotor_cmd, max_rotor * env.rotor_limit[:, None])
+        R_true = vehicle.step(vs, rotor_cmd, wind_now, DT, efficiency)
         sensors.push_truth(ss, step, vs.pos, vs.vel)
 
         # sensors -> estimator
+        prev_imu = (accel, gyro)
         accel, gyro = sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, 0:12])
+        if env is not None and env.sensor_lost:
+            accel, gyro = _instance_imu(env, accel, gyro, prev_imu)
         sens_msgs: dict[str, np.ndarray] = {}
         if "sensor" in points:
             sens_msgs["sensor_accel"] = accel
             sens_msgs["sensor_gyro"] = gyro
         if due_sens["sensor_mag"][step]:
-            mag = sensors.mag(R_true, w[:, 12:15])
+            prev_mag = mag
+            mag = sensors.mag(R_true, w[:, 12:15], env.magnetic_field(vs.pos) if env is not None else None)
+            if env is not None and env.sensor_lost:
+                mag = _instance_value(env, "mag", mag, prev_mag)
             if "sensor" in points:
                 sens_msgs["sensor_mag"] = mag
         if due_sens["sensor_baro"][step]:
+            prev_baro = pressure, baro_temp
             pressure, baro_temp = sensors.baro(ss, vs.pos, w[:, 15:17])
+            if env is not None and env.sensor_lost:
+                pressure = _instance_value(env, "baro", pressure, prev_baro[0], scale=-11.8)  # Pa per m up
+                baro_temp = _instance_value(env, "baro_temp", baro_temp, prev_baro[1])
             if "sensor" in points:
                 sens_msgs["sensor_baro"] = np.column_stack([pressure, baro_temp])
         gps_due = due_sens["sensor_gps"][step]
         if gps_due:
-            gps = sensors.gps(ss, step, w[:, 17:26], gps_dt)
+            gps = sensors.gps(ss, step, w[:, 17:26], gps_dt, env)
+            if env is not None and env.sensor_lost:
+                gps = _instance_gps(env, gps)
             if "sensor" in points:
                 lat, lon = ned_to_latlon(gps["pos"][:, 0], gps["pos"][:, 1])
                 sens_msgs["sensor_gps"] = np.column_stack([
@@ -245,18 +268,21 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
 
         R_est = est.predict(es, step, accel, gyro, ~cs.armed)
         if due_sens["sensor_mag"][step]:
-            if "sensor_mag" in sens_ok:
-                _fuse_rows(est.fuse_mag, es, mag, sens_ok["sensor_mag"])
+            mag_ok = _alive(env, "mag", sens_ok.get("sensor_mag"))
+            if mag_ok is not None:
+                _fuse_rows(est.fuse_mag, es, mag, mag_ok)
             else:
                 est.fuse_mag(es, mag)
         if due_sens["sensor_baro"][step]:
             baro_alt = altitude_at(pressure)
-            if "sensor_baro" in sens_ok:
-                _fuse_rows(est.fuse_baro, es, baro_alt, sens_ok["sensor_baro"])
+            baro_ok = _alive(env, "baro", sens_ok.get("sensor_baro"))
+            if baro_ok is not None:
+                _fuse_rows(est.fuse_baro, es, baro_alt, baro_ok)
             else:
                 est.fuse_baro(es, baro_alt)
         if gps_due:
-            usable = gps["fix_type"] >= 3
+            ep = cfg.estimator
+            usable = (gps["fix_type"] >= 3) & (gps["satellites"] >= ep.gps_min_satellites) & (gps["eph"] <= ep.gps_max_eph)
             if "sensor_gps" in sens_ok:
                 usable = usable & sens_ok["sensor_gps"]
             if usable.all():
@@ -315,6 +341,8 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
             current = power / np.maximum(ocv, 1.0)
             battery[:, 2] = np.clip(battery[:, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
             battery[:, 0] = ocv - 0.05 * current + 0.01 * w[:, 29]
+            if env is not None:
+                battery[:, 0] -= env.battery_sag_v
             battery[:, 1] = current
 
         if due_truth[step]:
@@ -362,6 +390,59 @@ def _rot(es):
 def _no_gps(n: int) -> dict:
     return {"pos": np.zeros((n, 3)), "vel": np.zeros((n, 3)), "eph": np.full(n, 99.0), "epv": np.full(n, 99.0),
             "satellites": np.zeros(n), "fix_type": np.zeros(n)}
+
+
+def _alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
+    """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
+    lost = env.lost(sensor) if env is not None else None
+    if lost is None:
+        return delivered
+    return ~lost if delivered is None else delivered & ~lost
+
+
+def _instance_value(env: Disturbances, sensor: str, value: np.ndarray, previous: np.ndarray,
+                    scale: float = 1.0) -> np.ndarray:
+    """A sensor whose primary instance is lost: the secondary's reading (its own offset), or the
+    last reading frozen when there is no failover."""
+    name = "baro" if sensor == "baro_temp" else sensor
+    lost = env.sensor_lost.get(name)
+    if lost is None or not lost.any():
+        return value
+    fail = env.sensor_failover.get(name, np.zeros_like(lost))
+    out = np.array(value, dtype=float, copy=True)
+    offset = env.sensor_offset.get(name)
+    if sensor != "baro_temp" and offset is not None:
+        sec = lost & fail
+        if out.ndim == 1:
+            out[sec] += scale * offset[sec]
+        else:
+            out[sec, 0] += scale * offset[sec]  # the secondary instance's calibration differs on x
+    frozen = lost & ~fail
+    out[frozen] = np.asarray(previous)[frozen]
+    return out
+
+
+def _instance_imu(env: Disturbances, accel: np.ndarray, gyro: np.ndarray, prev) -> tuple[np.ndarray, np.ndarray]:
+    pa, pg = prev
+    return _instance_value(env, "accel", accel, pa), _instance_value(env, "gyro", gyro, pg)
+
+
+def _instance_gps(env: Disturbances, gps: dict) -> dict:
+    """The GPS receiver lost: a secondary receiver's fix (offset north), or no GPS at all."""
+    lost = env.sensor_lost.get("gps")
+    if lost is None or not lost.any():
+        return gps
+    fail = env.sensor_failover.get("gps", np.zeros_like(lost))
+    gps = {k: np.array(v, copy=True) for k, v in gps.items()}
+    offset = env.sensor_offset.get("gps")
+    if offset is not None:
+        gps["pos"][lost & fail, 0] += offset[lost & fail]
+    gone = lost & ~fail
+    gps["fix_type"][gone] = 0.0  # MAVLink GPS_FIX_TYPE_NO_GPS
+    gps["satellites"][gone] = 0.0
+    gps["eph"][gone], gps["epv"][gone] = 99.99, 99.99
+    gps["vel"][gone] = 0.0
+    return gps
 
 
 def _fuse_rows(fn, es, values, ok) -> None:

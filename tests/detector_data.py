@@ -12,7 +12,7 @@ from functools import lru_cache
 
 import pandas as pd
 
-from generator.dataset import combine
+from generator.dataset import LABEL_COLUMNS, combine
 from generator.modes import csv_mode
 from generator.records import flight_views
 from generator.scart.scenario import scenario_from_dict
@@ -33,7 +33,7 @@ def _fleet():
     views = []
     for i in range(FLEET):
         nav, _ = flight_views(batch, i)
-        views.append({t: df.drop(columns=["Is_Anomaly"]) for t, df in nav.items()})
+        views.append({t: df.drop(columns=list(LABEL_COLUMNS)) for t, df in nav.items()})
     return views
 
 

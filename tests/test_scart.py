@@ -10,7 +10,7 @@ import pytest
 from conftest import distance_to_path, truth
 
 from benchmark.cli import main
-from generator.dataset import open_dataset
+from generator.dataset import LABEL_COLUMNS, open_dataset
 from generator.modes import csv_mode
 from generator.records import flight_views
 from generator.scart.grid import load_grid
@@ -78,20 +78,20 @@ def test_sensor_stealthy_drift_passes_gates_and_pulls_the_vehicle_off(attacked_f
 def test_csv_mode_changes_only_the_navigator_view(attacked_fleet):
     batch, layer, k = attacked_fleet
     nav_in, _ = flight_views(batch, k["normal"])
-    link = {t: df.drop(columns=["Is_Anomaly"]) for t, df in nav_in.items()}
+    link = {t: df.drop(columns=list(LABEL_COLUMNS)) for t, df in nav_in.items()}
     spoof = load_scenarios("data/scenarios/gps_spoof.toml")
     (nav, windows, events), = csv_mode([link], [spoof], [5])
     assert len(windows) == 1
-    (start, end), = windows
+    (start, end, *_), = windows
     for topic, df in link.items():
         assert df.equals(link[topic])  # input untouched
         out = nav[topic]
-        same = np.allclose(out.drop(columns=["Is_Anomaly"]).to_numpy(), df.to_numpy(), equal_nan=True)
+        same = np.allclose(out.drop(columns=list(LABEL_COLUMNS)).to_numpy(), df.to_numpy(), equal_nan=True)
         if topic in ("global_position_int", "local_position_ned", "gps_raw_int"):
             assert not same
             ts = out["Timestamp"].to_numpy()
             outside = (ts < start) | (ts >= end)
-            np.testing.assert_array_equal(out[outside].drop(columns=["Is_Anomaly"]).to_numpy(),
+            np.testing.assert_array_equal(out[outside].drop(columns=list(LABEL_COLUMNS)).to_numpy(),
                                           df[outside].to_numpy())
         else:
             assert same
@@ -126,8 +126,8 @@ def test_csv_mode_attacks_non_training_flights(quick_dataset):
     for fid, row in csv.head(3).iterrows():
         src = ds.topic(row["source_flight"], "gps_raw_int")
         copy = ds.topic(fid, "gps_raw_int", view="simulator")
-        np.testing.assert_array_equal(src.drop(columns=["Is_Anomaly"]).to_numpy(),
-                                      copy.drop(columns=["Is_Anomaly"]).to_numpy())
+        np.testing.assert_array_equal(src.drop(columns=list(LABEL_COLUMNS)).to_numpy(),
+                                      copy.drop(columns=list(LABEL_COLUMNS)).to_numpy())
 
 
 # --- the action formulas, on a synthetic 50 Hz stream ---------------------------------------------
@@ -154,7 +154,7 @@ def _attack(action: dict, start_s=10.0, seconds=220.0):
 
 
 def _in_window(df, windows):
-    (s, e), = windows
+    (s, e, *_), = windows
     ts = df["Timestamp"].to_numpy()
     return (ts >= s) & (ts < e)
 
@@ -284,7 +284,7 @@ def test_csv_mode_on_real_ulogs(tmp_path, log, start, topics):
     assert dev[inside].max() > 10 and dev[~inside].max() == 0
     acc_nav = ds.topic(fid, "sensor_combined", "navigator")
     acc_sim = ds.topic(fid, "sensor_combined", "simulator")
-    assert acc_nav.drop(columns=["Is_Anomaly"]).equals(acc_sim.drop(columns=["Is_Anomaly"]))
+    assert acc_nav.drop(columns=list(LABEL_COLUMNS)).equals(acc_sim.drop(columns=list(LABEL_COLUMNS)))
     comb = ds.flight(fid)
     assert list(comb.columns[:3]) == ["Index", "Timestamp", "Is_Anomaly"] and comb["Is_Anomaly"].any()
 

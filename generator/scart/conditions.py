@@ -19,6 +19,8 @@ class Condition:
     name = "condition"
     spec: tuple[Param, ...] = ()
     end_only = False
+    #: True for conditions on another scenario's state (its id is the ``scenario`` parameter)
+    refers = False
 
     def __init__(self, params: dict, rng_uniform: np.ndarray):
         self.params = params
@@ -150,6 +152,45 @@ class Duration(Condition):
         return (ctx.start_us >= 0) & (ctx.t_us - ctx.start_us >= self.params["seconds"] * 1e6)
 
 
+_OTHER = Param("scenario", str, required=True, help="id of another scenario of the same flight")
+
+
+class ScenarioActive(Condition):
+    """Holds while the scenario ``scenario`` (of the same flight) is active: runs two at once."""
+
+    name = "scenario_active"
+    spec = (_OTHER,)
+    refers = True
+
+    def __call__(self, ctx):
+        return ctx.scenario_state(self.params["scenario"])["active"]
+
+
+class ScenarioStarted(Condition):
+    """Holds from ``after_s`` seconds after the scenario ``scenario`` started (its latest window)."""
+
+    name = "scenario_started"
+    spec = (_OTHER, Param("after_s", float, 0.0, minimum=0.0))
+    refers = True
+
+    def __call__(self, ctx):
+        st = ctx.scenario_state(self.params["scenario"])
+        return (st["start_us"] >= 0) & (ctx.t_us - st["start_us"] >= self.params["after_s"] * 1e6)
+
+
+class ScenarioEnded(Condition):
+    """Holds from ``after_s`` seconds after the scenario ``scenario`` ended (and is not active again)."""
+
+    name = "scenario_ended"
+    spec = (_OTHER, Param("after_s", float, 0.0, minimum=0.0))
+    refers = True
+
+    def __call__(self, ctx):
+        st = ctx.scenario_state(self.params["scenario"])
+        return ~st["active"] & (st["end_us"] >= 0) & (ctx.t_us - st["end_us"] >= self.params["after_s"] * 1e6)
+
+
 CONDITIONS: dict[str, type[Condition]] = {
-    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, RandomStart, Duration)
+    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, RandomStart, Duration,
+                        ScenarioActive, ScenarioStarted, ScenarioEnded)
 }

@@ -6,6 +6,12 @@ injection point the layer (1) appends the messages of listened topics to the His
 change), (2) runs each group's callback: the vanilla one starts the attack when all start
 conditions hold and stops it when any end condition holds, (3) applies the active groups' actions.
 It records the attack event log and the windows that become the ``Is_Anomaly`` labels.
+
+Scenarios at the ``environment`` and ``vehicle`` points act on the physics instead: the simulator
+calls ``on_physics`` once per step and applies the returned Disturbances. A flight's scenarios are
+evaluated in dependency order, so a condition on another scenario sees its state of this step.
+In csv mode (``physics=False``) physical scenarios still keep their timing, so chains through them
+work, but they change nothing and their windows are not labelled.
 """
 
 from __future__ import annotations
@@ -16,12 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from generator.disturbances import Disturbances
 from generator.link import field_names as builtin_fields
 from generator.noise import NoiseStream
 from generator.scart.actions import ACTIONS, Action
 from generator.scart.conditions import CONDITIONS, Condition
+from generator.scart.effects import EFFECTS
 from generator.scart.history import History
-from generator.scart.scenario import Scenario, point_topics
+from generator.scart.scenario import Scenario, check_composition, point_topics
 from generator.scart.spec import ScenarioError
 
 
@@ -80,6 +88,7 @@ class _Group:
         self.layer = layer
         self.slot = slot
         self.point = first.injection_point
+        self.physical = first.physical
         self.kind = first.kind
         self.ids = [s.id for s in scenarios]
         self.rows = rows
@@ -99,6 +108,9 @@ class _Group:
         self.actions: list[Action] = []
         for i, (name, p) in enumerate(first.actions):
             params = _stack([s.actions[i][1] for s in scenarios])
+            if self.physical:
+                self.actions.append(EFFECTS[name](params))
+                continue
             fields, names = {}, {}
             for t in p["target"]:
                 topic, _, fld = t.partition(".")
@@ -191,8 +203,12 @@ class AttackLayer:
     """The layer for a batch: ``scenarios[i]`` is the list of scenarios of flight ``i``."""
 
     def __init__(self, scenarios: list[list[Scenario]], seeds: list[int],
-                 fields: dict[str, tuple[str, ...]] | None = None, rates: dict[str, float] | None = None):
+                 fields: dict[str, tuple[str, ...]] | None = None, rates: dict[str, float] | None = None,
+                 physics: bool = True):
         self.n = len(scenarios)
+        self.physics = physics
+        scenarios = [check_composition(lst, lst[0].source if lst else "<memory>") for lst in scenarios]
+        self._state_maps: dict[tuple[str, int], list[tuple[_Group, np.ndarray, np.ndarray]]] = {}
         self._fields = dict(fields or {})
         self.events: list[Event] = []
         self.groups: list[_Group] = []
@@ -203,7 +219,9 @@ class AttackLayer:
         for (slot, _), rows in sorted(by_key.items(), key=lambda kv: (kv[0][0], kv[1][0])):
             scs = [scenarios[i][slot] for i in rows]
             self.groups.append(_Group(self, slot, scs, np.asarray(rows), [seeds[i] for i in rows]))
-        self.points = frozenset(g.point for g in self.groups)
+        self.physical_groups = [g for g in self.groups if g.physical]
+        self.physical_ids = {sid for g in self.physical_groups for sid in g.ids}
+        self.points = frozenset(g.point for g in self.groups if not g.physical)
         depths: dict[str, int] = {}
         for g in self.groups:
             for topic, d in g.lookback(rates or {}).items():
@@ -223,17 +241,25 @@ class AttackLayer:
         self.events.append(Event(flight, t_us, event, scenario_id, kind))
 
     def state_of(self, scenario_id: str, rows: np.ndarray) -> dict[str, np.ndarray]:
-        """Active flag and end time of another scenario, for the flights in ``rows``."""
+        """Active flag, latest start and end times (-1: never) of another scenario, for ``rows``."""
+        key = (scenario_id, id(rows))
+        maps = self._state_maps.get(key)
+        if maps is None:
+            maps = []
+            where = {int(r): k for k, r in enumerate(rows)}
+            for g in self.groups:
+                src = [j for j, r in enumerate(g.rows) if int(r) in where and g.ids[j] == scenario_id]
+                if src:
+                    maps.append((g, np.asarray(src), np.asarray([where[int(g.rows[j])] for j in src])))
+            self._state_maps[key] = maps
         active = np.zeros(len(rows), dtype=bool)
+        start = np.full(len(rows), -1, dtype=np.int64)
         end = np.full(len(rows), -1, dtype=np.int64)
-        for g in self.groups:
-            pos = {int(r): j for j, r in enumerate(g.rows)}
-            for k, r in enumerate(rows):
-                j = pos.get(int(r))
-                if j is not None and g.ids[j] == scenario_id:
-                    active[k] = g.active[j]
-                    end[k] = g.end_us[j]
-        return {"active": active, "end_us": end}
+        for g, src, dst in maps:
+            active[dst] = g.active[src]
+            start[dst] = g.start_us[src]
+            end[dst] = g.end_us[src]
+        return {"active": active, "start_us": start, "end_us": end}
 
     # -- the hooks the simulator (or the csv replayer) calls --------------------------------------
     def on_messages(self, point: str | None, step: int, t_us: int, messages: dict[str, np.ndarray]
@@ -265,28 +291,46 @@ class AttackLayer:
                     out[topic] = (vals, ok)
         return out
 
-    def on_physics(self, step: int, t_us: int) -> dict[str, np.ndarray]:
-        return {}
+    def on_physics(self, step: int, t_us: int) -> Disturbances | dict:
+        """Run the environment and vehicle scenarios: this step's physical disturbances."""
+        if not self.physical_groups:
+            return {}
+        dist = Disturbances.none(self.n)
+        for g in self.physical_groups:
+            ctx = g.update(t_us)
+            if g.active.any():
+                for a in g.actions:
+                    a.apply(ctx, g.active, dist)
+        return dist
 
     def on_finish(self, step: int) -> None:
         self.final_us = None
 
     # -- labels -----------------------------------------------------------------------------------
     def windows(self, flight: int, end_us: int) -> list[tuple[int, int]]:
-        """Attack windows [start, end) of one flight, closed at ``end_us`` if still open."""
+        """Anomaly windows [start, end) of one flight, closed at ``end_us`` if still open."""
+        return [(s, e) for s, e, _, _ in self.labelled_windows(flight, end_us)]
+
+    def labelled_windows(self, flight: int, end_us: int) -> list[tuple[int, int, str, str]]:
+        """(start, end, scenario id, kind) of every window of one flight, in time order.
+
+        In csv mode the windows of physical scenarios are left out: they changed nothing.
+        """
         out, open_at = [], {}
         for e in self.events:
             if e.flight != flight:
                 continue
+            if not self.physics and e.scenario_id in self.physical_ids:
+                continue
             if e.event == "start":
-                open_at[e.scenario_id] = e.timestamp_us
+                open_at[e.scenario_id] = (e.timestamp_us, e.kind)
             elif e.event == "end" and e.scenario_id in open_at:
-                s = open_at.pop(e.scenario_id)
+                s, kind = open_at.pop(e.scenario_id)
                 if s < end_us:
-                    out.append((s, min(e.timestamp_us, end_us)))
-        for s in open_at.values():
+                    out.append((s, min(e.timestamp_us, end_us), e.scenario_id, kind))
+        for sid, (s, kind) in open_at.items():
             if s < end_us:
-                out.append((s, end_us))
+                out.append((s, end_us, sid, kind))
         return sorted(out)
 
     def event_log(self, flight: int, end_us: int) -> list[dict]:
@@ -294,8 +338,11 @@ class AttackLayer:
         rows = []
         for e in self.events:
             if e.flight == flight and e.timestamp_us < end_us:
+                detail = e.kind
+                if not self.physics and e.scenario_id in self.physical_ids:
+                    detail = f"{e.kind} (timing only: physical scenarios change nothing in csv mode)"
                 rows.append({"timestamp_us": e.timestamp_us, "event": e.event, "scenario_id": e.scenario_id,
-                             "detail": e.kind})
+                             "detail": detail})
         balance: dict[str, int] = {}
         kinds: dict[str, str] = {}
         for r in rows:

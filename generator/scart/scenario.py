@@ -34,10 +34,11 @@ from pathlib import Path
 from generator.link import SENSOR_TOPICS
 from generator.scart.actions import ACTIONS
 from generator.scart.conditions import CONDITIONS
+from generator.scart.effects import EFFECTS, PHYSICAL_POINTS
 from generator.scart.spec import ScenarioError, read_toml, validate_params
 from generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
 
-INJECTION_POINTS = ("link", "sensor", "command")
+INJECTION_POINTS = ("link", "sensor", "command", "environment", "vehicle")
 KINDS = ("attack", "fault")
 
 
@@ -49,6 +50,8 @@ def point_topics(point: str) -> dict[str, tuple[str, ...]]:
         return {t: TOPICS[t].field_names for t in COMMAND_TOPICS}
     if point == "sensor":
         return {t: f for t, (_, f) in SENSOR_TOPICS.items()}
+    if point in PHYSICAL_POINTS:
+        return {}  # physical actions touch no message
     raise ScenarioError(f"injection_point {point!r}: expected one of {', '.join(INJECTION_POINTS)}")
 
 
@@ -95,7 +98,7 @@ class Scenario:
         """topic -> target fields (None: every field of the topic), over all actions."""
         out: dict[str, list[str] | None] = {}
         for _, p in self.actions:
-            for t in p["target"]:
+            for t in p.get("target", ()):
                 topic, _, fld = t.partition(".")
                 if not fld:
                     out[topic] = None
@@ -110,6 +113,20 @@ class Scenario:
                 topics.add(p["topic"])
         return topics
 
+    @property
+    def physical(self) -> bool:
+        """True for environment and vehicle scenarios (they act on the physics, not on messages)."""
+        return self.injection_point in PHYSICAL_POINTS
+
+    def references(self) -> list[tuple[str, int, str, str]]:
+        """(list, index, condition, other scenario id) of every condition on another scenario."""
+        out = []
+        for key, items in (("start", self.start), ("end", self.end)):
+            for i, (name, p) in enumerate(items):
+                if CONDITIONS[name].refers:
+                    out.append((key, i, name, p["scenario"]))
+        return out
+
     def primary_action(self) -> str:
         return self.actions[0][0] if self.actions else ""
 
@@ -122,7 +139,7 @@ class Scenario:
         names = sorted(available)
         allowed = ", ".join(names[:40]) + (f", ... ({len(names)} topics)" if len(names) > 40 else "")
         for i, (_, p) in enumerate(self.actions):
-            for t in p["target"]:
+            for t in p.get("target", ()):
                 topic, _, fld = t.partition(".")
                 if topic not in available:
                     raise ScenarioError(f"{where}: scenario.actions[{i}].target: unknown topic {topic!r} at "
@@ -179,7 +196,7 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
     point = table.get("injection_point", "link")
     if point not in INJECTION_POINTS:
         raise ScenarioError(f"{loc}.injection_point: {point!r} is not one of {', '.join(INJECTION_POINTS)}")
-    kind = table.get("kind", "attack")
+    kind = table.get("kind", "fault" if point == "vehicle" else "attack")
     if kind not in KINDS:
         raise ScenarioError(f"{loc}.kind: {kind!r} is not one of {', '.join(KINDS)}")
     max_windows = table.get("max_windows", 1)
@@ -198,10 +215,12 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
         raise ScenarioError(f"{loc}.callback: expected 'module:function', got {callback!r}")
     start = _items(table, "start", CONDITIONS, "condition", loc)
     end = _items(table, "end", CONDITIONS, "condition", loc, end=True)
-    actions = _items(table, "actions", ACTIONS, "action", loc)
+    physical = point in PHYSICAL_POINTS
+    registry = {k: v for k, v in EFFECTS.items() if v.point == point} if physical else ACTIONS
+    actions = _items(table, "actions", registry, "action", loc)
     if not actions:
         raise ScenarioError(f"{loc}.actions: a scenario needs at least one [[scenario.actions]] table; "
-                            f"allowed actions: {', '.join(sorted(ACTIONS))}")
+                            f"allowed actions at injection point {point!r}: {', '.join(sorted(registry))}")
     sc = Scenario(id=sid, injection_point=point, listeners=list(listeners), start=start, end=end,
                   actions=actions, max_windows=max_windows, kind=kind, callback=callback,
                   description=str(table.get("description", "")), source=source)
@@ -226,7 +245,46 @@ def load_scenarios(path: str | Path, check_topics: bool = True) -> list[Scenario
         where = "scenario" if len(tables) == 1 else f"scenario[{i}]"
         default_id = path.stem if len(tables) == 1 else f"{path.stem}-{i}"
         out.append(scenario_from_dict(t, str(path), default_id, where, check_topics))
-    ids = [s.id for s in out]
-    if len(set(ids)) != len(ids):
-        raise ScenarioError(f"{path}: scenario ids must be unique, got {ids}")
+    check_composition(out, str(path))
     return out
+
+
+def check_composition(scenarios: list[Scenario], where: str = "<memory>") -> list[Scenario]:
+    """Check the scenarios of one flight and return them in dependency order.
+
+    Ids must be unique, every condition on another scenario must name one of them, and the
+    references must not form a cycle (a scenario cannot wait on one that waits on it).
+    """
+    ids = [s.id for s in scenarios]
+    if len(set(ids)) != len(ids):
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        raise ScenarioError(f"{where}: scenario ids must be unique within a flight; repeated: {', '.join(dup)}")
+    by_id = {s.id: s for s in scenarios}
+    deps: dict[str, list[str]] = {}
+    for s in scenarios:
+        deps[s.id] = []
+        for key, i, name, other in s.references():
+            if other not in by_id:
+                raise ScenarioError(
+                    f"{where}: scenario {s.id!r} {key}[{i}] ({name}) refers to unknown scenario {other!r}; "
+                    f"scenarios of this flight: {', '.join(ids)}")
+            deps[s.id].append(other)
+    order: list[str] = []
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(sid: str, path: list[str]) -> None:
+        if state.get(sid) == 2:
+            return
+        if state.get(sid) == 1:
+            cycle = path[path.index(sid):] + [sid]
+            raise ScenarioError(f"{where}: scenarios refer to each other in a cycle: {' -> '.join(cycle)} "
+                                f"(a scenario cannot wait on one that waits on it)")
+        state[sid] = 1
+        for other in deps[sid]:
+            visit(other, path + [sid])
+        state[sid] = 2
+        order.append(sid)
+
+    for sid in ids:
+        visit(sid, [])
+    return [by_id[i] for i in order]

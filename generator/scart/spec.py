@@ -36,6 +36,7 @@ class Param:
     maximum: float | None = None
     exclusive_min: bool = False
     help: str = ""
+    choices: tuple | None = None
 
     def check(self, value: Any, where: str) -> Any:
         """Validate and normalise one value (ints accepted for floats)."""
@@ -54,6 +55,8 @@ class Param:
         elif self.kind is str:
             if not isinstance(value, str):
                 raise ScenarioError(f"{where}.{self.name}: expected a string, got {value!r}")
+            if self.choices is not None and value not in self.choices:
+                raise ScenarioError(f"{where}.{self.name}: {value!r} is not one of {', '.join(self.choices)}")
         elif self.kind is list:
             if isinstance(value, str):
                 value = [value]
