@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "benchmark.cli_generate",
     "benchmark.cli_run",
     "benchmark.cli_report",
+    "benchmark.cli_proxy",
 )
 
 

@@ -14,6 +14,9 @@ modules without it raises :class:`MavlinkMissing`.
 from __future__ import annotations
 
 INSTALL_HINT = "pip install scart-bench[mavlink]"
+#: default addresses: PX4's onboard (mission computer) link, on loopback
+DEFAULT_LISTEN = "udp:127.0.0.1:14540"
+DEFAULT_FORWARD = "udp:127.0.0.1:14541"
 
 
 class MavlinkMissing(ImportError):

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
 from generator.mavlink.codec import (
     BY_MSGID,
     CODECS,
@@ -48,9 +49,8 @@ from generator.scart.layer import AttackLayer
 from generator.scart.scenario import Scenario
 from generator.topics import TOPICS
 
-#: default addresses: PX4's onboard (mission computer) link, on loopback
-DEFAULT_LISTEN = "udp:127.0.0.1:14540"
-DEFAULT_FORWARD = "udp:127.0.0.1:14541"
+#: the injection points a proxy on the link can serve
+LINK_POINTS = ("link", "command")
 _MAX_DATAGRAM = 65535
 _DRAIN = 64  # datagrams read from one socket before looking at the other
 
@@ -135,9 +135,9 @@ class MavlinkProxy:
     def __init__(self, listen: tuple[str, int], forward: tuple[str, int], scenarios: list[Scenario],
                  seed: int = 0, record: bool = False, monitor=None, log: Callable[[str], None] | None = None):
         for sc in scenarios:
-            if sc.injection_point == "sensor":
-                raise ProxyError(f"scenario {sc.id!r} ({sc.source}): injection point 'sensor' is inside the "
-                                 "flight controller; the proxy sits on the link (use 'link' or 'command')")
+            if sc.injection_point not in LINK_POINTS:
+                raise ProxyError(f"scenario {sc.id!r} ({sc.source}): injection point {sc.injection_point!r} is not on "
+                                 "the link; the proxy runs scenarios at 'link' (telemetry) and 'command' (setpoints)")
         self.listen = listen
         self.forward = forward
         self.scenarios = list(scenarios)

@@ -25,8 +25,8 @@ from generator.dataset import (
     DatasetError,
     DatasetWriter,
     FlightRecord,
+    insert_labels,
     is_dataset,
-    label_rows,
     open_dataset,
     write_flight,
 )
@@ -41,14 +41,13 @@ def _table(topic: str, ts: list[int], vals: list[np.ndarray], windows) -> pd.Dat
     df = pd.DataFrame(np.vstack(vals) if vals else np.zeros((0, len(TOPICS[topic].fields))),
                       columns=list(TOPICS[topic].field_names))
     df.insert(0, "Timestamp", t)
-    df.insert(1, "Is_Anomaly", label_rows(t, windows))
-    return df
+    return insert_labels(df, t, windows)
 
 
 def proxy_record(proxy, flight_id: str, extra_config: dict) -> FlightRecord:
     """The flight a :class:`generator.mavlink.proxy.MavlinkProxy` has seen so far."""
     end_us = proxy.end_us
-    windows = proxy.windows()
+    windows = proxy.layer.labelled_windows(0, end_us)
     nav = {t: _table(t, *proxy.views.forwarded[t], windows) for t in TOPICS if t in proxy.views.forwarded}
     sim = {t: _table(t, *proxy.views.received[t], windows) for t in TOPICS if t in proxy.views.received}
     manifest = scenario_manifest(proxy.scenarios, "simulation", proxy.seed, source=LIVE_SOURCE)
