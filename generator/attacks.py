@@ -15,7 +15,7 @@ import pandas as pd
 
 from generator.dataset import LABEL_COLUMNS, DatasetWriter, FlightRecord
 from generator.modes import csv_mode, scenario_manifest, simulation_mode, simulation_record, with_labels
-from generator.scart.grid import load_any
+from generator.scart.grid import load_configurations
 from generator.scart.scenario import Scenario
 from generator.simulate import FlightConfig
 
@@ -33,47 +33,60 @@ def attack_seeds(seed: int, count: int) -> list[int]:
     return [int(x) for x in ss.generate_state(count, dtype=np.uint32)]
 
 
-def simulation_flights(writer: DatasetWriter, scenarios: list[Scenario], seed: int, cfg: FlightConfig,
+def _order(configs: list[list[Scenario]]) -> list[int]:
+    """Configurations of one structure next to each other, so they share scenario groups."""
+    return sorted(range(len(configs)), key=lambda i: ([s.structure_key() for s in configs[i]], i))
+
+
+def config_id(config: list[Scenario]) -> str:
+    return "+".join(s.id for s in config)
+
+
+def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], seed: int, cfg: FlightConfig,
                        config_dict: dict, batch_size: int, say: Callable[[str], None]) -> None:
-    """Fly every scenario in the closed loop and write the flights."""
-    seeds = attack_seeds(seed, len(scenarios))
-    order = sorted(range(len(scenarios)), key=lambda i: (scenarios[i].structure_key(), i))
+    """Fly every configuration (the scenarios of one flight) in the closed loop and write the flights."""
+    seeds = attack_seeds(seed, len(configs))
+    order = _order(configs)
     for start in range(0, len(order), batch_size):
         idx = order[start:start + batch_size]
         say(f"simulation mode: flying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
-        batch, layer = simulation_mode([seeds[i] for i in idx], [[scenarios[i]] for i in idx], cfg)
+        batch, layer = simulation_mode([seeds[i] for i in idx], [configs[i] for i in idx], cfg)
         for j, i in enumerate(idx):
-            writer.write(simulation_record(batch, layer, j, f"sim-{scenarios[i].id}", [scenarios[i]], config_dict))
+            writer.write(simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict))
 
 
-def csv_flights(writer: DatasetWriter, scenarios: list[Scenario], sources: list[tuple[str, dict, int]],
+def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: list[tuple[str, dict, int]],
                 config_dict: dict, batch_size: int, say: Callable[[str], None]) -> None:
-    """Replay every scenario on a recorded normal flight (``sources``: id, topic tables, seed)."""
+    """Replay every configuration on a recorded normal flight (``sources``: id, topic tables, seed).
+
+    Physical (environment, vehicle) scenarios keep their timing but change nothing in csv mode.
+    """
     if not sources:
         raise ValueError("csv mode needs at least one recorded normal flight outside the training split")
-    order = sorted(range(len(scenarios)), key=lambda i: (scenarios[i].structure_key(), i))
+    order = _order(configs)
     for start in range(0, len(order), batch_size):
         idx = order[start:start + batch_size]
         say(f"csv mode: replaying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
         src = [sources[i % len(sources)] for i in idx]
         link = [{t: df for t, df in s[1].items() if t != "truth"} for s in src]
-        results = csv_mode(link, [[scenarios[i]] for i in idx], [s[2] for s in src])
+        results = csv_mode(link, [configs[i] for i in idx], [s[2] for s in src])
         for (nav, windows, events), i, (sid, topics, sseed) in zip(results, idx, src):
-            sc = scenarios[i]
-            manifest = scenario_manifest([sc], "csv", sseed, source=sid)
+            config = configs[i]
+            manifest = scenario_manifest(config, "csv", sseed, source=sid)
             last = max(int(df["Timestamp"].iloc[-1]) for df in topics.values() if len(df))
             manifest["duration_s"] = (last + 1) / 1e6
-            cfg = {**config_dict, "mode": "csv", "source_flight": sid, "scenarios": [sc.to_dict()]}
-            writer.write(FlightRecord(flight_id=f"csv-{sc.id}", navigator=nav, simulator=with_labels(topics, windows),
-                                      manifest=manifest, config=cfg, windows=windows, events=events))
+            cfg = {**config_dict, "mode": "csv", "source_flight": sid, "scenarios": [sc.to_dict() for sc in config]}
+            writer.write(FlightRecord(flight_id=f"csv-{config_id(config)}", navigator=nav,
+                                      simulator=with_labels(topics, windows), manifest=manifest, config=cfg,
+                                      windows=windows, events=events))
 
 
 def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[str, dict, int]], seed: int,
                    cfg: FlightConfig, config_dict: dict, say: Callable[[str], None]) -> None:
-    """Both modes for every configuration of the profile's grid."""
-    scenarios = load_any(grid_path(profile.scenario_grid))
-    simulation_flights(writer, scenarios, seed, cfg, config_dict, profile.batch_size, say)
-    csv_flights(writer, scenarios, normal_sources, config_dict, profile.batch_size, say)
+    """Both modes for every configuration of the profile's grid (or sweep, or scenario file)."""
+    configs = load_configurations(grid_path(profile.scenario_grid))
+    simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say)
+    csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say)
 
 
 def strip_labels(topics: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:

@@ -3,8 +3,9 @@
 Estimator: a complementary attitude filter (gyro integration corrected by accelerometer tilt and
 magnetometer heading) and an EKF2-like linear Kalman filter for position, velocity and
 accelerometer bias per axis, fusing delayed GPS position/velocity and barometric height with
-5-sigma innovation gates. The covariance is shared by the batch (it does not depend on the data),
-the states and gates are per flight.
+5-sigma innovation gates. Each flight has its own covariance: a measurement that is rejected or
+never arrives (a jammed GPS, a lost sensor) does not shrink it, so it grows while the filter
+coasts on inertial data, as EKF2's does.
 
 Controller: velocity -> acceleration (PID) -> thrust vector and attitude -> body rates (P) ->
 torques (PI) -> rotor thrusts through the Iris mixer.
@@ -20,24 +21,40 @@ from generator.params import GRAVITY, ControllerParams, EstimatorParams, Vehicle
 from generator.rotation import cross, euler_from_quat, quat_integrate, quat_to_rot, rotate, wrap_pi
 
 
-class _SharedKF:
-    """Covariance of the per-axis model x = [position, velocity, accel bias] (shared by flights)."""
+class _AxisKF:
+    """Kalman filter algebra of the per-axis model x = [position, velocity, accel bias].
+
+    Covariances are (N, 3, 3), one per flight, kept in the EstimatorState.
+    """
+
+    P0 = np.diag([1.0, 0.25, 0.01])
 
     def __init__(self, dt: float, q_acc: float, q_bias: float):
         self.F = np.array([[1.0, dt, -0.5 * dt * dt], [0.0, 1.0, -dt], [0.0, 0.0, 1.0]])
         self.Q = np.diag([0.0, q_acc**2 * dt, q_bias**2 * dt])
-        self.P = np.diag([1.0, 0.25, 0.01])
 
-    def predict(self) -> None:
-        self.P = self.F @ self.P @ self.F.T + self.Q
+    def init(self, n: int) -> np.ndarray:
+        return np.repeat(self.P0[None], n, axis=0)
 
-    def update(self, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gain (3, m) and innovation variance diag (m,); updates the covariance."""
-        S = H @ self.P @ H.T + R
-        K = self.P @ H.T @ np.linalg.inv(S)
-        self.P = (np.eye(3) - K @ H) @ self.P
-        self.P = 0.5 * (self.P + self.P.T)
-        return K, np.diag(S).copy()
+    def predict(self, P: np.ndarray) -> np.ndarray:
+        return self.F @ P @ self.F.T + self.Q
+
+    @staticmethod
+    def gain(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gains (N, 3, m) and innovation variances (N, m)."""
+        PHt = P @ H.T
+        S = H @ PHt + R
+        K = PHt @ np.linalg.inv(S)
+        return K, np.diagonal(S, axis1=1, axis2=2).copy()
+
+    @staticmethod
+    def commit(P: np.ndarray, K: np.ndarray, H: np.ndarray, fused: np.ndarray) -> None:
+        """Covariance update, only for the flights whose measurement was fused."""
+        if not fused.any():
+            return
+        Pf, Kf = P[fused], K[fused]
+        Pn = Pf - Kf @ (H @ Pf)
+        P[fused] = 0.5 * (Pn + np.swapaxes(Pn, 1, 2))
 
 
 @dataclass
@@ -57,6 +74,8 @@ class EstimatorState:
     inertial_only_s: np.ndarray  # (N,) seconds since the last accepted horizontal aiding
     since_pos_fusion_s: np.ndarray  # (N,) seconds since the last accepted GPS position
     gps_resets: np.ndarray  # (N,) horizontal position resets to GPS
+    P_h: np.ndarray | None = None  # (N, 3, 3) covariance of the horizontal axes (north and east alike)
+    P_v: np.ndarray | None = None  # (N, 3, 3) covariance of the vertical axis
     R: np.ndarray | None = None  # (N, 3, 3) rotation of ``quat`` (None when stale)
 
 
@@ -69,8 +88,7 @@ class Estimator:
         self.dt = dt
         self.delay = gps_delay_steps
         self.decl = np.arctan2(mag_field_ned[1], mag_field_ned[0])
-        self.kf_h = _SharedKF(dt, params.accel_process_noise, params.bias_process_noise)
-        self.kf_v = _SharedKF(dt, params.accel_process_noise, params.bias_process_noise)
+        self.kf = _AxisKF(dt, params.accel_process_noise, params.bias_process_noise)
 
     def init_state(self, n: int, yaw: np.ndarray) -> EstimatorState:
         quat = np.zeros((n, 4))
@@ -82,6 +100,7 @@ class Estimator:
             gps_pos_rejected=np.zeros(n, dtype=np.int64), gps_vel_rejected=np.zeros(n, dtype=np.int64),
             baro_rejected=np.zeros(n, dtype=np.int64), baro_offset=np.full(n, np.nan),
             inertial_only_s=np.zeros(n), since_pos_fusion_s=np.zeros(n), gps_resets=np.zeros(n, dtype=np.int64),
+            P_h=self.kf.init(n), P_v=self.kf.init(n),
         )
 
     def predict(self, s: EstimatorState, step: int, accel: np.ndarray, gyro: np.ndarray,
@@ -108,8 +127,8 @@ class Estimator:
         x = s.x
         x[:, :, 0] += x[:, :, 1] * dt + 0.5 * a_ned * dt * dt
         x[:, :, 1] += a_ned * dt
-        self.kf_h.predict()
-        self.kf_v.predict()
+        s.P_h = self.kf.predict(s.P_h)
+        s.P_v = self.kf.predict(s.P_v)
         slot = step % self.delay
         s.history[slot, :, :3] = x[:, :, 0]
         s.history[slot, :, 3:] = x[:, :, 1]
@@ -131,42 +150,54 @@ class Estimator:
         s.quat = quat_integrate(s.quat, axis * (self.p.att_mag_gain * err)[:, None], 0.01)
         s.R = None
 
-    def fuse_baro(self, s: EstimatorState, baro_alt: np.ndarray) -> None:
+    def fuse_baro(self, s: EstimatorState, baro_alt: np.ndarray, delivered: np.ndarray | None = None) -> None:
         """Height from the barometer (altitude AMSL), referenced to the first sample."""
-        first = np.isnan(s.baro_offset)
+        ok_in = np.ones(baro_alt.shape[0], dtype=bool) if delivered is None else delivered
+        first = np.isnan(s.baro_offset) & ok_in
         s.baro_offset[first] = baro_alt[first] + s.x[first, 2, 0]
         meas = -(baro_alt - s.baro_offset)
         H = np.array([[1.0, 0.0, 0.0]])
-        K, S = self.kf_v.update(H, np.array([[self.p.baro_noise**2]]))
-        innov = meas - s.x[:, 2, 0]
-        ok = innov**2 <= self.p.gate_sigma**2 * S[0]
-        s.baro_rejected += ~ok
-        s.x[:, 2, :] += (K[:, 0][None, :] * (innov * ok)[:, None])
+        K, S = self.kf.gain(s.P_v, H, np.array([[self.p.baro_noise**2]]))
+        innov = np.where(ok_in, meas - s.x[:, 2, 0], 0.0)
+        gate = innov**2 <= self.p.gate_sigma**2 * S[:, 0]
+        s.baro_rejected += ok_in & ~gate
+        fused = ok_in & gate
+        s.x[:, 2, :] += K[:, :, 0] * (innov * fused)[:, None]
+        self.kf.commit(s.P_v, K, H, fused)
 
-    def fuse_gps(self, s: EstimatorState, step: int, pos: np.ndarray, vel: np.ndarray) -> None:
-        """Delayed GPS position (horizontal) and velocity (3-D), with innovation gates."""
+    def fuse_gps(self, s: EstimatorState, step: int, pos: np.ndarray, vel: np.ndarray,
+                 usable: np.ndarray | None = None) -> None:
+        """Delayed GPS position (horizontal) and velocity (3-D), with innovation gates.
+
+        ``usable``: flights whose receiver has a fix good enough to fuse (default: all).
+        """
         p = self.p
+        n = pos.shape[0]
+        usable = np.ones(n, dtype=bool) if usable is None else usable
         old = s.history[(step + 1) % self.delay]
         gate2 = p.gate_sigma**2
         # horizontal position and velocity (per axis [pos, vel] measurement)
         H = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
         Rm = np.diag([p.gps_pos_noise**2, p.gps_vel_noise**2])
-        K, S = self.kf_h.update(H, Rm)
+        K, S = self.kf.gain(s.P_h, H, Rm)
         ip = pos[:, :2] - old[:, :2]
         iv = vel[:, :2] - old[:, 3:5]
-        pos_ok = (ip**2).sum(axis=1) <= gate2 * S[0]
         ivz = vel[:, 2] - old[:, 5]
-        vel_ok = ((iv**2).sum(axis=1) + ivz**2) <= gate2 * S[1]
-        s.gps_pos_rejected += ~pos_ok
-        s.gps_vel_rejected += ~vel_ok
+        pos_gate = (ip**2).sum(axis=1) <= gate2 * S[:, 0]
+        vel_gate = ((iv**2).sum(axis=1) + ivz**2) <= gate2 * S[:, 1]
+        pos_ok = usable & pos_gate
+        vel_ok = usable & vel_gate
+        s.gps_pos_rejected += usable & ~pos_gate
+        s.gps_vel_rejected += usable & ~vel_gate
         ip = ip * pos_ok[:, None]
         iv = iv * vel_ok[:, None]
-        s.x[:, :2, :] += ip[:, :, None] * K[:, 0][None, None, :] + iv[:, :, None] * K[:, 1][None, None, :]
+        s.x[:, :2, :] += ip[:, :, None] * K[:, None, :, 0] + iv[:, :, None] * K[:, None, :, 1]
+        self.kf.commit(s.P_h, K, H, pos_ok | vel_ok)
         s.inertial_only_s[pos_ok | vel_ok] = 0.0
         s.since_pos_fusion_s[pos_ok] = 0.0
         # EKF2: reset the horizontal position to GPS when it has not been fused for 2 x
         # EKF2_RESET_TIMEOUT_MAX (7 s), or when no horizontal aiding was fused for 7 s
-        reset = (s.since_pos_fusion_s > 2 * p.reset_timeout_s) | (s.inertial_only_s > p.reset_timeout_s)
+        reset = usable & ((s.since_pos_fusion_s > 2 * p.reset_timeout_s) | (s.inertial_only_s > p.reset_timeout_s))
         if reset.any():
             s.x[reset, :2, 0] = pos[reset, :2]
             s.x[reset, :2, 1] = np.where((s.inertial_only_s[reset] > p.reset_timeout_s)[:, None],
@@ -174,10 +205,16 @@ class Estimator:
             s.since_pos_fusion_s[reset] = 0.0
             s.inertial_only_s[reset] = 0.0
             s.gps_resets += reset
+            P = s.P_h[reset]
+            P[:, 0, :] = 0.0
+            P[:, :, 0] = 0.0
+            P[:, 0, 0] = p.gps_pos_noise**2
+            s.P_h[reset] = P
         # vertical velocity
         Hv = np.array([[0.0, 1.0, 0.0]])
-        Kv, _ = self.kf_v.update(Hv, np.array([[p.gps_vel_noise**2]]))
-        s.x[:, 2, :] += (ivz * vel_ok)[:, None] * Kv[:, 0][None, :]
+        Kv, _ = self.kf.gain(s.P_v, Hv, np.array([[p.gps_vel_noise**2]]))
+        s.x[:, 2, :] += (ivz * vel_ok)[:, None] * Kv[:, :, 0]
+        self.kf.commit(s.P_v, Kv, Hv, vel_ok)
 
     @staticmethod
     def position(s: EstimatorState) -> np.ndarray:

@@ -8,28 +8,25 @@ from pathlib import Path
 from generator.dataset import DatasetWriter, FlightRecord, check_output_dir
 from generator.importers import load_flight_file
 from generator.modes import csv_mode, scenario_manifest, with_labels
-from generator.scart.grid import is_grid, load_grid
+from generator.scart.grid import load_configurations
 
 
 def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",
                 seed: int = 0, overwrite: bool = False, topics: list[str] | None = None) -> Path:
     """Replay ``input_path`` (CSV, ULog, Parquet or a dataset flight folder) through the scenario(s).
 
-    A scenario file's scenarios are applied together to one attacked copy; a grid file gives one
-    attacked copy per configuration. Everything is validated before anything is written.
+    A scenario file's scenarios are applied together to one attacked copy; a grid or sweep file
+    gives one attacked copy per configuration. Everything is validated before anything is written.
     """
     input_path, out = Path(input_path), Path(out)
     check_output_dir(out, overwrite=overwrite)
     scenario_doc = Path(scenario_path)
-    scenarios = load_any_unchecked(scenario_doc)
-    needed = set()
-    for sc in scenarios:
-        needed |= sc.used_topics()
+    jobs = load_configurations(scenario_doc, check_topics=False)
     tables = load_flight_file(input_path, topics=topics)
     available = {t: tuple(c for c in df.columns if c not in ("Timestamp", "Is_Anomaly")) for t, df in tables.items()}
-    for sc in scenarios:
-        sc.validate_topics(available)
-    jobs = [[sc] for sc in scenarios] if is_grid(scenario_doc) else [scenarios]
+    for job in jobs:
+        for sc in job:
+            sc.validate_topics(available)
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
     writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
                            info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_doc)})
@@ -45,12 +42,3 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
                                   windows=windows, events=events))
     writer.close()
     return out
-
-
-def load_any_unchecked(path: Path):
-    """Scenarios from a scenario or grid file, topics checked later against the input's."""
-    from generator.scart.scenario import load_scenarios
-
-    if is_grid(path):
-        return load_grid(path, check_topics=False)
-    return load_scenarios(path, check_topics=False)

@@ -275,22 +275,13 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
                 est.fuse_mag(es, mag)
         if due_sens["sensor_baro"][step]:
             baro_alt = altitude_at(pressure)
-            baro_ok = _alive(env, "baro", sens_ok.get("sensor_baro"))
-            if baro_ok is not None:
-                _fuse_rows(est.fuse_baro, es, baro_alt, baro_ok)
-            else:
-                est.fuse_baro(es, baro_alt)
+            est.fuse_baro(es, baro_alt, _alive(env, "baro", sens_ok.get("sensor_baro")))
         if gps_due:
             ep = cfg.estimator
             usable = (gps["fix_type"] >= 3) & (gps["satellites"] >= ep.gps_min_satellites) & (gps["eph"] <= ep.gps_max_eph)
             if "sensor_gps" in sens_ok:
                 usable = usable & sens_ok["sensor_gps"]
-            if usable.all():
-                est.fuse_gps(es, step, gps["pos"], gps["vel"])
-            elif usable.any():
-                _fuse_gps_rows(est, es, step, gps, usable)
-            else:
-                est.kf_h.predict()  # no aiding: the covariance still grows
+            est.fuse_gps(es, step, gps["pos"], gps["vel"], None if usable.all() else usable)
 
         # telemetry: flight controller -> link -> navigator
         due_now = [tp for tp in TELEMETRY_TOPICS if due[tp][step]]
@@ -451,12 +442,6 @@ def _fuse_rows(fn, es, values, ok) -> None:
     fn(es, values)
     es.x[~ok] = before[0][~ok]
     es.quat[~ok] = before[1][~ok]
-
-
-def _fuse_gps_rows(est, es, step, gps, usable) -> None:
-    before = es.x.copy()
-    est.fuse_gps(es, step, gps["pos"], gps["vel"])
-    es.x[~usable] = before[~usable]
 
 
 TRUTH_COLUMNS = TRUTH_FIELDS

@@ -27,15 +27,28 @@ extra = { direction_deg = 90.0 }  # optional fixed parameters
 start = [{ condition = "time_window", start_s = 20.0 }]
 ```
 Each configuration's id is ``<grid id>-<action>-<target>-L<level>-d<duration>-<trigger>``.
+
+Compositions (several scenarios per flight) expand with a *sweep*: a scenario file with
+``[[scenario]]`` tables and a ``[sweep]`` table whose keys are parameter paths and whose values
+are lists; every combination is one configuration (one flight).
+
+```toml
+[sweep]
+"gps-jam.end.0.seconds" = [3.0, 5.0]          # <scenario id>.<start|end|actions>.<index>.<key>
+"link-drift.actions.0.rate" = [0.1, 0.3]
+"link-drift.max_windows" = [1, 2]             # <scenario id>.<key> for a scenario's own keys
+```
+A swept scenario's id gains the values (``gps-jam-seconds3``); references to it follow.
 """
 
 from __future__ import annotations
 
+import copy
 import itertools
 from pathlib import Path
 
 from generator.scart.actions import ACTIONS
-from generator.scart.scenario import Scenario, scenario_from_dict
+from generator.scart.scenario import Scenario, check_composition, load_scenarios, scenario_from_dict
 from generator.scart.spec import ScenarioError, read_toml
 
 AXES = ("action", "target", "level", "duration_s", "trigger")
@@ -123,6 +136,98 @@ def load_grid(path: str | Path, check_topics: bool = True) -> list[Scenario]:
     if len(set(ids)) != len(ids):
         raise ScenarioError(f"{src}: the grid expands to duplicate ids; make the axes' values distinct")
     return out
+
+
+def _tag(value) -> str:
+    return f"{value:g}" if isinstance(value, int | float) and not isinstance(value, bool) else str(value)
+
+
+def load_sweep(path: str | Path, check_topics: bool = True) -> list[list[Scenario]]:
+    """Expand a scenario file with a ``[sweep]`` table into compositions, one per combination."""
+    path = Path(path)
+    src = str(path)
+    doc = read_toml(path, "sweep file")
+    extra = [k for k in doc if k not in ("scenario", "sweep")]
+    if extra:
+        raise ScenarioError(f"{src}: unknown top-level key(s) {', '.join(map(repr, extra))}; allowed: 'scenario', 'sweep'")
+    tables = doc.get("scenario")
+    if isinstance(tables, dict):
+        tables = [tables]
+    if not isinstance(tables, list) or not tables or not all(isinstance(t, dict) for t in tables):
+        raise ScenarioError(f"{src}: a sweep needs [[scenario]] tables to sweep")
+    sweep = _need(doc, "sweep", src, dict)
+    if not sweep:
+        raise ScenarioError(f"{src}: [sweep] is empty; give at least one \"<scenario id>.<...>.<key>\" = [values]")
+    ids = [t.get("id", f"{path.stem}-{i}" if len(tables) > 1 else path.stem) for i, t in enumerate(tables)]
+    for t, sid in zip(tables, ids):
+        t["id"] = sid
+    axes = []
+    for key, values in sweep.items():
+        where = f"{src}: sweep.{key!r}"
+        if not isinstance(values, list) or not values:
+            raise ScenarioError(f"{where}: expected a non-empty list of values, got {values!r}")
+        sid, _, rest = key.partition(".")
+        if sid not in ids:
+            raise ScenarioError(f"{where}: unknown scenario {sid!r}; scenarios: {', '.join(ids)}")
+        parts = rest.split(".")
+        if len(parts) == 1 and parts[0]:
+            pass
+        elif len(parts) == 3 and parts[0] in ("start", "end", "actions") and parts[1].isdigit():
+            items = tables[ids.index(sid)].get(parts[0], [])
+            items = [items] if isinstance(items, dict) else items
+            if int(parts[1]) >= len(items):
+                raise ScenarioError(f"{where}: scenario {sid!r} has {len(items)} {parts[0]} table(s); "
+                                    f"index {parts[1]} is out of range")
+        else:
+            raise ScenarioError(f"{where}: expected \"<scenario id>.<start|end|actions>.<index>.<key>\" "
+                                f"or \"<scenario id>.<key>\"")
+        axes.append((sid, parts, values))
+    out: list[list[Scenario]] = []
+    seen: set[str] = set()
+    for combo in itertools.product(*(values for _, _, values in axes)):
+        doc_tables = copy.deepcopy(tables)
+        by_id = dict(zip(ids, doc_tables))
+        tags: dict[str, list[str]] = {sid: [] for sid in ids}
+        for (sid, parts, _), value in zip(axes, combo):
+            t = by_id[sid]
+            if len(parts) == 1:
+                t[parts[0]] = value
+            else:
+                items = t[parts[0]]
+                item = items if isinstance(items, dict) else items[int(parts[1])]
+                item[parts[2]] = value
+            tags[sid].append(f"{parts[-1]}{_tag(value)}")
+        rename = {sid: "-".join([sid, *tags[sid]]) for sid in ids}
+        for t in doc_tables:
+            t["id"] = rename[t["id"]]
+            for key in ("start", "end"):
+                items = t.get(key, [])
+                for item in [items] if isinstance(items, dict) else items:
+                    if isinstance(item, dict) and isinstance(item.get("scenario"), str):
+                        item["scenario"] = rename.get(item["scenario"], item["scenario"])
+        config = [scenario_from_dict(t, src, t["id"], f"scenario[{t['id']}]", check_topics) for t in doc_tables]
+        check_composition(config, src)
+        name = "+".join(sc.id for sc in config)
+        if name in seen:
+            raise ScenarioError(f"{src}: the sweep expands to duplicate configurations ({name}); "
+                                f"make the swept values distinct")
+        seen.add(name)
+        out.append(config)
+    return out
+
+
+def load_configurations(path: str | Path, check_topics: bool = True) -> list[list[Scenario]]:
+    """The flights a file describes: one scenario list per flight.
+
+    A grid gives one single-scenario flight per configuration, a sweep one composition per
+    combination, and a plain scenario file one flight running all its scenarios together.
+    """
+    doc = read_toml(path)
+    if "grid" in doc:
+        return [[sc] for sc in load_grid(path, check_topics)]
+    if "sweep" in doc:
+        return load_sweep(path, check_topics)
+    return [load_scenarios(path, check_topics)]
 
 
 def load_any(path: str | Path) -> list[Scenario]:

@@ -159,7 +159,8 @@ def _finite(obj):
     raise TypeError(type(obj).__name__)
 
 
-def _items(table: dict, key: str, registry: dict, kind_key: str, where: str, end: bool = False) -> list:
+def _items(table: dict, key: str, registry: dict, kind_key: str, where: str, end: bool = False,
+           context: str = "") -> list:
     raw = table.get(key, [])
     if isinstance(raw, dict):
         raw = [raw]
@@ -172,7 +173,8 @@ def _items(table: dict, key: str, registry: dict, kind_key: str, where: str, end
             raise ScenarioError(f"{w}: expected a table, got {item!r}")
         name = item.get(kind_key)
         if name not in registry:
-            raise ScenarioError(f"{w}.{kind_key}: unknown {kind_key} {name!r}; allowed: {', '.join(sorted(registry))}")
+            raise ScenarioError(f"{w}.{kind_key}: unknown {kind_key} {name!r}{context}; "
+                                f"allowed: {', '.join(sorted(registry))}")
         cls = registry[name]
         if kind_key == "condition" and cls.end_only and not end:
             raise ScenarioError(f"{w}: condition {name!r} can only end an attack (use it under [[...end]])")
@@ -217,7 +219,7 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
     end = _items(table, "end", CONDITIONS, "condition", loc, end=True)
     physical = point in PHYSICAL_POINTS
     registry = {k: v for k, v in EFFECTS.items() if v.point == point} if physical else ACTIONS
-    actions = _items(table, "actions", registry, "action", loc)
+    actions = _items(table, "actions", registry, "action", loc, context=f" at injection point {point!r}")
     if not actions:
         raise ScenarioError(f"{loc}.actions: a scenario needs at least one [[scenario.actions]] table; "
                             f"allowed actions at injection point {point!r}: {', '.join(sorted(registry))}")
