@@ -25,7 +25,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
     existed = out.exists()
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
-                         overwrite=args.overwrite, with_attacks=not args.normal_only, log=_log)
+                         overwrite=args.overwrite, with_attacks=not args.normal_only, log=_log,
+                         scenarios=args.scenarios)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
@@ -58,6 +59,8 @@ def register(sub) -> None:
     g.add_argument("--format", choices=("parquet", "csv"), default="parquet")
     g.add_argument("--flights", type=int, default=None, help="number of normal flights (default: the profile's)")
     g.add_argument("--normal-only", action="store_true", help="only normal flights, no attacks")
+    g.add_argument("--scenarios", default=None, help="a scenario, grid or sweep file (TOML) for the attacked "
+                   "flights, instead of the profile's grid")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.set_defaults(func=cmd_generate)
 

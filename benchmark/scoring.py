@@ -412,7 +412,7 @@ def compute_metrics(ev: Evaluation, metrics: tuple[Metric, ...] = DEFAULT_METRIC
     return out
 
 
-BREAKDOWN_DIMENSIONS = ("action", "target", "injection_point")
+BREAKDOWN_DIMENSIONS = ("action", "target", "injection_point", "kind")
 
 
 def breakdown(ev: Evaluation, dimensions: tuple[str, ...] = BREAKDOWN_DIMENSIONS) -> pd.DataFrame:

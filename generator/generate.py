@@ -15,6 +15,7 @@ import numpy as np
 from generator.attacks import attack_flights, strip_labels
 from generator.dataset import DatasetError, DatasetWriter, check_output_dir
 from generator.records import normal_record
+from generator.scart.grid import load_configurations
 from generator.simulate import FlightConfig, simulate
 
 
@@ -71,9 +72,17 @@ def versions() -> dict[str, str]:
 
 def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "parquet",
                      n_normal: int | None = None, overwrite: bool = False, with_attacks: bool = True,
-                     config: FlightConfig | None = None, log: Callable[[str], None] | None = None) -> Path:
-    """Generate a complete dataset; returns its folder. The manifest is written last."""
+                     config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
+                     scenarios: str | Path | None = None) -> Path:
+    """Generate a complete dataset; returns its folder. The manifest is written last.
+
+    ``scenarios``: a scenario, grid or sweep file that replaces the profile's grid for the
+    attacked flights (both modes); it is validated before anything is flown.
+    """
     prof = get_profile(profile)
+    if scenarios is not None:
+        load_configurations(scenarios)  # bad files fail here, before any work
+        prof = dataclasses.replace(prof, scenario_grid=str(Path(scenarios).resolve()))
     if n_normal is not None and n_normal < 1:
         raise DatasetError(f"flight count must be at least 1, got {n_normal}")
     out = Path(out)

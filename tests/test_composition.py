@@ -279,3 +279,24 @@ def test_every_example_scenario_file_loads():
         assert configs and all(c for c in configs), path.name
     doc = json.dumps([s.to_dict() for s in load_scenarios(SCENARIOS / "env_gps_jamming.toml")])
     assert "environment" in doc
+
+
+def test_generate_with_a_composition_labels_both_modes(tmp_path):
+    out = tmp_path / "ds"
+    chain = SCENARIOS / "chain_jam_then_drift.toml"
+    assert main(["generate", "--profile", "quick", "--flights", "3", "--scenarios", str(chain),
+                 "--out", str(out)]) == 0
+    ds = open_dataset(out)
+    m = ds.manifest.set_index("flight_id")
+    sim, csv = m.loc["sim-gps-jam+link-drift"], m.loc["csv-gps-jam+link-drift"]
+    assert (sim["mode"], csv["mode"]) == ("simulation", "csv")
+    assert sim["kind"] == csv["kind"] == "attack" and sim["injection_point"] == "environment+link"
+    ids_sim = set(ds.flight("sim-gps-jam+link-drift")["Anomaly_Ids"]) - {""}
+    ids_csv = set(ds.flight("csv-gps-jam+link-drift")["Anomaly_Ids"]) - {""}
+    assert ids_sim == {"gps-jam", "link-drift"}  # both parts act in the closed loop
+    assert ids_csv == {"link-drift"}  # only the message-level part acts on a recording
+    bad = tmp_path / "bad.toml"
+    bad.write_text(chain.read_text().replace('scenario = "gps-jam"', 'scenario = "nope"'))
+    assert main(["generate", "--profile", "quick", "--flights", "3", "--scenarios", str(bad),
+                 "--out", str(tmp_path / "ds2")]) == 2
+    assert not (tmp_path / "ds2").exists()

@@ -3,10 +3,10 @@
 ```toml
 [scenario]
 id = "gps-spoof"                 # default: the file name
-injection_point = "link"         # link | sensor | command
+injection_point = "link"         # link | sensor | command | environment | vehicle
 listeners = ["local_position_ned"]   # default: every topic the conditions and actions use
 max_windows = 1                  # attack windows per flight (one contiguous window by default)
-kind = "attack"                  # attack | fault (labels)
+kind = "attack"                  # attack | fault (labels; default fault at "vehicle")
 callback = "package.module:function"   # optional custom callback
 
 [[scenario.start]]               # all must hold to start
