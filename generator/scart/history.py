@@ -47,7 +47,7 @@ class TopicHistory:
         n = np.clip(np.asarray(n, dtype=np.int64), 1, max(avail, 1))
         m = int(n.max())
         slots = (self.count - 1 - np.arange(m)) % self.depth  # newest first
-        block = self.values[slots] if rows is None else self.values[slots][:, rows]
+        block = self.values[slots] if rows is None else self.values[slots[:, None], rows[None, :]]
         use = np.arange(m)[:, None] < n[None, :]  # (m, R)
         total = np.where(use[:, :, None], block, 0.0).sum(axis=0)
         return total / n[:, None]
