@@ -99,7 +99,7 @@ class ProxyStats:
     def summary(self) -> str:
         return (f"{self.datagrams} datagrams, {self.frames} frames: {self.forwarded} forwarded "
                 f"({self.altered} altered), {self.dropped} dropped by the scenario, {self.malformed} malformed "
-                f"dropped, {self.unknown} of unknown message ids passed; handling p50 "
+                f"dropped, {self.unknown} of unknown message ids passed, {self.errors} errors; handling p50 "
                 f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms")
 
     def to_dict(self) -> dict:
@@ -335,7 +335,13 @@ class MavlinkProxy:
             if self.recording:
                 _Views._add(self.views.forwarded, topic, t_us, seen)
             if self.monitor is not None:
-                self.monitor.on_message(topic, t_us, seen, self.layer)
+                try:
+                    self.monitor.on_message(topic, t_us, seen, self.layer)
+                except Exception as exc:  # a failing detector must not change what is forwarded
+                    self.stats.errors += 1
+                    if self._error_logged < 5:
+                        self._error_logged += 1
+                        self.log(f"proxy: the detector failed on a row ({type(exc).__name__}: {exc})")
         return out
 
     # -- the recorded flight --------------------------------------------------------------------
