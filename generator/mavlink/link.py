@@ -60,12 +60,12 @@ class _Endpoint:
         self.seq = (self.seq + 1) & 0xFF
         return out
 
-    def heartbeat(self, t_us: int, mav_type: int) -> list[bytes]:
+    def heartbeat(self, t_us: int, mav_type: int, autopilot: int) -> list[bytes]:
+        """A HEARTBEAT (system state active) when the last one is a second old."""
         if t_us - self.last_heartbeat_us < 1_000_000:
             return []
         self.last_heartbeat_us = t_us
-        m = KNOWN[HEARTBEAT_ID](mav_type, 12, 0, 0, 4, 3)  # autopilot PX4, state active
-        return [self.pack(m)]
+        return [self.pack(KNOWN[HEARTBEAT_ID](mav_type, autopilot, 0, 0, 4, 3))]
 
     def closing(self, t_us: int) -> bytes:
         return self.pack(KNOWN[SYSTEM_TIME_ID](0, int(t_us // 1000) & 0xFFFFFFFF))
@@ -193,7 +193,7 @@ class MavlinkLink:
         if self.proxy is None:
             raise RuntimeError("MavlinkLink: call connect(proxy_address) before flying")
         fc = self.fc
-        frames = fc.heartbeat(t_us, 2)  # MAV_TYPE_QUADROTOR
+        frames = fc.heartbeat(t_us, 2, 12)  # MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4
         frames += [fc.pack(CODECS[t].new_message(v[0], t_us)) for t, v in messages.items()]
         frames.append(fc.closing(t_us))
         self._send(fc, frames, self.proxy)
@@ -206,7 +206,7 @@ class MavlinkLink:
             raise RuntimeError("MavlinkLink: no telemetry has come through the proxy yet")
         mc = self.mc
         sp = messages["setpoint"][0]
-        frames = mc.heartbeat(t_us, 18)  # MAV_TYPE_ONBOARD_CONTROLLER
+        frames = mc.heartbeat(t_us, 18, 8)  # MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID
         if sp[4] != self._last_seq:
             frames.append(mc.pack(KNOWN[MISSION_CURRENT_ID](int(sp[4]))))
             self._last_seq = sp[4]

@@ -116,9 +116,9 @@ class _Views:
         self.received: dict[str, tuple[list[int], list[np.ndarray]]] = {}
         self.forwarded: dict[str, tuple[list[int], list[np.ndarray]]] = {}
 
-    @staticmethod
-    def _add(store, topic: str, t_us: int, values: np.ndarray) -> None:
-        ts, vals = store.setdefault(topic, ([], []))
+    def add(self, view: str, topic: str, t_us: int, values: np.ndarray) -> None:
+        """Append one message to ``view`` ("received" or "forwarded")."""
+        ts, vals = getattr(self, view).setdefault(topic, ([], []))
         ts.append(t_us)
         vals.append(values)
 
@@ -321,7 +321,7 @@ class MavlinkProxy:
             vals, delivered = self.layer.on_messages(point, 0, t_us, {topic: values[None, :]})[topic]
             new, ok = vals[0], bool(delivered[0])
         if self.recording:
-            _Views._add(self.views.received, topic, t_us, values)
+            self.views.add("received", topic, t_us, values)
         if not ok:
             self.stats.dropped += 1
             return None
@@ -333,7 +333,7 @@ class MavlinkProxy:
         if self.recording or self.monitor is not None:
             seen = np.asarray(codec.decode(msg, self.state_out), dtype=np.float64)
             if self.recording:
-                _Views._add(self.views.forwarded, topic, t_us, seen)
+                self.views.add("forwarded", topic, t_us, seen)
             if self.monitor is not None:
                 try:
                     self.monitor.on_message(topic, t_us, seen, self.layer)
