@@ -6,6 +6,7 @@ from the field name for imported logs (PX4 uORB names); a scenario may override 
 
 from __future__ import annotations
 
+import functools
 import re
 
 from generator.geo import metres_per_degree
@@ -42,8 +43,10 @@ _GUESSES = [
 ]
 
 
+@functools.lru_cache(maxsize=4096)
 def quantity(topic: str, field: str) -> str:
-    """The physical quantity of ``topic.field`` (see generator.topics.Field.quantity)."""
+    """The physical quantity of ``topic.field`` (see generator.topics.Field.quantity); cached, as
+    actions ask on every message."""
     t = TOPICS.get(topic)
     if t is not None and field in t.field_names:
         return t.fields[t.field_names.index(field)].quantity
