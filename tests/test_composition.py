@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import distance_to_path
 
 from benchmark.cli import main
 from generator.dataset import LABEL_COLUMNS, label_columns, open_dataset
@@ -19,9 +20,10 @@ from generator.scart.scenario import ScenarioError, check_composition, load_scen
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "data" / "scenarios"
 SEED = 5
-ORDER = ("normal", "chain", "rf_spoof", "motor70", "motor_failure")
+ORDER = ("normal", "chain", "rf_spoof", "motor70", "motor_failure", "gust", "battery", "baro_loss")
 FILES = {"chain": "chain_jam_then_drift", "rf_spoof": "env_gps_rf_spoof", "motor70": "fault_motor_efficiency",
-         "motor_failure": "fault_motor_failure"}
+         "motor_failure": "fault_motor_failure", "gust": "env_wind_gust", "battery": "fault_battery_sag",
+         "baro_loss": "fault_sensor_loss"}
 
 
 @pytest.fixture(scope="module")
@@ -158,6 +160,53 @@ def test_motor_failure_loses_the_vehicle_soon_after(fleet):
     assert (sid, kind) == ("fault-motor-failure", "fault") and s == pytest.approx(25e6, abs=4000)
     assert batch.status[i] == "crashed"  # no yaw/attitude authority on three rotors
     assert (int(batch.exit_step[i]) + 1) * 4000 - s < 5e6
+
+
+def _during(df, s, e):
+    t = df["Timestamp"]
+    return df[(t >= s) & (t < e)]
+
+
+def test_wind_gust_pushes_the_vehicle_off_its_path_for_a_while(fleet):
+    batch, layer, k = fleet
+    i = k["gust"]
+    _, sim, windows = _views(batch, layer, i)
+    (s, e, sid, kind), = windows
+    assert kind == "fault" and batch.status[i] == "landed"
+    tr = sim["truth"]
+    t = tr["Timestamp"].to_numpy()
+    off = distance_to_path(tr[["x", "y"]].to_numpy(), batch.waypoints[i][:, :2])
+    gap = _path_gap(sim, _views(batch, layer, k["normal"])[1])
+    tg = t[: gap.size]
+    assert gap[tg < s].max() == 0.0 and gap[(tg >= s) & (tg < e + 3e6)].max() > 0.75  # pushed off course ...
+    assert np.median(off[t > e + 10e6]) < 0.5  # ... and back on the square after
+
+
+def test_battery_sag_shows_in_the_reported_voltage(fleet):
+    batch, layer, k = fleet
+    _, sim_n, _ = _views(batch, layer, k["normal"])
+    _, sim, windows = _views(batch, layer, k["battery"])
+    s = windows[0][0]
+    v, v_n = sim["battery_status"], sim_n["battery_status"]
+    late = min(v["Timestamp"].iloc[-1], v_n["Timestamp"].iloc[-1])
+    drop = (_during(v_n, s + 6e6, late)["voltage"].mean() - _during(v, s + 6e6, late)["voltage"].mean())
+    assert drop == pytest.approx(3.0, abs=0.3)  # the full 3 V once the 5 s ramp is over
+    assert (_during(v, 0, s)["voltage"].to_numpy() == _during(v_n, 0, s)["voltage"].to_numpy()).all()
+    assert batch.status[k["battery"]] == "landed"
+
+
+def test_lost_barometer_fails_over_to_an_instance_with_its_own_offset(fleet):
+    batch, layer, k = fleet
+    _, sim_n, _ = _views(batch, layer, k["normal"])
+    _, sim, windows = _views(batch, layer, k["baro_loss"])
+    s = windows[0][0]
+    a, b = _during(sim["truth"], s + 5e6, s + 15e6), _during(sim_n["truth"], s + 5e6, s + 15e6)
+    # the second instance reads 0.8 m high: the flight controller, holding 10 m on it, flies lower
+    lower = np.median(a["z"].to_numpy() - b["z"].to_numpy())
+    assert lower == pytest.approx(0.8, abs=0.25)
+    before = _during(sim["truth"], 0, s)["z"].to_numpy() - _during(sim_n["truth"], 0, s)["z"].to_numpy()
+    assert np.abs(before).max() == 0.0
+    assert batch.status[k["baro_loss"]] == "landed"
 
 
 def test_label_columns_join_overlapping_scenarios_and_kinds():
