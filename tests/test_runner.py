@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -180,6 +181,16 @@ def test_failing_detectors_become_status_rows(dataset, tmp_path, monkeypatch, ca
 
 
 def test_interrupted_run_resumes_without_recomputing(dataset, reference_run, tmp_path, monkeypatch):
+    # a shell starts background jobs with SIGINT ignored, and Python then has no Ctrl-C handler:
+    # give this process the default one for the duration of the test
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _interrupt_and_resume(dataset, reference_run, tmp_path, monkeypatch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _interrupt_and_resume(dataset, reference_run, tmp_path, monkeypatch):
     fit_log = tmp_path / "fits.txt"
     monkeypatch.setenv("SCART_TEST_FIT_LOG", str(fit_log))
     monkeypatch.setenv("SCART_TEST_INTERRUPT_MARKER", str(tmp_path / "interrupted"))
