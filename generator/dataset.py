@@ -148,8 +148,25 @@ def _read_table(path: Path, columns: list[str] | None = None) -> pd.DataFrame:
         if p.exists():
             if suffix == ".parquet":
                 return pd.read_parquet(p, columns=columns)
-            return pd.read_csv(p, usecols=columns, float_precision="round_trip")
+            df = _read_csv_exact(p, columns)
+            for c in ("Anomaly_Ids", "Anomaly_Kind"):  # CSV has no empty string: it reads back as NaN
+                if c in df.columns:
+                    df[c] = df[c].astype(object).where(df[c].notna(), "")
+            return df
     raise DatasetError(f"{path}.(parquet|csv): no such table")
+
+
+def _read_csv_exact(path: Path, columns: list[str] | None) -> pd.DataFrame:
+    """Floats exactly as written (pandas 3 deprecates ``float_precision``; newer ones drop it)."""
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            return pd.read_csv(path, usecols=columns, float_precision="round_trip")
+    except TypeError:
+        return pd.read_csv(path, usecols=columns)
 
 
 def check_output_dir(out: Path, overwrite: bool = False) -> None:
