@@ -162,6 +162,17 @@ def _load_class(spec: JobSpec) -> type:
 
 
 def _max_rss_mb() -> float:
+    """Peak resident memory of this process (MiB).
+
+    Linux's VmHWM starts afresh when a job process execs; ``ru_maxrss`` is kept across fork and
+    exec, so a job launched by a big process would report the launcher's peak.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
     try:
         import resource
 
