@@ -11,15 +11,15 @@ import argparse
 import importlib
 import sys
 
-from benchmark.errors import UsageError
+from scart_bench.benchmark.errors import UsageError
 
 #: Modules that each add one or more sub-commands.
 COMMAND_MODULES = (
-    "benchmark.cli_detectors",
-    "benchmark.cli_generate",
-    "benchmark.cli_run",
-    "benchmark.cli_report",
-    "benchmark.cli_proxy",
+    "scart_bench.benchmark.cli_detectors",
+    "scart_bench.benchmark.cli_generate",
+    "scart_bench.benchmark.cli_run",
+    "scart_bench.benchmark.cli_report",
+    "scart_bench.benchmark.cli_proxy",
 )
 
 

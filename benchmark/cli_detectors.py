@@ -6,7 +6,7 @@ import argparse
 
 
 def cmd_detectors(args: argparse.Namespace) -> int:
-    from detectors import registry
+    from scart_bench.detectors import registry
 
     for spec in args.plugin or []:
         registry.load_plugin(spec)

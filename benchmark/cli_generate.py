@@ -7,7 +7,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from benchmark.errors import UsageError
+from scart_bench.benchmark.errors import UsageError
 
 
 def _log(msg: str) -> None:
@@ -15,7 +15,7 @@ def _log(msg: str) -> None:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from generator.generate import PROFILES, generate_dataset
+    from scart_bench.generator.generate import PROFILES, generate_dataset
 
     if args.profile not in PROFILES:
         raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
@@ -36,7 +36,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
-    from generator.offline import attack_file
+    from scart_bench.generator.offline import attack_file
 
     out = Path(args.out)
     existed = out.exists()

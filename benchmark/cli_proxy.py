@@ -1,6 +1,6 @@
 """``scart-bench proxy``: the SCART layer live on a MAVLink link, with recording and online detection.
 
-The engine is :mod:`generator.mavlink.proxy`; this module parses the options, loads the
+The engine is :mod:`scart_bench.generator.mavlink.proxy`; this module parses the options, loads the
 scenario, fits the detector of a benchmark run (runs keep scores, not fitted models: the named
 detector is fitted again on the run's training flights with the run's parameters and seed, and
 its row threshold is calibrated from the run's saved validation scores with the run's protocol),
@@ -17,7 +17,7 @@ import threading
 import time
 from pathlib import Path
 
-from benchmark.errors import UsageError
+from scart_bench.benchmark.errors import UsageError
 
 
 def _log(msg: str) -> None:
@@ -26,7 +26,7 @@ def _log(msg: str) -> None:
 
 def _require_mavlink():
     try:
-        from generator.mavlink import proxy
+        from scart_bench.generator.mavlink import proxy
     except ImportError as exc:
         raise UsageError(f"the MAVLink proxy needs pymavlink, which is not installed: "
                          f"pip install scart-bench[mavlink] ({exc})") from exc
@@ -34,14 +34,14 @@ def _require_mavlink():
 
 
 def build_monitor(run: Path, name: str, log=_log):
-    """A :class:`generator.mavlink.monitor.StreamMonitor` for detector ``name`` of benchmark run ``run``."""
+    """A :class:`scart_bench.generator.mavlink.monitor.StreamMonitor` for detector ``name`` of benchmark run ``run``."""
     import numpy as np
 
-    from benchmark.protocol import Protocol
-    from benchmark.store import RunStore
-    from detectors import registry
-    from generator.dataset import open_dataset
-    from generator.mavlink.monitor import StreamMonitor
+    from scart_bench.benchmark.protocol import Protocol
+    from scart_bench.benchmark.store import RunStore
+    from scart_bench.detectors import registry
+    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.generator.mavlink.monitor import StreamMonitor
 
     store = RunStore(run)
     if not store.exists():
@@ -79,9 +79,9 @@ def build_monitor(run: Path, name: str, log=_log):
 
 def cmd_proxy(args: argparse.Namespace) -> int:
     px = _require_mavlink()
-    from generator.dataset import is_dataset
-    from generator.mavlink.recording import new_flight_id, save_recording
-    from generator.scart.scenario import load_scenarios
+    from scart_bench.generator.dataset import is_dataset
+    from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
+    from scart_bench.generator.scart.scenario import load_scenarios
 
     listen = px.parse_endpoint(args.listen, "--listen")
     forward = px.parse_endpoint(args.forward, "--forward")
@@ -144,7 +144,7 @@ def cmd_proxy(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    from generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN
+    from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN
 
     p = sub.add_parser("proxy", help="live MAVLink man-in-the-middle: run a scenario on an autopilot link",
                        description="A MAVLink 2 proxy between an autopilot (telemetry in on --listen) and a "

@@ -7,11 +7,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from benchmark.errors import UsageError
+from scart_bench.benchmark.errors import UsageError
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from reports.report import write_report
+    from scart_bench.reports.report import write_report
 
     files = write_report(args.runs, args.out, figures=not args.no_figures)
     for note in files.notes:
@@ -23,7 +23,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from reports.figures import flight_figures
+    from scart_bench.reports.figures import flight_figures
 
     if args.detector and args.run is None:
         raise UsageError("--detector needs --run RUN (the run folder holding its scores)")

@@ -11,7 +11,7 @@ PROFILES = ("quick", "standard", "paper")
 
 
 def _print_table(path: Path, metrics) -> None:
-    from benchmark.runner import paper_table
+    from scart_bench.benchmark.runner import paper_table
 
     print(paper_table(metrics))
     failed = metrics[metrics["status"] != "OK"]
@@ -21,7 +21,7 @@ def _print_table(path: Path, metrics) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from benchmark.runner import RunConfig, run_benchmark
+    from scart_bench.benchmark.runner import RunConfig, run_benchmark
 
     cfg = RunConfig(
         detectors=[args.detectors], profile=args.profile, dataset=args.dataset, out=args.out,
@@ -34,7 +34,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
-    from benchmark.runner import score_run
+    from scart_bench.benchmark.runner import score_run
 
     metrics = score_run(args.run)
     _print_table(Path(args.run), metrics)

@@ -1,6 +1,6 @@
 """How jobs run: each job in its own worker process, locally or on dask workers.
 
-A job always runs in a fresh ``python -m benchmark.executors SPEC RESULT`` process (its own
+A job always runs in a fresh ``python -m scart_bench.benchmark.executors SPEC RESULT`` process (its own
 session, so it can be killed with everything it started). Why a subprocess rather than a
 ``ProcessPoolExecutor``: a pool cannot kill one hanging task, and dask worker processes are
 daemonic (``multiprocessing`` refuses to start children there) while ``subprocess`` works in both.
@@ -32,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmark.errors import UsageError
+from scart_bench.benchmark.errors import UsageError
 
 #: Seconds allowed to connect to a dask scheduler.
 CONNECT_TIMEOUT_S = 5.0
@@ -75,7 +75,7 @@ def _launch(spec, timeout: float) -> _Worker:
     env["PYTHONHASHSEED"] = "0"
     log = open(folder / "log.txt", "wb")  # closed by _read_log
     proc = subprocess.Popen(
-        [sys.executable, "-m", "benchmark.executors", str(folder / "spec.pkl"), str(folder / "result.pkl")],
+        [sys.executable, "-m", "scart_bench.benchmark.executors", str(folder / "spec.pkl"), str(folder / "result.pkl")],
         stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
     )
     return _Worker(spec, proc, folder, log, time.monotonic(), timeout)
@@ -99,7 +99,7 @@ def _read_log(w: _Worker) -> str:
 
 def _collect(w: _Worker, timed_out: bool = False, timeout: float = 0.0):
     """The JobResult of a finished or killed worker; removes its temp folder."""
-    from benchmark.runner import JobResult
+    from scart_bench.benchmark.runner import JobResult
 
     try:
         log = _read_log(w)
@@ -193,7 +193,7 @@ class DaskExecutor:
 
         from distributed import as_completed
 
-        from benchmark.runner import JobResult
+        from scart_bench.benchmark.runner import JobResult
 
         futures = {self.client.submit(run_isolated, spec, timeout, pure=False,
                                       key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}"): spec
@@ -278,7 +278,7 @@ def _worker_main(argv: list[str]) -> int:
     spec_path, result_path = argv
     _watch_parent()
     spec = pickle.loads(Path(spec_path).read_bytes())
-    from benchmark.runner import run_job
+    from scart_bench.benchmark.runner import run_job
 
     Path(spec_path).with_name("started").touch()  # the job's timeout counts from here
     res = run_job(spec)

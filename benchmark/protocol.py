@@ -12,7 +12,7 @@ Roles, from the dataset manifest:
 Thresholds (a flight is flagged, a row alarms, when its score is strictly above the threshold):
 
 - flight level: ``max`` rule on the validation flight scores (flight score = max row score,
-  :func:`detectors.base.flight_score`): ``t = m + margin * |m|`` where ``m`` is the largest
+  :func:`scart_bench.detectors.base.flight_score`): ``t = m + margin * |m|`` where ``m`` is the largest
   validation flight score; with the default margin 0.05 this is ``m * 1.05`` for positive scores.
   No validation flight is flagged, and a test flight must beat every validation flight by 5 %.
 - row level (point-wise, range-based, delay and false-alarm metrics): the same ``max`` rule on
@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-from detectors.base import flight_score
+from scart_bench.detectors.base import flight_score
 
 __all__ = [
     "ATTACK_MODES", "NORMAL_MODE", "ROLES", "Protocol", "ProtocolError", "Splits",

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.errors import UsageError
-from benchmark.protocol import ROLES, Protocol, Splits, assign_roles
-from benchmark.scoring import (
+from scart_bench.benchmark.errors import UsageError
+from scart_bench.benchmark.protocol import ROLES, Protocol, Splits, assign_roles
+from scart_bench.benchmark.scoring import (
     DEFAULT_METRICS,
     EXTRA_COLUMNS,
     PAPER_COLUMNS,
@@ -46,7 +46,7 @@ from benchmark.scoring import (
     compute_metrics,
     markdown_table,
 )
-from benchmark.store import RunStore, diff_identity, json_safe
+from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
 
 PROFILES = ("quick", "standard", "paper")
 #: Default per-job timeout (seconds) per profile.
@@ -150,7 +150,7 @@ class JobResult:
 # -- the job body (runs in a worker process) --------------------------------------------------
 
 def _load_class(spec: JobSpec) -> type:
-    from detectors import registry
+    from scart_bench.detectors import registry
 
     loaded = {}
     for p in spec.plugins:
@@ -187,7 +187,7 @@ def run_job(spec: JobSpec) -> JobResult:
     Never raises for a detector failure: an exception becomes ERROR with its message (the
     traceback goes to the log), a NaN/inf score or a wrong number of scores becomes ERROR.
     """
-    from generator.dataset import open_dataset
+    from scart_bench.generator.dataset import open_dataset
 
     fit_s = score_s = float("nan")
     try:
@@ -233,7 +233,7 @@ def _absolute_plugin(spec: str) -> str:
 
 def load_plugins(specs: list[str]) -> dict[str, DetectorChoice]:
     """Load ``--plugin`` specs (file paths made absolute so workers anywhere can load them)."""
-    from detectors import registry
+    from scart_bench.detectors import registry
 
     out = {}
     for spec in specs:
@@ -257,7 +257,7 @@ def _parse_names(names: list[str]) -> list[str]:
 
 def resolve_detectors(names: list[str], plugins: dict[str, DetectorChoice]) -> list[DetectorChoice]:
     """The detectors to run, in order; ``["all"]`` means every known detector."""
-    from detectors import registry
+    from scart_bench.detectors import registry
 
     names = _parse_names(names)
 
@@ -297,7 +297,7 @@ def resolve_detectors(names: list[str], plugins: dict[str, DetectorChoice]) -> l
 
 def prepare_dataset(cfg: RunConfig) -> Path:
     """The dataset folder: ``--dataset``, or the profile's dataset (generated when missing)."""
-    from generator.dataset import is_dataset
+    from scart_bench.generator.dataset import is_dataset
 
     if cfg.dataset is not None:
         return Path(cfg.dataset)
@@ -305,7 +305,7 @@ def prepare_dataset(cfg: RunConfig) -> Path:
     if is_dataset(path):
         return path
     try:
-        from generator.generate import generate_dataset
+        from scart_bench.generator.generate import generate_dataset
     except ImportError as exc:
         raise UsageError(f"cannot generate the {cfg.profile} dataset: the generator is not available ({exc}); "
                          "pass --dataset DIR with an existing dataset") from exc
@@ -431,8 +431,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     Bad input (unknown detector, missing dataset, foreign run folder, unreachable scheduler)
     raises UsageError/ValueError before anything in the run folder is touched.
     """
-    from benchmark.executors import Progress, make_executor
-    from generator.dataset import open_dataset
+    from scart_bench.benchmark.executors import Progress, make_executor
+    from scart_bench.generator.dataset import open_dataset
 
     store = RunStore(cfg.out_path)
     old = _previous_config(store, cfg.seed)

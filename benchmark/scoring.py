@@ -41,8 +41,8 @@ import numpy as np
 import pandas as pd
 from scipy.stats import rankdata
 
-from benchmark.protocol import ATTACK_MODES, Protocol
-from detectors.base import flight_score
+from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol
+from scart_bench.detectors.base import flight_score
 
 #: Columns of metrics.csv that measure time, not detection quality (they differ between runs).
 TIMING_COLUMNS = ("latency_us_per_row", "fit_s", "score_s")

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator
 
-from generator.topics import TOPICS, sensor_columns
+from scart_bench.generator.topics import TOPICS, sensor_columns
 
 
 class DetectorError(ValueError):

@@ -51,8 +51,8 @@ from deepod.models.tabular import NeuTraL as _DeepODNeuTraL
 from numpy.lib.stride_tricks import sliding_window_view
 from torch.utils.data import DataLoader
 
-from detectors.base import Detector, DetectorError
-from detectors.statistical import pad_start
+from scart_bench.detectors.base import Detector, DetectorError
+from scart_bench.detectors.statistical import pad_start
 
 #: Floor of a feature's training spread, in units of the channel's standard deviation: keeps
 #: features that barely vary in training (a still channel's noise level) from exploding.

@@ -16,20 +16,20 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from detectors.base import Detector, DetectorError
+from scart_bench.detectors.base import Detector, DetectorError
 
 ENTRY_POINT_GROUP = "scart_bench.detectors"
 
 #: name -> "module:Class" of the built-in adapters, in the paper's order.
 BUILTINS: dict[str, str] = {
-    "telemanom": "detectors.telemanom:Telemanom",
-    "tsbitmaps": "detectors.tsbitmaps:TSBitmaps",
-    "statistical": "detectors.statistical:Statistical",
-    "deepsvdd": "detectors.deepod_models:DeepSVDD",
-    "rdp": "detectors.deepod_models:RDP",
-    "rca": "detectors.deepod_models:RCA",
-    "goad": "detectors.deepod_models:GOAD",
-    "neutral": "detectors.deepod_models:NeuTraL",
+    "telemanom": "scart_bench.detectors.telemanom:Telemanom",
+    "tsbitmaps": "scart_bench.detectors.tsbitmaps:TSBitmaps",
+    "statistical": "scart_bench.detectors.statistical:Statistical",
+    "deepsvdd": "scart_bench.detectors.deepod_models:DeepSVDD",
+    "rdp": "scart_bench.detectors.deepod_models:RDP",
+    "rca": "scart_bench.detectors.deepod_models:RCA",
+    "goad": "scart_bench.detectors.deepod_models:GOAD",
+    "neutral": "scart_bench.detectors.deepod_models:NeuTraL",
 }
 
 
@@ -88,7 +88,7 @@ def _import_spec(spec: str) -> type:
     if cls is None:
         raise DetectorError(f"plugin spec {spec!r}: module {target!r} has no attribute {clsname!r}")
     if not (inspect.isclass(cls) and issubclass(cls, Detector)):
-        raise DetectorError(f"plugin spec {spec!r}: {clsname} is not a detectors.base.Detector subclass")
+        raise DetectorError(f"plugin spec {spec!r}: {clsname} is not a scart_bench.detectors.base.Detector subclass")
     return cls
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from detectors.base import Detector, DetectorError
+from scart_bench.detectors.base import Detector, DetectorError
 
 #: Floor of every learned spread or threshold, in standardised units (constant channels).
 _EPS = 1e-6

@@ -43,7 +43,7 @@ import torch
 from scipy.signal import lfilter
 from torch import nn
 
-from detectors.base import Detector, DetectorError
+from scart_bench.detectors.base import Detector, DetectorError
 
 #: z values tried by the dynamic threshold (published: ``np.arange(2.5, sd_lim, 0.5)``, sd_lim 12).
 Z_VALUES = np.arange(2.5, 12.0, 0.5)

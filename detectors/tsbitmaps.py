@@ -32,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
-from detectors.base import Detector, DetectorError
-from detectors.statistical import rolling_mean, rolling_var
+from scart_bench.detectors.base import Detector, DetectorError
+from scart_bench.detectors.statistical import rolling_mean, rolling_var
 
 #: Smallest per-channel unit of distance: one bitmap cell entirely different. Keeps channels that
 #: barely move in training (their training percentile is ~0) from turning noise into huge scores.

@@ -8,18 +8,26 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from generator.dataset import LABEL_COLUMNS, DatasetWriter, FlightRecord
-from generator.modes import csv_mode, scenario_manifest, simulation_mode, simulation_record, with_labels
-from generator.scart.grid import load_configurations
-from generator.scart.scenario import Scenario
-from generator.simulate import FlightConfig
+from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter, FlightRecord
+from scart_bench.generator.modes import (
+    csv_mode,
+    scenario_manifest,
+    simulation_mode,
+    simulation_record,
+    with_labels,
+)
+from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.generator.simulate import FlightConfig
 
-SCENARIO_DIR = Path(__file__).resolve().parents[1] / "data" / "scenarios"
+#: the shipped scenario grids and examples (package data of scart_bench.data)
+SCENARIO_DIR = Path(str(resources.files("scart_bench.data").joinpath("scenarios")))
 
 
 def grid_path(name: str) -> Path:

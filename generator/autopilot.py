@@ -17,8 +17,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.params import GRAVITY, ControllerParams, EstimatorParams, VehicleParams
-from generator.rotation import cross, euler_from_quat, quat_integrate, quat_to_rot, rotate, wrap_pi
+from scart_bench.generator.params import GRAVITY, ControllerParams, EstimatorParams, VehicleParams
+from scart_bench.generator.rotation import (
+    cross,
+    euler_from_quat,
+    quat_integrate,
+    quat_to_rot,
+    rotate,
+    wrap_pi,
+)
 
 
 class _AxisKF:

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from generator.attacks import attack_flights, strip_labels
-from generator.dataset import DatasetError, DatasetWriter, check_output_dir
-from generator.records import normal_record
-from generator.scart.grid import load_configurations
-from generator.simulate import FlightConfig, simulate
+from scart_bench.generator.attacks import attack_flights, strip_labels
+from scart_bench.generator.dataset import DatasetError, DatasetWriter, check_output_dir
+from scart_bench.generator.records import normal_record
+from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.generator.simulate import FlightConfig, simulate
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ def versions() -> dict[str, str]:
     import pandas
     import pyarrow
 
-    from generator import __version__
+    from scart_bench.generator import __version__
 
     return {"scart-bench": __version__, "numpy": np.__version__, "pandas": pandas.__version__,
             "pyarrow": pyarrow.__version__, "python": platform.python_version()}

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from generator.dataset import DatasetError
+from scart_bench.generator.dataset import DatasetError
 
 logger = logging.getLogger(__name__)
 

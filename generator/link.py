@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.geo import HOME_ALT, altitude_at, ned_to_latlon
-from generator.rotation import euler_from_quat, wrap_pi
-from generator.topics import SIM_RATE_HZ, TOPICS
+from scart_bench.generator.geo import HOME_ALT, altitude_at, ned_to_latlon
+from scart_bench.generator.rotation import euler_from_quat, wrap_pi
+from scart_bench.generator.topics import SIM_RATE_HZ, TOPICS
 
 #: Sensor-level topics (sensors -> flight-controller estimator), for the ``sensor`` injection point.
 SENSOR_TOPICS: dict[str, tuple[float, tuple[str, ...]]] = {
@@ -54,7 +54,7 @@ class FCSnapshot:
 
 
 def compose(topic: str, s: FCSnapshot) -> np.ndarray:
-    """The (N, n_fields) message of a telemetry topic, in the field order of generator.topics."""
+    """The (N, n_fields) message of a telemetry topic, in the field order of scart_bench.generator.topics."""
     if topic == "attitude":
         eul = euler_from_quat(s.quat)
         return np.column_stack([eul, s.rates])
@@ -97,7 +97,7 @@ def field_names(topic: str) -> tuple[str, ...]:
     if topic in SENSOR_TOPICS:
         return SENSOR_TOPICS[topic][1]
     if topic == "truth":
-        from generator.topics import TRUTH_FIELDS
+        from scart_bench.generator.topics import TRUTH_FIELDS
 
         return TRUTH_FIELDS
     raise KeyError(topic)

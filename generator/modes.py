@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from generator.dataset import LABEL_COLUMNS, FlightRecord, insert_labels
-from generator.records import flight_views
-from generator.scart.layer import AttackLayer
-from generator.scart.scenario import Scenario
-from generator.simulate import STEP_US, BatchResult, FlightConfig, simulate
+from scart_bench.generator.dataset import LABEL_COLUMNS, FlightRecord, insert_labels
+from scart_bench.generator.records import flight_views
+from scart_bench.generator.scart.layer import AttackLayer
+from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.generator.simulate import STEP_US, BatchResult, FlightConfig, simulate
 
 
 def simulation_mode(seeds: list[int], scenarios: list[list[Scenario]], config: FlightConfig | None = None
@@ -26,8 +26,8 @@ def simulation_mode(seeds: list[int], scenarios: list[list[Scenario]], config: F
 
 
 def _builtin_rates() -> dict[str, float]:
-    from generator.link import SENSOR_TOPICS
-    from generator.topics import TOPICS
+    from scart_bench.generator.link import SENSOR_TOPICS
+    from scart_bench.generator.topics import TOPICS
 
     rates = {t: v.rate_hz for t, v in TOPICS.items()}
     rates.update({t: r for t, (r, _) in SENSOR_TOPICS.items()})

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.params import MissionParams
+from scart_bench.generator.params import MissionParams
 
 PHASE_IDLE, PHASE_TAKEOFF, PHASE_MISSION, PHASE_LAND = 0, 1, 2, 3
 

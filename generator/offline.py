@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from generator.dataset import DatasetWriter, FlightRecord, check_output_dir
-from generator.importers import load_flight_file
-from generator.modes import csv_mode, scenario_manifest, with_labels
-from generator.scart.grid import load_configurations
+from scart_bench.generator.dataset import DatasetWriter, FlightRecord, check_output_dir
+from scart_bench.generator.importers import load_flight_file
+from scart_bench.generator.modes import csv_mode, scenario_manifest, with_labels
+from scart_bench.generator.scart.grid import load_configurations
 
 
 def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from generator.dataset import FlightRecord, insert_labels
-from generator.link import field_names
-from generator.simulate import STEP_US, BatchResult
+from scart_bench.generator.dataset import FlightRecord, insert_labels
+from scart_bench.generator.link import field_names
+from scart_bench.generator.simulate import STEP_US, BatchResult
 
 
 def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | None, fields, windows,

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.disturbances import Disturbances, gps_signal_quality
-from generator.geo import HOME_ALT, pressure_at
-from generator.params import GRAVITY, SensorParams
-from generator.rotation import rotate_t
+from scart_bench.generator.disturbances import Disturbances, gps_signal_quality
+from scart_bench.generator.geo import HOME_ALT, pressure_at
+from scart_bench.generator.params import GRAVITY, SensorParams
+from scart_bench.generator.rotation import rotate_t
 
 
 @dataclass

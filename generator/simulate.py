@@ -13,13 +13,13 @@ from typing import Protocol
 
 import numpy as np
 
-from generator.autopilot import Controller, Estimator
-from generator.disturbances import Disturbances
-from generator.geo import HOME_ALT, altitude_at, latlon_to_ned, ned_to_latlon
-from generator.link import SENSOR_TOPICS, FCSnapshot, compose, due_steps
-from generator.navigator import Navigator, mission_waypoints
-from generator.noise import NoiseStream
-from generator.params import (
+from scart_bench.generator.autopilot import Controller, Estimator
+from scart_bench.generator.disturbances import Disturbances
+from scart_bench.generator.geo import HOME_ALT, altitude_at, latlon_to_ned, ned_to_latlon
+from scart_bench.generator.link import SENSOR_TOPICS, FCSnapshot, compose, due_steps
+from scart_bench.generator.navigator import Navigator, mission_waypoints
+from scart_bench.generator.noise import NoiseStream
+from scart_bench.generator.params import (
     GRAVITY,
     ControllerParams,
     EstimatorParams,
@@ -27,10 +27,10 @@ from generator.params import (
     SensorParams,
     VehicleParams,
 )
-from generator.rotation import euler_from_quat
-from generator.sensors import Sensors
-from generator.topics import SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_FIELDS, TRUTH_RATE_HZ
-from generator.vehicle import Vehicle, VehicleState, Wind
+from scart_bench.generator.rotation import euler_from_quat
+from scart_bench.generator.sensors import Sensors
+from scart_bench.generator.topics import SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_FIELDS, TRUTH_RATE_HZ
+from scart_bench.generator.vehicle import Vehicle, VehicleState, Wind
 
 DT = 1.0 / SIM_RATE_HZ
 STEP_US = int(round(1e6 * DT))
@@ -371,7 +371,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
 
 
 def _rot(es):
-    from generator.rotation import quat_to_rot
+    from scart_bench.generator.rotation import quat_to_rot
 
     if es.R is None:
         es.R = quat_to_rot(es.quat)

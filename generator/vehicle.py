@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.params import GRAVITY, VehicleParams
-from generator.rotation import cross, quat_integrate, quat_to_rot, rotate, rotate_t
+from scart_bench.generator.params import GRAVITY, VehicleParams
+from scart_bench.generator.rotation import cross, quat_integrate, quat_to_rot, rotate, rotate_t
 
 
 @dataclass

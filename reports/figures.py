@@ -1,6 +1,6 @@
 """The paper's figures as PNG files (matplotlib's object API with the Agg renderer; no pyplot state).
 
-One flight (from the public dataset reader, :func:`generator.dataset.open_dataset`):
+One flight (from the public dataset reader, :func:`scart_bench.generator.dataset.open_dataset`):
 
 - :func:`flight_path`: path (east, north) of the attacked flight as flown (simulator view: the
   ``truth`` topic when the flight has it, else ``local_position_ned``), as the navigator perceived
@@ -37,10 +37,10 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from benchmark.errors import UsageError
-from benchmark.store import RunStore
-from generator.dataset import Dataset, is_dataset, open_dataset
-from reports.results import RunResults, load_run
+from scart_bench.benchmark.errors import UsageError
+from scart_bench.benchmark.store import RunStore
+from scart_bench.generator.dataset import Dataset, is_dataset, open_dataset
+from scart_bench.reports.results import RunResults, load_run
 
 #: Shaded attack window (light orange, opaque, drawn over the grid and below the data).
 ATTACK_WINDOW_COLOUR = "#fdd0a2"

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from benchmark.store import to_json
-from reports.leaderboard import HEADLINE_DOC, config_link, display_table, failures
-from reports.results import RunResults
+from scart_bench.benchmark.store import to_json
+from scart_bench.reports.leaderboard import HEADLINE_DOC, config_link, display_table, failures
+from scart_bench.reports.results import RunResults
 
 CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto; max-width: 1400px;

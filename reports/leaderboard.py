@@ -28,7 +28,7 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
-from reports.results import RunResults, load_runs
+from scart_bench.reports.results import RunResults, load_runs
 
 #: The three rates averaged into the headline score.
 HEADLINE_PARTS = ("tp_simulation", "tp_csv", "tn_no_attack")

@@ -16,13 +16,13 @@ from pathlib import Path
 
 import pandas as pd
 
-from benchmark.errors import UsageError
-from benchmark.store import atomic_write_text
-from generator.dataset import is_dataset, open_dataset
-from reports import figures as fg
-from reports import html as html_page
-from reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown
-from reports.results import RunResults, load_runs
+from scart_bench.benchmark.errors import UsageError
+from scart_bench.benchmark.store import atomic_write_text
+from scart_bench.generator.dataset import is_dataset, open_dataset
+from scart_bench.reports import figures as fg
+from scart_bench.reports import html as html_page
+from scart_bench.reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown
+from scart_bench.reports.results import RunResults, load_runs
 
 
 @dataclass

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from benchmark.errors import UsageError
-from benchmark.store import RunStore, RunStoreError
+from scart_bench.benchmark.errors import UsageError
+from scart_bench.benchmark.store import RunStore, RunStoreError
 
 #: Columns of the run tables that hold text, not numbers.
 TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from generator.scart.scenario import load_scenarios
+from scart_bench.generator.scart.scenario import load_scenarios
 
 SCENARIOS = "data/scenarios"
 
@@ -13,7 +13,7 @@ SCENARIOS = "data/scenarios"
 @pytest.fixture(scope="session")
 def normal_fleet():
     """20 normal flights with different seeds (and so different winds), flown as one batch."""
-    from generator.simulate import simulate
+    from scart_bench.generator.simulate import simulate
 
     return simulate(list(range(100, 120)))
 
@@ -21,7 +21,7 @@ def normal_fleet():
 @pytest.fixture(scope="session")
 def attacked_fleet():
     """One seed flown four times in one batch: normal, link GPS spoofing, sensor GPS jump, sensor drift."""
-    from generator.modes import simulation_mode
+    from scart_bench.generator.modes import simulation_mode
 
     spoof = load_scenarios(f"{SCENARIOS}/gps_spoof.toml")
     jump = load_scenarios(f"{SCENARIOS}/sensor_gps_jump.toml")
@@ -33,7 +33,7 @@ def attacked_fleet():
 @pytest.fixture(scope="session")
 def quick_dataset(tmp_path_factory):
     """A small dataset of the quick profile: 6 normal flights and the quick grid in both modes."""
-    from generator.generate import generate_dataset
+    from scart_bench.generator.generate import generate_dataset
 
     out = tmp_path_factory.mktemp("datasets") / "quick"
     return generate_dataset("quick", out, seed=3, n_normal=6)

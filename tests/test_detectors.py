@@ -7,21 +7,14 @@ if it needs small settings to be quick, an entry in ``FAST_PARAMS``.
 
 from __future__ import annotations
 
-import copy
-import inspect
-import pickle
-import random
-import sys
-from collections.abc import Callable
-
 import numpy as np
 import pandas as pd
 import pytest
 from detector_data import attacked_flight, normal_flights
-from sklearn.base import clone
 
-from detectors.base import Detector, DetectorError, NotFittedError, flight_score
-from detectors.registry import make
+from scart_bench.detectors.base import Detector, DetectorError, flight_score
+from scart_bench.detectors.registry import make
+from scart_bench.testing import check_detector, detector_checks
 
 #: The detectors of this file's detection test: all eight built-ins.
 DETECTORS = ["statistical", "tsbitmaps", "deepsvdd", "rdp", "rca", "goad", "neutral", "telemanom"]
@@ -63,19 +56,6 @@ def detection_data() -> tuple[list[pd.DataFrame], list[pd.DataFrame], pd.DataFra
 def small_data() -> tuple[list[pd.DataFrame], pd.DataFrame]:
     """2 short training flights and a short probe flight for the conformance checks."""
     return normal_flights(2, seed=10, rows=500), normal_flights(1, seed=11, rows=300)[0]
-
-
-@pytest.fixture(scope="module")
-def fitted(small_data) -> Callable[[str], Detector]:
-    """A detector of each name fitted once on the conformance flights (with ``random_state=0``)."""
-    cache: dict[str, Detector] = {}
-
-    def get(name: str) -> Detector:
-        if name not in cache:
-            cache[name] = fresh(name).fit(small_data[0])
-        return cache[name]
-
-    return get
 
 
 def fresh(name: str, **params) -> Detector:
@@ -138,101 +118,58 @@ def test_invalid_parameters_raise_detector_error_at_fit(name, params, small_data
         detector.fit(small_data[0])
 
 
-# -- conformance suite -------------------------------------------------------------------------
+# -- conformance suite (scart_bench.testing, the kit plugin authors use) ----------------------
 
 
-def check_init_only_stores_parameters(name, small_data, fitted):
-    """``__init__`` stores its arguments unchanged and sets no fitted attribute."""
-    params = {**FAST_PARAMS.get(name, {}), "random_state": 7, "columns": None}
-    detector = make(name, **params)
-    assert [k for k in vars(detector) if k.endswith("_")] == []
-    signature = inspect.signature(type(detector).__init__).parameters
-    expected = {k: p.default for k, p in signature.items() if k != "self"} | params
-    assert detector.get_params() == expected
-    assert {"columns", "random_state"} <= set(expected)
-    assert clone(detector).get_params() == expected
-    assert type(detector).name == name and type(detector).description
+def _conformance_cases():
+    from scart_bench.detectors.registry import BUILTINS, _import_spec
+
+    cases = []
+    for name in CONFORMANCE_DETECTORS:
+        cases += detector_checks(_import_spec(BUILTINS[name]), FAST_PARAMS.get(name, {}))
+    return cases
 
 
-def check_fit_leaves_parameters_unchanged(name, small_data, fitted):
-    detector = fresh(name)
-    before = copy.deepcopy(detector.get_params())
-    assert fitted(name).get_params() == before
+@pytest.mark.parametrize("check", _conformance_cases(), ids=str)
+def test_conformance(check):
+    check()
 
 
-def check_score_before_fit_raises(name, small_data, fitted):
-    with pytest.raises(NotFittedError):
-        fresh(name).score(small_data[1])
+class _NotCausal(Detector):
+    """Scores each row by the mean of the whole flight: looks ahead, so it is not causal."""
+
+    name = "lookahead"
+
+    def __init__(self, columns=None, random_state=0):
+        self.columns = columns
+        self.random_state = random_state
+
+    def _fit(self, X_list):
+        pass
+
+    def _score(self, X):
+        return np.full(X.shape[0], float(np.abs(X).mean()))
 
 
-def check_fit_without_flights_raises(name, small_data, fitted):
-    with pytest.raises(DetectorError):
-        fresh(name).fit([])
+class _StoresWrongly(Detector):
+    """Renames its parameter on the way in (breaks get_params/clone)."""
+
+    name = "renamer"
+
+    def __init__(self, columns=None, random_state=0, window=5):
+        self.columns = columns
+        self.random_state = random_state
+        self.win = window
+
+    def _fit(self, X_list):
+        pass
+
+    def _score(self, X):
+        return np.zeros(X.shape[0])
 
 
-def check_missing_column_is_named(name, small_data, fitted):
-    detector = fitted(name)
-    column = detector.columns_[len(detector.columns_) // 2]
-    with pytest.raises(DetectorError, match=column.replace(".", r"\.")):
-        detector.score(small_data[1].drop(columns=[column]))
-
-
-def check_one_finite_score_per_row(name, small_data, fitted):
-    probe = small_data[1]
-    scores = fitted(name).score(probe)
-    assert isinstance(scores, np.ndarray) and scores.dtype == np.float64
-    assert scores.shape == (len(probe),)
-    assert np.isfinite(scores).all()
-
-
-def check_pickle_round_trip(name, small_data, fitted):
-    detector = fitted(name)
-    restored = pickle.loads(pickle.dumps(detector))
-    np.testing.assert_array_equal(restored.score(small_data[1]), detector.score(small_data[1]))
-
-
-def check_same_seed_same_scores(name, small_data, fitted):
-    again = fresh(name).fit(small_data[0])
-    np.testing.assert_array_equal(again.score(small_data[1]), fitted(name).score(small_data[1]))
-
-
-def check_causal_scores(name, small_data, fitted):
-    """Scores of the first k rows do not depend on later rows (batch = streaming)."""
-    probe = small_data[1]
-    detector = fitted(name)
-    full = detector.score(probe)
-    for k in (1, 2, 37, len(probe) // 2 + 3):
-        np.testing.assert_allclose(detector.score(probe.iloc[:k]), full[:k], rtol=1e-6, atol=1e-9)
-
-
-def check_no_global_side_effects(name, small_data, fitted):
-    """Fitting and scoring leave the global random generators as they were."""
-    torch = sys.modules.get("torch")
-    np_state, py_state = np.random.get_state(), random.getstate()
-    torch_state = torch.get_rng_state() if torch is not None else None
-    fresh(name, random_state=5).fit(small_data[0]).score(small_data[1])
-    after = np.random.get_state()
-    assert all(np.array_equal(a, b) for a, b in zip(np_state, after))
-    assert random.getstate() == py_state
-    if torch_state is not None:
-        assert torch.equal(torch.get_rng_state(), torch_state)
-
-
-CHECKS = [
-    check_init_only_stores_parameters,
-    check_fit_leaves_parameters_unchanged,
-    check_score_before_fit_raises,
-    check_fit_without_flights_raises,
-    check_missing_column_is_named,
-    check_one_finite_score_per_row,
-    check_pickle_round_trip,
-    check_same_seed_same_scores,
-    check_causal_scores,
-    check_no_global_side_effects,
-]
-
-
-@pytest.mark.parametrize("check", CHECKS, ids=lambda c: c.__name__.removeprefix("check_"))
-@pytest.mark.parametrize("name", CONFORMANCE_DETECTORS)
-def test_conformance(name, check, small_data, fitted):
-    check(name, small_data, fitted)
+def test_check_detector_names_the_failed_check():
+    with pytest.raises(AssertionError, match=r"'causal_scores'.*first 1 rows"):
+        check_detector(_NotCausal)
+    with pytest.raises(AssertionError, match=r"'init_only_stores_parameters'"):
+        check_detector(_StoresWrongly)

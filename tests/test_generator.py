@@ -11,13 +11,13 @@ import pandas as pd
 import pytest
 from conftest import truth
 
-from benchmark.cli import main
-from generator.dataset import DatasetWriter, open_dataset
-from generator.geo import latlon_to_ned
-from generator.params import MissionParams
-from generator.records import normal_record
-from generator.simulate import FlightConfig, simulate
-from generator.topics import HOME_LAT, HOME_LON, TOPICS, TRUTH_FIELDS
+from scart_bench.benchmark.cli import main
+from scart_bench.generator.dataset import DatasetWriter, open_dataset
+from scart_bench.generator.geo import latlon_to_ned
+from scart_bench.generator.params import MissionParams
+from scart_bench.generator.records import normal_record
+from scart_bench.generator.simulate import FlightConfig, simulate
+from scart_bench.generator.topics import HOME_LAT, HOME_LON, TOPICS, TRUTH_FIELDS
 
 F = {name: i for i, name in enumerate(TRUTH_FIELDS)}
 SHORT = FlightConfig(mission=MissionParams(max_duration_s=12.0))
@@ -168,7 +168,7 @@ def test_generate_bad_input_exit_2_and_nothing_complete(tmp_path, capsys):
 
 
 def test_generate_csv_format_writes_paper_layout(tmp_path):
-    from generator.generate import generate_dataset
+    from scart_bench.generator.generate import generate_dataset
 
     out = generate_dataset("quick", tmp_path / "csv", seed=1, fmt="csv", n_normal=1, with_attacks=False,
                            config=SHORT)

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from generator.dataset import DatasetError, DatasetWriter, FlightRecord, combine, label_rows
-from generator.importers import (
+from scart_bench.generator.dataset import DatasetError, DatasetWriter, FlightRecord, combine, label_rows
+from scart_bench.generator.importers import (
     TIME_COLUMNS_S,
     TIME_COLUMNS_US,
     load_flight_file,
@@ -20,7 +20,7 @@ from generator.importers import (
     sanitize_topic_name,
     ulog_info,
 )
-from generator.topics import HOME_LAT, HOME_LON, TOPICS
+from scart_bench.generator.topics import HOME_LAT, HOME_LON, TOPICS
 
 ULOG_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ulog"
 RFLYMAD = ULOG_DIR / "rflymad_TestCase_1_1000000000.ulg"

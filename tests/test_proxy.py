@@ -21,15 +21,15 @@ from conftest import truth
 
 pytest.importorskip("pymavlink")
 
-from benchmark.cli import main  # noqa: E402
-from generator.dataset import DatasetWriter, open_dataset  # noqa: E402
-from generator.mavlink.codec import CODECS, KNOWN, Packer, split_frames  # noqa: E402
-from generator.mavlink.link import MavlinkLink  # noqa: E402
-from generator.mavlink.proxy import MavlinkProxy  # noqa: E402
-from generator.mavlink.recording import save_recording  # noqa: E402
-from generator.records import flight_views, normal_record  # noqa: E402
-from generator.scart.scenario import load_scenarios  # noqa: E402
-from generator.topics import TOPICS, TRUTH_FIELDS  # noqa: E402
+from scart_bench.benchmark.cli import main  # noqa: E402
+from scart_bench.generator.dataset import DatasetWriter, open_dataset  # noqa: E402
+from scart_bench.generator.mavlink.codec import CODECS, KNOWN, Packer, split_frames  # noqa: E402
+from scart_bench.generator.mavlink.link import MavlinkLink  # noqa: E402
+from scart_bench.generator.mavlink.proxy import MavlinkProxy  # noqa: E402
+from scart_bench.generator.mavlink.recording import save_recording  # noqa: E402
+from scart_bench.generator.records import flight_views, normal_record  # noqa: E402
+from scart_bench.generator.scart.scenario import load_scenarios  # noqa: E402
+from scart_bench.generator.topics import TOPICS, TRUTH_FIELDS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SPOOF = ROOT / "data" / "scenarios" / "gps_spoof.toml"
@@ -42,7 +42,7 @@ LOCAL = ("127.0.0.1", 0)
 @pytest.fixture(scope="module")
 def reference():
     """Simulation mode, one batch: seed 5 normal and spoofed, and two more normal flights."""
-    from generator.modes import simulation_mode
+    from scart_bench.generator.modes import simulation_mode
 
     batch, layer = simulation_mode([SEED, SEED, 100, 101], [[], load_scenarios(SPOOF), [], []])
     return batch, layer
@@ -51,7 +51,7 @@ def reference():
 @pytest.fixture(scope="module")
 def loopback():
     """Seed 5 flown by the generator over MAVLink/UDP through the proxy running gps_spoof.toml."""
-    from generator.simulate import simulate
+    from scart_bench.generator.simulate import simulate
 
     with MavlinkLink(keep_raw=True) as link:
         proxy = MavlinkProxy(LOCAL, link.mission_computer_address, load_scenarios(SPOOF), seed=SEED,
@@ -128,8 +128,8 @@ def test_recorded_dataset_scores_in_a_benchmark_run(bench_run):
 
 
 def test_monitor_scores_the_stream_like_the_batch_detector(loopback, live_dataset, bench_run):
-    from benchmark.cli_proxy import build_monitor
-    from generator.mavlink.monitor import StreamMonitor
+    from scart_bench.benchmark.cli_proxy import build_monitor
+    from scart_bench.generator.mavlink.monitor import StreamMonitor
 
     _, proxy, _ = loopback
     (start, _), = proxy.windows()
@@ -300,7 +300,7 @@ def test_ctrl_c_stops_cleanly_and_leaves_a_complete_recording(reference, bench_r
     mc.settimeout(10.0)
     port = _free_port()
     out = tmp_path / "rec"
-    cmd = [sys.executable, "-m", "benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
+    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
            "--forward", f"udp:127.0.0.1:{mc.getsockname()[1]}", "--scenario", str(SPOOF), "--record", str(out),
            "--detector", "statistical", "--run", str(bench_run)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
@@ -353,7 +353,7 @@ def test_bad_input_exits_2_with_one_clear_line(args, words, capsys):
 
 
 def test_without_pymavlink_the_error_says_how_to_install():
-    code = ("import sys; sys.modules['pymavlink'] = None; from benchmark.cli import main; "
+    code = ("import sys; sys.modules['pymavlink'] = None; from scart_bench.benchmark.cli import main; "
             f"sys.exit(main(['proxy', '--scenario', {str(SPOOF)!r}]))")
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "pip install scart-bench[mavlink]" in res.stderr, res.stderr
@@ -366,7 +366,7 @@ def test_codec_round_trip_within_mavlink_quantisation(reference):
     tol = {"global_position_int": [2e-7, 2e-7, 1e-3, 1e-3, 0.01, 0.01, 0.01, 2e-4],
            "gps_raw_int": [2e-7, 2e-7, 1e-3, 0.01, 0.01, 0.01, 2e-4, 0.02, 0.02, np.inf, 0, 0],
            "scaled_pressure": [1e-4, 0.01], "battery_status": [1e-3, 0.01, 0.01]}
-    from generator.mavlink.codec import LinkState
+    from scart_bench.generator.mavlink.codec import LinkState
 
     for topic, codec in CODECS.items():
         table = sim[topic][list(TOPICS[topic].field_names)].to_numpy()

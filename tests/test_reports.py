@@ -26,10 +26,10 @@ import pandas as pd
 import pytest
 from run_fixtures import ATTACK_US, plugin, write_dataset
 
-from benchmark.cli import main
-from generator.dataset import open_dataset
-from reports.figures import ATTACK_WINDOW_COLOUR, axes_extent, column_of, label_windows
-from reports.leaderboard import build_leaderboard, headline
+from scart_bench.benchmark.cli import main
+from scart_bench.generator.dataset import open_dataset
+from scart_bench.reports.figures import ATTACK_WINDOW_COLOUR, axes_extent, column_of, label_windows
+from scart_bench.reports.leaderboard import build_leaderboard, headline
 
 CHROMIUM = Path("/usr/bin/chromium")
 APT = "apt-get update && apt-get install -y chromium"

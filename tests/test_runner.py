@@ -19,9 +19,9 @@ import pytest
 from run_fixtures import ATTACKS, plugin, write_dataset
 from sklearn.metrics import roc_auc_score
 
-from benchmark.cli import main
-from benchmark.scoring import TIMING_COLUMNS
-from benchmark.store import RunStore, read_npz
+from scart_bench.benchmark.cli import main
+from scart_bench.benchmark.scoring import TIMING_COLUMNS
+from scart_bench.benchmark.store import RunStore, read_npz
 
 ZS, DIFF = plugin("ZScore"), plugin("Diff")
 OK_PAIR = ["--detectors", "zscore_test,diff_test", "--plugin", ZS, "--plugin", DIFF]
@@ -130,7 +130,7 @@ def test_score_recomputes_from_saved_scores(reference_run, tmp_path, capsys):
 
 
 def test_saved_nan_scores_make_the_job_an_error(reference_run, tmp_path):
-    from benchmark.store import atomic_write_bytes, npz_bytes
+    from scart_bench.benchmark.store import atomic_write_bytes, npz_bytes
 
     run = tmp_path / "copy"
     shutil.copytree(reference_run, run)
@@ -316,9 +316,9 @@ def test_profile_dataset_is_generated_once_and_reused(dataset, tmp_path, monkeyp
         shutil.copytree(dataset, out)
         return Path(out)
 
-    fake = types.ModuleType("generator.generate")
+    fake = types.ModuleType("scart_bench.generator.generate")
     fake.generate_dataset = generate_dataset
-    monkeypatch.setitem(sys.modules, "generator.generate", fake)
+    monkeypatch.setitem(sys.modules, "scart_bench.generator.generate", fake)
     monkeypatch.chdir(tmp_path)
     args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--seed", "3"]
     assert main(args) == 0

@@ -9,14 +9,14 @@ import pandas as pd
 import pytest
 from conftest import distance_to_path, truth
 
-from benchmark.cli import main
-from generator.dataset import LABEL_COLUMNS, open_dataset
-from generator.modes import csv_mode
-from generator.records import flight_views
-from generator.scart.grid import load_grid
-from generator.scart.scenario import load_scenarios, scenario_from_dict
-from generator.scart.units import M_PER_DEG_LAT, M_PER_DEG_LON
-from generator.topics import TRUTH_FIELDS
+from scart_bench.benchmark.cli import main
+from scart_bench.generator.dataset import LABEL_COLUMNS, open_dataset
+from scart_bench.generator.modes import csv_mode
+from scart_bench.generator.records import flight_views
+from scart_bench.generator.scart.grid import load_grid
+from scart_bench.generator.scart.scenario import load_scenarios, scenario_from_dict
+from scart_bench.generator.scart.units import M_PER_DEG_LAT, M_PER_DEG_LON
+from scart_bench.generator.topics import TRUTH_FIELDS
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "ulog"
 RFLYMAD = SHARED / "rflymad_TestCase_1_1000000000.ulg"

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 from sklearn.metrics import roc_auc_score
 
-from benchmark.protocol import Protocol, ProtocolError, Splits, ThresholdRule, assign_roles
-from benchmark.scoring import (
+from scart_bench.benchmark.protocol import Protocol, ProtocolError, Splits, ThresholdRule, assign_roles
+from scart_bench.benchmark.scoring import (
     DEFAULT_METRICS,
     PAPER_COLUMNS,
     DetectionDelay,

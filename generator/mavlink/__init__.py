@@ -1,11 +1,11 @@
 """MAVLink 2 on the Simulator <-> Navigator link: the codec, the live proxy and the generator's endpoints.
 
-- :mod:`generator.mavlink.codec`: frame splitting and checking, topic <-> MAVLink message mapping;
-- :mod:`generator.mavlink.proxy`: the man-in-the-middle that runs the SCART layer on a live link;
-- :mod:`generator.mavlink.link`: hooks that make the built-in generator speak MAVLink over UDP
+- :mod:`scart_bench.generator.mavlink.codec`: frame splitting and checking, topic <-> MAVLink message mapping;
+- :mod:`scart_bench.generator.mavlink.proxy`: the man-in-the-middle that runs the SCART layer on a live link;
+- :mod:`scart_bench.generator.mavlink.link`: hooks that make the built-in generator speak MAVLink over UDP
   (flight-controller side and mission-computer side as two endpoints);
-- :mod:`generator.mavlink.monitor`: a fitted detector scoring the navigator-side stream online;
-- :mod:`generator.mavlink.recording`: the proxied flight in the dataset layout.
+- :mod:`scart_bench.generator.mavlink.monitor`: a fitted detector scoring the navigator-side stream online;
+- :mod:`scart_bench.generator.mavlink.recording`: the proxied flight in the dataset layout.
 
 pymavlink is an optional dependency (``pip install scart-bench[mavlink]``); importing these
 modules without it raises :class:`MavlinkMissing`.

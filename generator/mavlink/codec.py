@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.mavlink import require_pymavlink
-from generator.topics import TOPICS
+from scart_bench.generator.mavlink import require_pymavlink
+from scart_bench.generator.topics import TOPICS
 
 mavlink = require_pymavlink()
 from pymavlink.generator.mavcrc import x25crc  # noqa: E402  (after the clear error above)
@@ -346,7 +346,7 @@ def _codec(topic: str, message: str, time_field: str | None, scale: int, decode,
     return TopicCodec(topic, message, msgid, time_field, scale, decode, fields)
 
 
-#: topic -> codec, for every link topic of generator.topics
+#: topic -> codec, for every link topic of scart_bench.generator.topics
 CODECS: dict[str, TopicCodec] = {c.topic: c for c in (
     _codec("attitude", "ATTITUDE", "time_boot_ms", 1000, _attitude, _attitude_fields),
     _codec("highres_imu", "HIGHRES_IMU", "time_usec", 1, _imu, _imu_fields),

@@ -1,9 +1,9 @@
 """The built-in generator speaking MAVLink 2 over UDP: flight-controller and mission-computer endpoints.
 
-:class:`MavlinkLink` plugs into :func:`generator.simulate.simulate` as its hooks object (the
+:class:`MavlinkLink` plugs into :func:`scart_bench.generator.simulate.simulate` as its hooks object (the
 ``layer`` argument) at the points ``link`` and ``command``. At every step with telemetry, the
 flight-controller endpoint (system 1, component 1) encodes the step's messages
-(:data:`generator.mavlink.codec.CODECS`), a HEARTBEAT once a second, and a SYSTEM_TIME that
+(:data:`scart_bench.generator.mavlink.codec.CODECS`), a HEARTBEAT once a second, and a SYSTEM_TIME that
 closes the step, in one datagram to the proxy; the mission-computer endpoint (system 1,
 component 191) reads datagrams until that step's SYSTEM_TIME arrives and decodes what came
 through. A message that did not arrive is not delivered to the navigator. Setpoints go the other
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from generator.mavlink.codec import (
+from scart_bench.generator.mavlink.codec import (
     ARM_DISARM,
     CODECS,
     COMMAND_LONG_ID,
@@ -105,7 +105,7 @@ class _Endpoint:
 
 
 class MavlinkLink:
-    """Hooks for :func:`generator.simulate.simulate` that carry the link over MAVLink/UDP through a proxy.
+    """Hooks for :func:`scart_bench.generator.simulate.simulate` that carry the link over MAVLink/UDP through a proxy.
 
     ``mission_computer`` is where the mission-computer endpoint listens (the proxy's forward
     address); the flight-controller endpoint binds an ephemeral port and sends to the proxy set

@@ -2,7 +2,7 @@
 
 The monitor rebuilds, message by message, the rows of the navigator view's ``most_frequent``
 table (one row per message of the base topic, every other topic holding its last value, as
-:func:`generator.dataset.combine` does): a row is complete once a message with a later timestamp
+:func:`scart_bench.generator.dataset.combine` does): a row is complete once a message with a later timestamp
 arrives, so the stream gives the same rows as the recorded flight. Each row is scored by calling
 the detector on its trailing ``history_rows_`` rows (the rows that reproduce the last row's score;
 detectors are causal) and an alarm is logged when the score exceeds the threshold, with the
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from generator.topics import TOPICS
+from scart_bench.generator.topics import TOPICS
 
 #: rows scored when a detector does not say how much history it needs (10 s at 50 Hz)
 DEFAULT_HISTORY_ROWS = 500

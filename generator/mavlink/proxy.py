@@ -8,9 +8,9 @@
 The proxy receives the autopilot's datagrams on the ``listen`` address (it learns the autopilot's
 address from them) and sends telemetry on to the ``forward`` address from a second socket, on
 which the mission computer's commands come back. Each datagram is cut into frames
-(:func:`generator.mavlink.codec.split_frames`); malformed pieces are counted and dropped. A
+(:func:`scart_bench.generator.mavlink.codec.split_frames`); malformed pieces are counted and dropped. A
 frame of a topic the scenarios use is decoded, passed through the same
-:class:`generator.scart.layer.AttackLayer` as in simulation mode (a batch of one flight, point
+:class:`scart_bench.generator.scart.layer.AttackLayer` as in simulation mode (a batch of one flight, point
 ``link`` for telemetry and ``command`` for setpoints), and forwarded: the received bytes when the
 layer left the values as they were, a re-encoded frame (same header, only the changed fields
 rewritten) when it altered them, nothing when it dropped the message. Every other frame, in
@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
-from generator.mavlink.codec import (
+from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
+from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
     CODECS,
     KNOWN,
@@ -45,9 +45,9 @@ from generator.mavlink.codec import (
     Packer,
     split_frames,
 )
-from generator.scart.layer import AttackLayer
-from generator.scart.scenario import Scenario
-from generator.topics import TOPICS
+from scart_bench.generator.scart.layer import AttackLayer
+from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.generator.topics import TOPICS
 
 #: the injection points a proxy on the link can serve
 LINK_POINTS = ("link", "command")
@@ -128,7 +128,7 @@ class MavlinkProxy:
 
     ``record``: keep both views for :meth:`record`; ``monitor``: an object with
     ``on_message(topic, t_us, values, layer)`` fed with every forwarded topic message (see
-    :class:`generator.mavlink.monitor.StreamMonitor`). Use :meth:`open` then :meth:`serve`
+    :class:`scart_bench.generator.mavlink.monitor.StreamMonitor`). Use :meth:`open` then :meth:`serve`
     (blocking until ``stop`` is set) or :meth:`start`/:meth:`stop` for a background thread.
     """
 
@@ -354,8 +354,8 @@ class MavlinkProxy:
         return self.layer.windows(0, self.end_us)
 
     def record(self, flight_id: str, extra_config: dict | None = None):
-        """The proxied flight as a :class:`generator.dataset.FlightRecord` (both views, labels, events)."""
-        from generator.mavlink.recording import proxy_record
+        """The proxied flight as a :class:`scart_bench.generator.dataset.FlightRecord` (both views, labels, events)."""
+        from scart_bench.generator.mavlink.recording import proxy_record
 
         return proxy_record(self, flight_id, extra_config or {})
 

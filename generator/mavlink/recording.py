@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from generator.dataset import (
+from scart_bench.generator.dataset import (
     MANIFEST_COLUMNS,
     DatasetError,
     DatasetWriter,
@@ -30,8 +30,8 @@ from generator.dataset import (
     open_dataset,
     write_flight,
 )
-from generator.modes import scenario_manifest
-from generator.topics import TOPICS
+from scart_bench.generator.modes import scenario_manifest
+from scart_bench.generator.topics import TOPICS
 
 LIVE_SOURCE = "mavlink-proxy"
 
@@ -45,7 +45,7 @@ def _table(topic: str, ts: list[int], vals: list[np.ndarray], windows) -> pd.Dat
 
 
 def proxy_record(proxy, flight_id: str, extra_config: dict) -> FlightRecord:
-    """The flight a :class:`generator.mavlink.proxy.MavlinkProxy` has seen so far."""
+    """The flight a :class:`scart_bench.generator.mavlink.proxy.MavlinkProxy` has seen so far."""
     end_us = proxy.end_us
     windows = proxy.layer.labelled_windows(0, end_us)
     nav = {t: _table(t, *proxy.views.forwarded[t], windows) for t in TOPICS if t in proxy.views.forwarded}

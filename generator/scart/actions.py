@@ -2,7 +2,7 @@
 
 Each action alters the current value of its target fields (or drops the message) for the
 flights where the scenario is active, leaving the others untouched. Magnitudes are in physical
-units (m, m/s, rad, ...) and converted per field by generator.scart.units. Numeric parameters
+units (m, m/s, rad, ...) and converted per field by scart_bench.generator.scart.units. Numeric parameters
 are per-flight arrays, so one group applies many parameter settings at once.
 """
 
@@ -13,8 +13,8 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
-from generator.scart import units
-from generator.scart.spec import Param
+from scart_bench.generator.scart import units
+from scart_bench.generator.scart.spec import Param
 
 _TARGET = Param("target", list, required=True, help='list of "topic" or "topic.field"')
 _DIRECTION = Param("direction_deg", float, 45.0, help="heading of a displacement, 0 = north")

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from generator.geo import latlon_to_ned
-from generator.scart.spec import Param
+from scart_bench.generator.geo import latlon_to_ned
+from scart_bench.generator.scart.spec import Param
 
 
 class Condition:

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from generator.disturbances import SENSOR_INSTANCES, Disturbances, Jammer, MagneticSource
-from generator.scart.spec import Param
+from scart_bench.generator.disturbances import SENSOR_INSTANCES, Disturbances, Jammer, MagneticSource
+from scart_bench.generator.scart.spec import Param
 
 #: Full-charge voltage of the 4S battery; the maximum rotor speed scales with the voltage (KV * V).
 BATTERY_FULL_V = 16.8

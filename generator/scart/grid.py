@@ -47,9 +47,14 @@ import copy
 import itertools
 from pathlib import Path
 
-from generator.scart.actions import ACTIONS
-from generator.scart.scenario import Scenario, check_composition, load_scenarios, scenario_from_dict
-from generator.scart.spec import ScenarioError, read_toml
+from scart_bench.generator.scart.actions import ACTIONS
+from scart_bench.generator.scart.scenario import (
+    Scenario,
+    check_composition,
+    load_scenarios,
+    scenario_from_dict,
+)
+from scart_bench.generator.scart.spec import ScenarioError, read_toml
 
 AXES = ("action", "target", "level", "duration_s", "trigger")
 
@@ -234,7 +239,7 @@ def load_any(path: str | Path) -> list[Scenario]:
     """A scenario file or a grid file, by its top-level table."""
     if is_grid(path):
         return load_grid(path)
-    from generator.scart.scenario import load_scenarios
+    from scart_bench.generator.scart.scenario import load_scenarios
 
     return load_scenarios(path)
 

@@ -22,15 +22,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from generator.disturbances import Disturbances
-from generator.link import field_names as builtin_fields
-from generator.noise import NoiseStream
-from generator.scart.actions import ACTIONS, Action
-from generator.scart.conditions import CONDITIONS, Condition
-from generator.scart.effects import EFFECTS
-from generator.scart.history import History
-from generator.scart.scenario import Scenario, check_composition, point_topics
-from generator.scart.spec import ScenarioError
+from scart_bench.generator.disturbances import Disturbances
+from scart_bench.generator.link import field_names as builtin_fields
+from scart_bench.generator.noise import NoiseStream
+from scart_bench.generator.scart.actions import ACTIONS, Action
+from scart_bench.generator.scart.conditions import CONDITIONS, Condition
+from scart_bench.generator.scart.effects import EFFECTS
+from scart_bench.generator.scart.history import History
+from scart_bench.generator.scart.scenario import Scenario, check_composition, point_topics
+from scart_bench.generator.scart.spec import ScenarioError
 
 
 def _stack(items: list[dict]) -> dict:

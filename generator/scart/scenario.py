@@ -31,12 +31,12 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from generator.link import SENSOR_TOPICS
-from generator.scart.actions import ACTIONS
-from generator.scart.conditions import CONDITIONS
-from generator.scart.effects import EFFECTS, PHYSICAL_POINTS
-from generator.scart.spec import ScenarioError, read_toml, validate_params
-from generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
+from scart_bench.generator.link import SENSOR_TOPICS
+from scart_bench.generator.scart.actions import ACTIONS
+from scart_bench.generator.scart.conditions import CONDITIONS
+from scart_bench.generator.scart.effects import EFFECTS, PHYSICAL_POINTS
+from scart_bench.generator.scart.spec import ScenarioError, read_toml, validate_params
+from scart_bench.generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
 
 INJECTION_POINTS = ("link", "sensor", "command", "environment", "vehicle")
 KINDS = ("attack", "fault")

@@ -1,6 +1,6 @@
 """Converting attack magnitudes given in physical units (m, m/s, rad, ...) into a field's unit.
 
-A field's quantity comes from generator.topics for the project's own topics and is guessed
+A field's quantity comes from scart_bench.generator.topics for the project's own topics and is guessed
 from the field name for imported logs (PX4 uORB names); a scenario may override it.
 """
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 import functools
 import re
 
-from generator.geo import metres_per_degree
-from generator.topics import TOPICS
+from scart_bench.generator.geo import metres_per_degree
+from scart_bench.generator.topics import TOPICS
 
 M_PER_DEG_LAT, M_PER_DEG_LON = metres_per_degree()
 #: hPa per metre of altitude near the home altitude (ISA: rho * g)
@@ -45,7 +45,7 @@ _GUESSES = [
 
 @functools.lru_cache(maxsize=4096)
 def quantity(topic: str, field: str) -> str:
-    """The physical quantity of ``topic.field`` (see generator.topics.Field.quantity); cached, as
+    """The physical quantity of ``topic.field`` (see scart_bench.generator.topics.Field.quantity); cached, as
     actions ask on every message."""
     t = TOPICS.get(topic)
     if t is not None and field in t.field_names:

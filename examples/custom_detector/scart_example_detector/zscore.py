@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from detectors.base import Detector, DetectorError
+from scart_bench.detectors.base import Detector, DetectorError
 
 
 class RollingZScore(Detector):

@@ -1,6 +1,6 @@
 """Speed of the live MAVLink proxy: sustained messages per second and the latency it adds.
 
-    python -m benchmark.perf.proxy_speed [--rate 2000] [--seconds 10] [--scenario FILE] [--record]
+    python -m perf.proxy_speed [--rate 2000] [--seconds 10] [--scenario FILE] [--record]
 
 The proxy runs in a process of its own (as ``scart-bench proxy`` would), with a link scenario
 that is active during the whole measurement (by default the GPS spoofing of
@@ -54,8 +54,8 @@ max_deg = 30.0
 
 def _serve(conn, scenario: str, record: bool) -> None:
     """The proxy process: report the listen address, serve until told to stop, send back the counters."""
-    from generator.mavlink.proxy import MavlinkProxy
-    from generator.scart.scenario import load_scenarios
+    from scart_bench.generator.mavlink.proxy import MavlinkProxy
+    from scart_bench.generator.scart.scenario import load_scenarios
 
     forward = conn.recv()
     proxy = MavlinkProxy(LOCAL, forward, load_scenarios(scenario), record=record, log=lambda m: None).open()
@@ -68,9 +68,9 @@ def _serve(conn, scenario: str, record: bool) -> None:
 
 def telemetry_stream(seconds: float) -> list[bytes]:
     """One frame per datagram: every telemetry topic at its rate, values of a vehicle circling home."""
-    from generator.link import due_steps
-    from generator.mavlink.codec import CODECS, Packer
-    from generator.topics import HOME_LAT, HOME_LON, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
+    from scart_bench.generator.link import due_steps
+    from scart_bench.generator.mavlink.codec import CODECS, Packer
+    from scart_bench.generator.topics import HOME_LAT, HOME_LON, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
 
     packer = Packer()
     n_steps = int(seconds * SIM_RATE_HZ)
@@ -149,7 +149,7 @@ def _one_by_one(frames: list[bytes], src: socket.socket, dst, sink: socket.socke
 
 def _prime(ap: socket.socket, mc: socket.socket, proxy_addr, frame: bytes) -> tuple[str, int]:
     """One datagram through, then the mission computer reports mission item 2 (the attack starts)."""
-    from generator.mavlink.codec import CODECS, KNOWN, MISSION_CURRENT_ID, Packer
+    from scart_bench.generator.mavlink.codec import CODECS, KNOWN, MISSION_CURRENT_ID, Packer
 
     mc.settimeout(5.0)
     ap.sendto(frame, proxy_addr)

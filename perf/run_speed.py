@@ -1,6 +1,6 @@
 """End-to-end wall time and peak memory of a benchmark run, per phase.
 
-    python -m benchmark.perf.run_speed --profile quick [--detectors all] [--jobs N] [--executor dask]
+    python -m perf.run_speed --profile quick [--detectors all] [--jobs N] [--executor dask]
 
 Phases: preparing the profile's dataset (generated unless it exists; pass ``--dataset`` to skip)
 and the run itself (jobs + scoring) into a fresh run folder. Peak memory is the maximum resident
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from benchmark.cli import main as cli_main
-from benchmark.cli_run import PROFILES
-from benchmark.runner import RunConfig, prepare_dataset
+from scart_bench.benchmark.cli import main as cli_main
+from scart_bench.benchmark.cli_run import PROFILES
+from scart_bench.benchmark.runner import RunConfig, prepare_dataset
 
 
 def _peak_mib(who: int) -> float:
@@ -29,7 +29,7 @@ def _peak_mib(who: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmark.perf.run_speed", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m perf.run_speed", description=__doc__.split("\n")[0])
     p.add_argument("--profile", choices=PROFILES, default="quick")
     p.add_argument("--detectors", default="all")
     p.add_argument("--dataset", type=Path, help="an existing dataset (skips the generation phase)")

@@ -1,6 +1,6 @@
 """Wall time and peak memory of generating a profile's dataset (normal + attacked in both modes).
 
-    python -m benchmark.perf.generate_speed [--profile paper] [--out DIR] [--seed 0]
+    python -m perf.generate_speed [--profile paper] [--out DIR] [--seed 0]
 
 Prints the time of each phase as it goes and, at the end, total wall time, peak resident memory
 and the number of flights and bytes written. The goal for ``paper`` (100 normal flights + 2048
@@ -17,8 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from generator.dataset import open_dataset
-from generator.generate import generate_dataset
+from scart_bench.generator.dataset import open_dataset
+from scart_bench.generator.generate import generate_dataset
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,6 +1,6 @@
 """Aggregate real-time factor of the flight generator: simulated flight-seconds per wall second.
 
-    python -m benchmark.perf.generator_speed [--batches 1,100,1000] [--seed 0]
+    python -m perf.generator_speed [--batches 1,100,1000] [--seed 0]
 
 For each batch size, flies that many default-mission flights in one vectorised batch and prints
 wall time, simulated seconds, the aggregate real-time factor and peak memory. PX4 SITL + Gazebo
@@ -13,7 +13,7 @@ import argparse
 import resource
 import time
 
-from generator.simulate import STEP_US, simulate
+from scart_bench.generator.simulate import STEP_US, simulate
 
 
 def measure(n: int, seed: int = 0) -> dict[str, float]:

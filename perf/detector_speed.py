@@ -1,9 +1,9 @@
 """Detector speed: fit time, batch scoring throughput and streaming latency per sample.
 
-    python -m benchmark.perf.detector_speed [--detectors all|a,b] [--flights N] [--rows R]
+    python -m perf.detector_speed [--detectors all|a,b] [--flights N] [--rows R]
 
 For every detector (built-ins, entry-point plugins and ``--plugin`` specs) this fits on ``N``
-synthetic normal flights of ``R`` rows at 50 Hz, then measures on a held-out flight:
+generated normal flights of ``R`` rows at 50 Hz, then measures on a held-out flight:
 
 - fit seconds;
 - batch throughput: rows per second when ``score`` gets the whole flight at once;
@@ -15,9 +15,8 @@ synthetic normal flights of ``R`` rows at 50 Hz, then measures on a held-out fli
 attribute when it sets one (the rows that reproduce the last row's score: e.g. Telemanom's LSTM
 history plus its EWMA memory); otherwise 500 rows (10 s). A detector whose import or fit fails
 is reported and skipped. Torch runs on one thread unless ``--threads`` says otherwise: small
-models gain little from more, and on shared cores extra threads stall each other. Run from the
-repository root, where ``tests.detector_data`` provides the
-synthetic flights (a small local stand-in is used when it is not importable).
+models gain little from more, and on shared cores extra threads stall each other. The flights are the
+conformance kit's generated normal flights (:mod:`scart_bench.testing`).
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ from importlib.metadata import entry_points
 import numpy as np
 import pandas as pd
 
-from detectors import registry
+from scart_bench.detectors import registry
 
 #: Seconds between two samples of a 50 Hz telemetry stream.
 BUDGET_MS = 20.0
@@ -57,43 +56,10 @@ class SpeedResult:
 
 
 # -- flights --------------------------------------------------------------------------------------
-def _fallback_flights(n: int, seed: int, rows: int) -> list[pd.DataFrame]:
-    """Square-path flights with noise, used when ``tests.detector_data`` is not importable."""
-    from generator.topics import HOME_ALT, HOME_LAT, HOME_LON
-
-    flights = []
-    for i in range(n):
-        rng = np.random.default_rng([seed, i])
-        t = np.arange(rows) / 50.0
-        phase = 2.0 * np.pi * t / max(t[-1], 1.0)
-        x = 15.0 + 15.0 * np.clip(1.4 * np.sin(phase), -1, 1) + rng.normal(0, 0.05, rows)
-        y = 15.0 + 15.0 * np.clip(1.4 * np.cos(phase), -1, 1) + rng.normal(0, 0.05, rows)
-        z = -10.0 * np.clip(3.0 * np.sin(np.pi * t / max(t[-1], 1.0)), 0, 1) + rng.normal(0, 0.05, rows)
-        cols = {
-            "Index": np.arange(rows),
-            "Timestamp": (t * 1e6).astype(np.int64),
-            "Is_Anomaly": np.zeros(rows, dtype=np.int64),
-            "attitude.roll": rng.normal(0, 0.01, rows),
-            "attitude.pitch": rng.normal(0, 0.01, rows),
-            "attitude.yaw": 0.5 + rng.normal(0, 0.005, rows),
-            "highres_imu.zacc": -9.81 + rng.normal(0, 0.1, rows),
-            "local_position_ned.x": x,
-            "local_position_ned.y": y,
-            "local_position_ned.z": z,
-            "global_position_int.lat": HOME_LAT + x / 111_320.0,
-            "global_position_int.lon": HOME_LON + y / (111_320.0 * np.cos(np.radians(HOME_LAT))),
-            "global_position_int.alt": HOME_ALT - z,
-        }
-        flights.append(pd.DataFrame(cols))
-    return flights
-
-
 def synthetic_flights(n: int, seed: int, rows: int) -> list[pd.DataFrame]:
-    """``n`` normal synthetic flights: ``tests.detector_data.normal_flights`` when available."""
-    try:
-        from tests.detector_data import normal_flights
-    except ImportError:
-        return _fallback_flights(n, seed, rows)
+    """``n`` generated normal flights (the conformance kit's, :func:`scart_bench.testing.normal_flights`)."""
+    from scart_bench.testing import normal_flights
+
     return normal_flights(n, seed=seed, rows=rows)
 
 
@@ -178,7 +144,7 @@ def format_table(results: list[SpeedResult]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmark.perf.detector_speed", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m perf.detector_speed", description=__doc__.split("\n")[0])
     p.add_argument("--detectors", default="all", metavar="all|NAME,...", help="detectors to time (default all)")
     p.add_argument("--flights", type=int, default=3, metavar="N", help="training flights (default 3)")
     p.add_argument("--rows", type=int, default=1500, metavar="R", help="rows per flight (default 1500 = 30 s)")

@@ -1,0 +1,1 @@
+"""Shipped data: scenario grids and example scenarios under ``scenarios/`` (read through importlib.resources)."""
