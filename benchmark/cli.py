@@ -1,8 +1,9 @@
 """The ``scart-bench`` command line: a thin layer over functions a user can call from Python.
 
 Each sub-command lives in its own module exposing ``register(subparsers)``; the handler it sets
-with ``set_defaults(func=...)`` returns the exit code. Bad user input raises ``UsageError`` (or a
-``ValueError`` subclass from the library) and exits with code 2 and one clear line.
+with ``set_defaults(func=...)`` returns the exit code. Bad options raise ``UsageError``; the library
+raises the errors of :mod:`scart_bench.errors` (``ValueError`` subclasses). Both exit with code 2 and
+one clear line.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import argparse
 import importlib
 import sys
 
-from scart_bench.benchmark.errors import UsageError
+from scart_bench.errors import ScartBenchError
 
 #: Modules that each add one or more sub-commands.
 COMMAND_MODULES = (
@@ -39,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UsageError, ValueError, FileNotFoundError, PermissionError) as exc:
+    except (ScartBenchError, ValueError, FileNotFoundError, PermissionError) as exc:
         print(f"scart-bench {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -10,9 +10,16 @@ def cmd_detectors(args: argparse.Namespace) -> int:
 
     for spec in args.plugin or []:
         registry.load_plugin(spec)
+    from scart_bench.detectors.base import DetectorError
+
     for name, info in registry.available().items():
-        print(f"{name:<14} {info.source:<40} {info.description}")
-        params = ", ".join(f"{k}={v!r}" for k, v in info.parameters().items())
+        try:
+            description, parameters = info.description, info.parameters()
+        except DetectorError as exc:  # e.g. deepod not installed: say how to install it
+            print(f"{name:<14} {info.source:<40} unavailable: {exc}")
+            continue
+        print(f"{name:<14} {info.source:<40} {description}")
+        params = ", ".join(f"{k}={v!r}" for k, v in parameters.items())
         print(f"{'':<14} params: {params}")
     return 0
 

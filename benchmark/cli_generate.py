@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from scart_bench.benchmark.errors import UsageError
+from scart_bench.generator.profiles import PROFILES
 
 
 def _log(msg: str) -> None:
@@ -15,7 +16,7 @@ def _log(msg: str) -> None:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from scart_bench.generator.generate import PROFILES, generate_dataset
+    from scart_bench.generator.generate import generate_dataset
 
     if args.profile not in PROFILES:
         raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
@@ -53,7 +54,8 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
 def register(sub) -> None:
     g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
-    g.add_argument("--profile", default="quick", help="quick | standard | paper (flight counts and attack grid)")
+    g.add_argument("--profile", default="quick",
+                   help=f"{' | '.join(PROFILES)}: flight counts and attack grid (default quick)")
     g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--format", choices=("parquet", "csv"), default="parquet")

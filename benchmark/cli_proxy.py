@@ -33,50 +33,6 @@ def _require_mavlink():
     return proxy
 
 
-def build_monitor(run: Path, name: str, log=_log):
-    """A :class:`scart_bench.generator.mavlink.monitor.StreamMonitor` for detector ``name`` of benchmark run ``run``."""
-    import numpy as np
-
-    from scart_bench.benchmark.protocol import Protocol
-    from scart_bench.benchmark.store import RunStore
-    from scart_bench.detectors import registry
-    from scart_bench.generator.dataset import open_dataset
-    from scart_bench.generator.mavlink.monitor import StreamMonitor
-
-    store = RunStore(run)
-    if not store.exists():
-        raise UsageError(f"--run {run}: not a benchmark run folder (no config.json)")
-    config = store.read_config()
-    status = store.read_status(name)
-    if not status or status.get("status") != "OK":
-        done = [d for d in store.job_names() if (store.read_status(d) or {}).get("status") == "OK"]
-        raise UsageError(f"--detector {name!r}: run {run} has no finished (OK) job for it; "
-                         f"finished: {', '.join(done) or '(none)'}")
-    params = (store.read_params(name) or {}).get("params", {})
-    for spec in config.get("plugins", []):
-        registry.load_plugin(spec)
-    flights = store.read_flights()
-    train = flights.loc[flights["role"] == "train", "flight_id"].astype(str).tolist()
-    validation = flights.loc[flights["role"] == "validation", "flight_id"].astype(str).tolist()
-    dataset = config.get("dataset", {}).get("path")
-    if not dataset or not Path(dataset).exists():
-        raise UsageError(f"--run {run}: its dataset {dataset!r} is gone; the detector cannot be fitted again")
-    ds = open_dataset(dataset)
-    det = registry.make(name, **params)
-    log(f"proxy: fitting {name} on the {len(train)} training flights of run {run} ...")
-    t0 = time.perf_counter()
-    det.fit([ds.flight(fid) for fid in train])
-    scores = store.read_scores(name)
-    missing = [fid for fid in validation if fid not in scores]
-    if missing:
-        raise UsageError(f"--run {run}: detector {name} has no saved scores for validation flight {missing[0]}")
-    protocol = Protocol.from_dict(config["protocol"])
-    _, row_threshold = protocol.thresholds({fid: np.asarray(scores[fid]) for fid in validation})
-    log(f"proxy: {name} fitted in {time.perf_counter() - t0:.1f} s; row threshold {row_threshold:.4g} "
-        f"({protocol.row_rule.describe()})")
-    return StreamMonitor(det, row_threshold, name=name, log=log)
-
-
 def cmd_proxy(args: argparse.Namespace) -> int:
     px = _require_mavlink()
     from scart_bench.generator.dataset import is_dataset
@@ -99,10 +55,14 @@ def cmd_proxy(args: argparse.Namespace) -> int:
             raise UsageError(f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
                              "give a new folder or an existing dataset to add the flight to")
     scenarios = load_scenarios(args.scenario)
-    monitor = build_monitor(Path(args.run), args.detector) if args.detector else None
+    monitor = None
+    if args.detector:
+        from scart_bench.benchmark.live import monitor_from_run
+
+        monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
 
     proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=record is not None,
-                            monitor=monitor, log=_log).open()
+                            listeners=[monitor] if monitor is not None else [], log=_log).open()
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -164,5 +124,8 @@ def register(sub) -> None:
     p.add_argument("--flight-id", help="flight id of the recording (default live-<UTC time>)")
     p.add_argument("--detector", metavar="NAME", help="score the navigator-side stream with this detector of --run")
     p.add_argument("--run", metavar="RUN", help="the benchmark run folder the detector comes from")
+    p.add_argument("--plugin", action="append", metavar="SPEC",
+                   help="load a plugin detector from module:Class or file.py:Class (a run folder's record of "
+                        "plugin files is never imported)")
     p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this many seconds (default: Ctrl-C)")
     p.set_defaults(func=cmd_proxy)

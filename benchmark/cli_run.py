@@ -6,12 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-#: Dataset profiles (kept here so that building the parser imports nothing heavy).
-PROFILES = ("quick", "standard", "paper")
+from scart_bench.generator.profiles import PROFILES
 
 
 def _print_table(path: Path, metrics) -> None:
-    from scart_bench.benchmark.runner import paper_table
+    from scart_bench.benchmark.results import paper_table
 
     print(paper_table(metrics))
     failed = metrics[metrics["status"] != "OK"]
@@ -20,15 +19,41 @@ def _print_table(path: Path, metrics) -> None:
     print(f"\nrun folder: {path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
 
 
-def cmd_run(args: argparse.Namespace) -> int:
-    from scart_bench.benchmark.runner import RunConfig, run_benchmark
+#: run option -> the RunConfig field it sets (the run file uses the field names)
+_OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "out": "out",
+            "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
+            "timeout": "timeout", "seed": "seed", "plugin": "plugins"}
 
-    cfg = RunConfig(
-        detectors=[args.detectors], profile=args.profile, dataset=args.dataset, out=args.out,
-        resume=args.resume, executor=args.executor, scheduler=args.scheduler, jobs=args.jobs,
-        timeout=args.timeout, seed=args.seed, plugins=list(args.plugin or []),
-    )
-    outcome = run_benchmark(cfg)
+
+def run_config(args: argparse.Namespace):
+    """The RunConfig of ``scart-bench run``: the ``--config`` file, overridden by the options given."""
+    import dataclasses
+
+    from scart_bench.benchmark.config import RunConfig, merge_params, read_run_file
+    from scart_bench.benchmark.selection import parse_params
+    from scart_bench.errors import RunError
+
+    cfg = RunConfig()
+    if args.config:
+        try:
+            cfg = RunConfig(**read_run_file(args.config))
+        except RunError as exc:
+            msg = str(exc)
+            raise RunError(msg if msg.startswith("--config") else f"--config {args.config}: {msg}") from None
+    given: dict = {}
+    for option, key in _OPTIONS.items():
+        value = getattr(args, option)
+        if value is None or value is False:
+            continue
+        given[key] = [value] if option == "detectors" else list(value) if option == "plugin" else value
+    given["params"] = merge_params(cfg.params, parse_params(args.param or []))
+    return dataclasses.replace(cfg, **given)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from scart_bench.benchmark.runner import run_benchmark
+
+    outcome = run_benchmark(run_config(args))
     _print_table(outcome.path, outcome.metrics)
     return 0
 
@@ -43,24 +68,30 @@ def cmd_score(args: argparse.Namespace) -> int:
 
 def register(sub) -> None:
     r = sub.add_parser("run", help="train and score detectors on a dataset; print and save the tables")
-    r.add_argument("--detectors", default="all", metavar="all|NAME,...",
+    r.add_argument("--config", type=Path, metavar="FILE",
+                   help="a run file (TOML: detectors, params, profile or dataset, seed, protocol, ...) or a run "
+                        "folder's config.json; the options below override it")
+    r.add_argument("--detectors", metavar="all|NAME,...",
                    help="detectors to run: 'all' (default) or a comma-separated list of names")
-    r.add_argument("--profile", choices=PROFILES, default="quick",
+    r.add_argument("--param", action="append", metavar="DETECTOR.KEY=VALUE",
+                   help="a detector parameter, e.g. goad.n_trans=64 or telemanom.epochs=5 (repeatable); "
+                        "VALUE is a TOML literal (64, 0.5, true, [32, 32], \"cpu\")")
+    r.add_argument("--profile", choices=PROFILES,
                    help="dataset size profile (default quick); sets the default dataset, run folder and timeout")
     r.add_argument("--dataset", type=Path, metavar="DIR",
                    help="an existing dataset folder (default: data/datasets/<profile>-seed<N>, generated when missing)")
     r.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/<profile>-seed<N>)")
     r.add_argument("--resume", action="store_true",
                    help="keep jobs that finished OK with the same parameters; run only the others")
-    r.add_argument("--executor", choices=("local", "dask"), default="local",
+    r.add_argument("--executor", choices=("local", "dask"),
                    help="local worker processes (default) or dask.distributed")
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask scheduler address, e.g. tcp://host:8786 (default: a LocalCluster with --jobs workers)")
-    r.add_argument("--jobs", type=int, default=1, metavar="N", help="jobs run in parallel (default 1)")
+    r.add_argument("--jobs", type=int, metavar="N", help="jobs run in parallel (default 1)")
     r.add_argument("--timeout", type=float, metavar="SECONDS",
                    help="per-job limit; a job past it is killed and reported TIMEOUT "
                         "(default 1800 quick, 7200 standard, 21600 paper)")
-    r.add_argument("--seed", type=int, default=0, help="dataset and detector seed (default 0)")
+    r.add_argument("--seed", type=int, help="dataset and detector seed (default 0)")
     r.add_argument("--plugin", action="append", metavar="SPEC",
                    help="load a detector from module:Class or path/to/file.py:Class (repeatable)")
     r.set_defaults(func=cmd_run)

@@ -32,7 +32,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from scart_bench.benchmark.errors import UsageError
+from scart_bench.benchmark.jobs import JobResult, run_job
+from scart_bench.errors import RunError
 
 #: Seconds allowed to connect to a dask scheduler.
 CONNECT_TIMEOUT_S = 5.0
@@ -99,7 +100,6 @@ def _read_log(w: _Worker) -> str:
 
 def _collect(w: _Worker, timed_out: bool = False, timeout: float = 0.0):
     """The JobResult of a finished or killed worker; removes its temp folder."""
-    from scart_bench.benchmark.runner import JobResult
 
     try:
         log = _read_log(w)
@@ -162,6 +162,9 @@ class LocalExecutor:
                 w.log.close()
                 shutil.rmtree(w.folder, ignore_errors=True)
 
+    def check_dataset(self, path: str) -> None:
+        """Local workers read the dataset where this process does: nothing to check."""
+
     def close(self) -> None:
         pass
 
@@ -179,10 +182,10 @@ class DaskExecutor:
             try:
                 self.client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
             except Exception as exc:
-                raise UsageError(f"--scheduler {scheduler}: cannot reach a dask scheduler there within "
-                                 f"{connect_timeout:g} s ({type(exc).__name__}: {exc}); expected the address "
-                                 "of a running scheduler such as tcp://host:8786, or no --scheduler for a "
-                                 "local cluster") from None
+                raise RunError(f"--scheduler {scheduler}: cannot reach a dask scheduler there within "
+                               f"{connect_timeout:g} s ({type(exc).__name__}: {exc}); expected the address "
+                               "of a running scheduler such as tcp://host:8786, or no --scheduler for a "
+                               "local cluster") from None
         else:
             self.cluster = LocalCluster(n_workers=max(1, int(jobs)), threads_per_worker=1, processes=True,
                                         dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
@@ -192,8 +195,6 @@ class DaskExecutor:
         import uuid
 
         from distributed import as_completed
-
-        from scart_bench.benchmark.runner import JobResult
 
         futures = {self.client.submit(run_isolated, spec, timeout, pure=False,
                                       key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}"): spec
@@ -210,19 +211,45 @@ class DaskExecutor:
             for fut in futures:
                 fut.cancel()
 
+    def check_dataset(self, path: str) -> None:
+        """Refuse (RunError) when a worker cannot read the dataset at ``path``: workers open it by path,
+        so a cluster needs the dataset on a shared file system or a copy at the same path on every host."""
+        answers = self.client.run(_dataset_readable, str(path))
+        bad = {worker: why for worker, why in answers.items() if why}
+        if bad:
+            worker, why = next(iter(bad.items()))
+            raise RunError(f"--executor dask: {len(bad)} of {len(answers)} worker(s) cannot read the dataset "
+                           f"{path} (e.g. {worker}: {why}); put the dataset on a file system every worker "
+                           "mounts at the same path, or copy it there on each host (docs/scaling.md)")
+
     def close(self) -> None:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
 
 
+def _dataset_readable(path: str) -> str:
+    """Why this process cannot read the dataset's manifest at ``path`` ("" when it can)."""
+    folder = Path(path)
+    for name in ("manifest.parquet", "manifest.csv"):
+        f = folder / name
+        if f.is_file():
+            try:
+                with f.open("rb") as fh:
+                    fh.read(1)
+            except OSError as exc:
+                return f"{f}: {exc.strerror or exc}"
+            return ""
+    return f"no manifest.parquet or manifest.csv in {folder}"
+
+
 def make_executor(kind: str, scheduler: str | None = None, jobs: int = 1):
-    """A LocalExecutor or a connected DaskExecutor (UsageError when the scheduler is unreachable)."""
+    """A LocalExecutor or a connected DaskExecutor (RunError when the scheduler is unreachable)."""
     if kind == "local":
         return LocalExecutor(jobs)
     if kind == "dask":
         return DaskExecutor(scheduler, jobs)
-    raise UsageError(f"--executor {kind!r}: expected local or dask")
+    raise RunError(f"--executor {kind!r}: expected local or dask")
 
 
 class Progress:
@@ -278,7 +305,6 @@ def _worker_main(argv: list[str]) -> int:
     spec_path, result_path = argv
     _watch_parent()
     spec = pickle.loads(Path(spec_path).read_bytes())
-    from scart_bench.benchmark.runner import run_job
 
     Path(spec_path).with_name("started").touch()  # the job's timeout counts from here
     res = run_job(spec)

@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.detectors.base import flight_score
+from scart_bench.errors import ScartBenchError
 
 __all__ = [
     "ATTACK_MODES", "NORMAL_MODE", "ROLES", "Protocol", "ProtocolError", "Splits",
@@ -44,7 +45,7 @@ ATTACK_MODES = ("simulation", "csv")
 ROLES = ("train", "validation", "test_normal", "test_attacked")
 
 
-class ProtocolError(ValueError):
+class ProtocolError(ScartBenchError):
     """The dataset cannot be evaluated under the protocol (missing splits, bad modes)."""
 
 

@@ -43,12 +43,13 @@ from scipy.stats import rankdata
 
 from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol
 from scart_bench.detectors.base import flight_score
+from scart_bench.errors import ScartBenchError
 
 #: Columns of metrics.csv that measure time, not detection quality (they differ between runs).
 TIMING_COLUMNS = ("latency_us_per_row", "fit_s", "score_s")
 
 
-class ScoreError(ValueError):
+class ScoreError(ScartBenchError):
     """Saved or returned scores are unusable: NaN/inf, missing flights, wrong length."""
 
 

@@ -33,10 +33,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.errors import ScartBenchError
+
 STATUSES = ("OK", "ERROR", "TIMEOUT")
 
 
-class RunStoreError(ValueError):
+class RunStoreError(ScartBenchError):
     """A run folder is missing, foreign or incompatible with the requested run."""
 
 

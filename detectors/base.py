@@ -18,10 +18,11 @@ import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator
 
+from scart_bench.errors import ScartBenchError
 from scart_bench.generator.topics import TOPICS, sensor_columns
 
 
-class DetectorError(ValueError):
+class DetectorError(ScartBenchError):
     """A detector was used wrongly: no training flights, not fitted, missing columns."""
 
 
@@ -99,6 +100,13 @@ class Detector(BaseEstimator):
         raise NotImplementedError(f"{self.name} has no thresholding of its own")
 
     # -- for subclasses -----------------------------------------------------------------------
+    def _check_params(self) -> None:
+        """Raise DetectorError naming a parameter whose value is out of range (no data needed).
+
+        Called by the benchmark before a run starts, so a bad ``--param`` is refused up front;
+        subclasses call it at the start of ``_fit`` too.
+        """
+
     def _fit(self, X_list: list[np.ndarray]) -> None:
         raise NotImplementedError
 

@@ -42,16 +42,25 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from deepod.core.base_model import BaseDeepAD
-from deepod.models.tabular import GOAD as _DeepODGOAD
-from deepod.models.tabular import RCA as _DeepODRCA
-from deepod.models.tabular import RDP as _DeepODRDP
-from deepod.models.tabular import DeepSVDD as _DeepODDeepSVDD
-from deepod.models.tabular import NeuTraL as _DeepODNeuTraL
 from numpy.lib.stride_tricks import sliding_window_view
 from torch.utils.data import DataLoader
 
 from scart_bench.detectors.base import Detector, DetectorError
+
+#: How to install DeepOD: its metadata pins torch<1.13.1, so it goes in without its dependencies
+#: (numpy, scipy, scikit-learn, pandas, torch and tqdm come with scart-bench).
+DEEPOD_INSTALL = "pip install --no-deps deepod==0.4.1"
+
+try:
+    from deepod.core.base_model import BaseDeepAD
+    from deepod.models.tabular import GOAD as _DeepODGOAD
+    from deepod.models.tabular import RCA as _DeepODRCA
+    from deepod.models.tabular import RDP as _DeepODRDP
+    from deepod.models.tabular import DeepSVDD as _DeepODDeepSVDD
+    from deepod.models.tabular import NeuTraL as _DeepODNeuTraL
+except ImportError as exc:  # one clear line instead of a traceback, for every DeepOD detector
+    raise DetectorError(f"the DeepOD detectors (deepsvdd, rdp, rca, goad, neutral) need deepod, which is not "
+                        f"installed ({exc}): {DEEPOD_INSTALL}") from exc
 from scart_bench.detectors.statistical import pad_start
 
 #: Floor of a feature's training spread, in units of the channel's standard deviation: keeps

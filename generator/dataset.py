@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.errors import ScartBenchError
+
 FORMATS = ("parquet", "csv")
 VIEWS = ("navigator", "simulator")
 TABLES = ("most_frequent", "all_sensors")
@@ -38,7 +40,7 @@ MANIFEST_COLUMNS = (
 )
 
 
-class DatasetError(ValueError):
+class DatasetError(ScartBenchError):
     """A dataset folder or file is missing, incomplete or malformed."""
 
 

@@ -7,45 +7,16 @@ import os
 import platform
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from scart_bench.generator.attacks import attack_flights, strip_labels
 from scart_bench.generator.dataset import DatasetError, DatasetWriter, check_output_dir
+from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.records import normal_record
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.simulate import FlightConfig, simulate
-
-
-@dataclass(frozen=True)
-class Profile:
-    """How many flights a dataset holds, and which scenario grid attacks them."""
-
-    name: str
-    n_train: int
-    n_validation: int
-    n_test: int
-    scenario_grid: str | None  # file under data/scenarios/, or None for normal flights only
-    batch_size: int = 256
-
-    @property
-    def n_normal(self) -> int:
-        return self.n_train + self.n_validation + self.n_test
-
-
-PROFILES: dict[str, Profile] = {
-    "quick": Profile("quick", 8, 4, 4, "quick.toml"),
-    "standard": Profile("standard", 24, 8, 8, "standard.toml"),
-    "paper": Profile("paper", 60, 20, 20, "paper.toml"),
-}
-
-
-def get_profile(name: str) -> Profile:
-    if name not in PROFILES:
-        raise DatasetError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}")
-    return PROFILES[name]
 
 
 def normal_seeds(seed: int, count: int) -> list[int]:

@@ -50,6 +50,9 @@ class AttackHooks(Protocol):
     def on_physics(self, step: int, t_us: int) -> Disturbances | dict:
         """Physical disturbances for this step (environment attacks, faults), or an empty dict."""
 
+    def on_finish(self, step: int) -> None:
+        """Called once after the last step (``step``): close open attack windows, flush a link."""
+
 
 @dataclass
 class FlightConfig:

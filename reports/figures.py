@@ -37,8 +37,8 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from scart_bench.benchmark.errors import UsageError
 from scart_bench.benchmark.store import RunStore
+from scart_bench.errors import ReportError
 from scart_bench.generator.dataset import Dataset, is_dataset, open_dataset
 from scart_bench.reports.results import RunResults, load_run
 
@@ -149,16 +149,16 @@ def column_of(extent: dict, x: float) -> float:
 # -- one flight -------------------------------------------------------------------------------
 
 def open_flight(flight_dir: str | Path) -> tuple[Dataset, str]:
-    """The dataset and flight id of ``<dataset>/flights/<id>`` (UsageError naming the path otherwise)."""
+    """The dataset and flight id of ``<dataset>/flights/<id>`` (ReportError naming the path otherwise)."""
     path = Path(flight_dir)
     root = path.resolve().parent.parent
     if not path.is_dir() or path.resolve().parent.name != "flights" or not is_dataset(root):
-        raise UsageError(f"{flight_dir}: not a flight folder; expected <dataset>/flights/<id> inside a "
+        raise ReportError(f"{flight_dir}: not a flight folder; expected <dataset>/flights/<id> inside a "
                          "dataset with a manifest")
     ds = open_dataset(root)
     fid = path.resolve().name
     if fid not in set(ds.manifest["flight_id"].astype(str)):
-        raise UsageError(f"{flight_dir}: flight {fid!r} is not in the manifest of {root}")
+        raise ReportError(f"{flight_dir}: flight {fid!r} is not in the manifest of {root}")
     return ds, fid
 
 
@@ -171,7 +171,7 @@ def _table(ds: Dataset, fid: str, view: str) -> pd.DataFrame:
     try:
         return ds.flight(fid, view)
     except (OSError, ValueError) as exc:
-        raise UsageError(f"{ds.flight_dir(fid)}: cannot read the {view} view ({exc})") from exc
+        raise ReportError(f"{ds.flight_dir(fid)}: cannot read the {view} view ({exc})") from exc
 
 
 def _path_xy(ds: Dataset, fid: str, view: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -193,7 +193,7 @@ def _path_xy(ds: Dataset, fid: str, view: str) -> tuple[np.ndarray, np.ndarray, 
         lat0, lon0 = np.nanmean(lat[:1]), np.nanmean(lon[:1])
         r = 6_378_137.0
         return ts, np.radians(lat - lat0) * r, np.radians(lon - lon0) * r * np.cos(np.radians(lat0))
-    raise UsageError(f"{ds.flight_dir(fid)}: no position columns (local_position_ned.x/y or "
+    raise ReportError(f"{ds.flight_dir(fid)}: no position columns (local_position_ned.x/y or "
                      f"global_position_int.lat/lon) in the {view} view")
 
 
@@ -263,10 +263,10 @@ def choose_field(nav: pd.DataFrame, sim: pd.DataFrame, target: object = None, fi
     cols = [c for c in nav.columns if "." in c]
     if field is not None:
         if field not in nav.columns:
-            raise UsageError(f"--field {field!r}: not a column of the flight; expected one of {', '.join(cols)}")
+            raise ReportError(f"--field {field!r}: not a column of the flight; expected one of {', '.join(cols)}")
         return field
     if not cols:
-        raise UsageError("the flight has no sensor column (topic.field) to trace")
+        raise ReportError("the flight has no sensor column (topic.field) to trace")
     cands = [c for c in _target_columns(cols, target) if c in sim.columns] or [c for c in cols if c in sim.columns]
     if len(cands) <= 1:
         return cands[0] if cands else cols[0]
@@ -321,18 +321,18 @@ def score_trace(run: RunResults | str | Path, detector: str, fid: str, out_dir: 
     run = _run(run)
     row = run.metrics[run.metrics["detector"] == detector]
     if row.empty:
-        raise UsageError(f"--detector {detector!r}: not in run {run.path}; expected one of "
+        raise ReportError(f"--detector {detector!r}: not in run {run.path}; expected one of "
                          f"{', '.join(map(str, run.metrics['detector']))}")
     if row["status"].iloc[0] != "OK":
-        raise UsageError(f"--detector {detector!r}: its job in {run.path} did not finish OK "
+        raise ReportError(f"--detector {detector!r}: its job in {run.path} did not finish OK "
                          f"({row['status'].iloc[0]}), so it has no scores")
     try:
         scores = run.store.read_scores(detector)
     except OSError as exc:
-        raise UsageError(f"{run.store.job_dir(detector)}: cannot read scores.npz ({exc})") from exc
+        raise ReportError(f"{run.store.job_dir(detector)}: cannot read scores.npz ({exc})") from exc
     truth = RunStore(run.path).read_truth()
     if fid not in scores or fid not in truth:
-        raise UsageError(f"flight {fid!r} was not scored in run {run.path} (only validation and test flights are)")
+        raise ReportError(f"flight {fid!r} was not scored in run {run.path} (only validation and test flights are)")
     ts, labels = truth[fid]
     s = scores[fid]
     thr = float(row["row_threshold"].iloc[0]) if "row_threshold" in row.columns else float("nan")

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from scart_bench.benchmark.errors import UsageError
 from scart_bench.benchmark.store import atomic_write_text
+from scart_bench.errors import ReportError
 from scart_bench.generator.dataset import is_dataset, open_dataset
 from scart_bench.reports import figures as fg
 from scart_bench.reports import html as html_page
@@ -67,7 +67,7 @@ def _flight_figures(run: RunResults, board: pd.DataFrame, out: Path) -> tuple[li
     try:
         figs.append((f"Score of {det} on {fid} with its row threshold, alarms and the attack window shaded",
                      fg.score_trace(run, det, fid, out)))
-    except UsageError as exc:  # e.g. the job folder was removed: the tables still make a report
+    except ReportError as exc:  # e.g. the job folder was removed: the tables still make a report
         notes.append(f"{run.label}: score figure of {det} skipped: {exc}")
     return figs, notes
 
@@ -92,7 +92,7 @@ def write_report(run_paths: list[str | Path], out: str | Path, figures: bool = T
     """Write leaderboard.md, leaderboard.csv, leaderboard.html and figures/ into ``out``."""
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: exists and is not a folder")
+        raise ReportError(f"--out {out}: exists and is not a folder")
     runs = load_runs(list(run_paths))
     board = leaderboard_of(runs)
     out.mkdir(parents=True, exist_ok=True)

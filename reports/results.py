@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from scart_bench.benchmark.errors import UsageError
 from scart_bench.benchmark.store import RunStore, RunStoreError
+from scart_bench.errors import ReportError
 
 #: Columns of the run tables that hold text, not numbers.
 TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value")
@@ -54,37 +54,37 @@ class RunResults:
         """Another table of the run (``flight_scores.csv``, ``breakdown.csv``, ``flights.csv``)."""
         path = self.path / name
         if not path.is_file():
-            raise UsageError(f"{path}: no such file in the run folder; rerun `scart-bench score {self.path}`")
+            raise ReportError(f"{path}: no such file in the run folder; rerun `scart-bench score {self.path}`")
         if name == "flights.csv":
             return self.store.read_flights()
         return read_table(path)
 
 
 def load_run(path: str | Path, label: str | None = None) -> RunResults:
-    """Read a run folder's config and metrics (UsageError naming the path when it is not a finished run)."""
+    """Read a run folder's config and metrics (ReportError naming the path when it is not a finished run)."""
     path = Path(path)
     if not path.is_dir():
-        raise UsageError(f"{path}: no such run folder")
+        raise ReportError(f"{path}: no such run folder")
     try:
         config = RunStore(path).read_config()
     except RunStoreError as exc:
-        raise UsageError(str(exc)) from exc
+        raise ReportError(str(exc)) from exc
     except ValueError as exc:
-        raise UsageError(f"{path / 'config.json'}: not valid JSON ({exc})") from exc
+        raise ReportError(f"{path / 'config.json'}: not valid JSON ({exc})") from exc
     if not (path / "metrics.csv").is_file():
-        raise UsageError(f"{path}: no metrics.csv; the run has not been scored "
+        raise ReportError(f"{path}: no metrics.csv; the run has not been scored "
                          f"(run `scart-bench score {path}` first)")
     metrics = read_table(path / "metrics.csv")
     for col in ("detector", "status"):
         if col not in metrics.columns:
-            raise UsageError(f"{path / 'metrics.csv'}: missing column {col!r}; not a scart-bench metrics table")
+            raise ReportError(f"{path / 'metrics.csv'}: missing column {col!r}; not a scart-bench metrics table")
     return RunResults(path, label or str(config.get("name") or path.name), config, metrics)
 
 
 def load_runs(paths: list[str | Path]) -> list[RunResults]:
     """Load several runs, giving each a distinct label (``name``, ``name #2``, ...)."""
     if not paths:
-        raise UsageError("expected at least one run folder")
+        raise ReportError("expected at least one run folder")
     runs = [load_run(p) for p in paths]
     seen: dict[str, int] = {}
     for run in runs:

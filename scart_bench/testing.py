@@ -171,7 +171,11 @@ def check_init_only_stores_parameters(s: _Subject) -> None:
     signature = inspect.signature(type(detector).__init__).parameters
     expected = {k: p.default for k, p in signature.items() if k != "self"
                 and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)} | params
-    got = detector.get_params()
+    try:
+        got = detector.get_params()
+    except AttributeError as exc:
+        raise AssertionError(f"{s.label}: get_params() fails ({exc}): store each constructor argument "
+                             "unchanged under its own name") from exc
     assert got == expected, (f"{s.label}: get_params() {got} differs from the constructor arguments "
                              f"{expected}: store each argument unchanged under its own name")
     from sklearn.base import clone

@@ -169,7 +169,7 @@ class _StoresWrongly(Detector):
 
 
 def test_check_detector_names_the_failed_check():
-    with pytest.raises(AssertionError, match=r"'causal_scores'.*first 1 rows"):
+    with pytest.raises(AssertionError, match=r"(?s)'causal_scores'.*first 1 rows"):
         check_detector(_NotCausal)
     with pytest.raises(AssertionError, match=r"'init_only_stores_parameters'"):
         check_detector(_StoresWrongly)

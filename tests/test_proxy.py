@@ -128,8 +128,7 @@ def test_recorded_dataset_scores_in_a_benchmark_run(bench_run):
 
 
 def test_monitor_scores_the_stream_like_the_batch_detector(loopback, live_dataset, bench_run):
-    from scart_bench.benchmark.cli_proxy import build_monitor
-    from scart_bench.generator.mavlink.monitor import StreamMonitor
+    from scart_bench.benchmark.live import StreamMonitor, monitor_from_run
 
     _, proxy, _ = loopback
     (start, _), = proxy.windows()
@@ -137,7 +136,7 @@ def test_monitor_scores_the_stream_like_the_batch_detector(loopback, live_datase
     order = {"setpoint": 1}  # a step's setpoint comes after its telemetry, as on the link
     events = sorted(((t, order.get(topic, 0), k, topic) for topic, (ts, _) in proxy.views.forwarded.items()
                      for k, t in enumerate(ts) if t <= until))
-    monitor = build_monitor(bench_run, "statistical", log=lambda line: None)
+    monitor = monitor_from_run(bench_run, "statistical", log=lambda line: None)
     batch = monitor.detector.score(open_dataset(live_dataset).flight("live-001"))
     lines: list[str] = []
     low = StreamMonitor(monitor.detector, float(batch.min()) - 1.0, "statistical", log=lines.append)  # always alarms

@@ -4,7 +4,6 @@
 - :mod:`scart_bench.generator.mavlink.proxy`: the man-in-the-middle that runs the SCART layer on a live link;
 - :mod:`scart_bench.generator.mavlink.link`: hooks that make the built-in generator speak MAVLink over UDP
   (flight-controller side and mission-computer side as two endpoints);
-- :mod:`scart_bench.generator.mavlink.monitor`: a fitted detector scoring the navigator-side stream online;
 - :mod:`scart_bench.generator.mavlink.recording`: the proxied flight in the dataset layout.
 
 pymavlink is an optional dependency (``pip install scart-bench[mavlink]``); importing these

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scart_bench.errors import ScartBenchError
 from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
 from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
@@ -55,7 +56,7 @@ _MAX_DATAGRAM = 65535
 _DRAIN = 64  # datagrams read from one socket before looking at the other
 
 
-class ProxyError(ValueError):
+class ProxyError(ScartBenchError):
     """The proxy cannot be set up as asked (bad address, unusable scenario, port in use)."""
 
 
@@ -126,14 +127,15 @@ class _Views:
 class MavlinkProxy:
     """A MAVLink proxy that runs ``scenarios`` (one flight's scenario list) on the link.
 
-    ``record``: keep both views for :meth:`record`; ``monitor``: an object with
-    ``on_message(topic, t_us, values, layer)`` fed with every forwarded topic message (see
-    :class:`scart_bench.generator.mavlink.monitor.StreamMonitor`). Use :meth:`open` then :meth:`serve`
+    ``record``: keep both views for :meth:`record`; ``listeners``: objects with
+    ``on_message(topic, t_us, values, layer)``, each fed with every forwarded topic message as the
+    mission computer sees it (e.g. :class:`scart_bench.benchmark.live.StreamMonitor`); a listener that
+    raises is counted and logged, and never changes what is forwarded. Use :meth:`open` then :meth:`serve`
     (blocking until ``stop`` is set) or :meth:`start`/:meth:`stop` for a background thread.
     """
 
     def __init__(self, listen: tuple[str, int], forward: tuple[str, int], scenarios: list[Scenario],
-                 seed: int = 0, record: bool = False, monitor=None, log: Callable[[str], None] | None = None):
+                 seed: int = 0, record: bool = False, listeners: list | tuple = (), log: Callable[[str], None] | None = None):
         for sc in scenarios:
             if sc.injection_point not in LINK_POINTS:
                 raise ProxyError(f"scenario {sc.id!r} ({sc.source}): injection point {sc.injection_point!r} is not on "
@@ -143,11 +145,11 @@ class MavlinkProxy:
         self.scenarios = list(scenarios)
         self.seed = int(seed)
         self.layer = AttackLayer([self.scenarios], [self.seed], rates={t: v.rate_hz for t, v in TOPICS.items()})
-        self.monitor = monitor
+        self.listeners = list(listeners)
         self.recording = bool(record)
         self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
         self.layer_topics = frozenset(t for t in self.layer.listened if t in CODECS)
-        topics = set(CODECS) if (record or monitor is not None) else set(self.layer_topics)
+        topics = set(CODECS) if (record or self.listeners) else set(self.layer_topics)
         self._codecs = {c.msgid: c for c in BY_MSGID.values() if c.topic in topics}
         self._state_ids = STATE_MESSAGES if "setpoint" in topics else frozenset()
         self.stats = ProxyStats()
@@ -330,18 +332,18 @@ class MavlinkProxy:
             if codec.alter(msg, new, values):
                 out = self.packer.repack(msg, version)
                 self.stats.altered += 1
-        if self.recording or self.monitor is not None:
+        if self.recording or self.listeners:
             seen = np.asarray(codec.decode(msg, self.state_out), dtype=np.float64)
             if self.recording:
                 self.views.add("forwarded", topic, t_us, seen)
-            if self.monitor is not None:
+            for listener in self.listeners:
                 try:
-                    self.monitor.on_message(topic, t_us, seen, self.layer)
-                except Exception as exc:  # a failing detector must not change what is forwarded
+                    listener.on_message(topic, t_us, seen, self.layer)
+                except Exception as exc:  # a failing listener must not change what is forwarded
                     self.stats.errors += 1
                     if self._error_logged < 5:
                         self._error_logged += 1
-                        self.log(f"proxy: the detector failed on a row ({type(exc).__name__}: {exc})")
+                        self.log(f"proxy: a listener failed on a message ({type(exc).__name__}: {exc})")
         return out
 
     # -- the recorded flight --------------------------------------------------------------------

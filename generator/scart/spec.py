@@ -8,8 +8,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from scart_bench.errors import ScartBenchError
 
-class ScenarioError(ValueError):
+
+class ScenarioError(ScartBenchError):
     """A scenario or grid file is invalid; the message names the file, the key and what is allowed."""
 
 

@@ -1,4 +1,8 @@
-"""A fitted detector watching the navigator-side stream of a live link.
+"""Live scoring: a fitted detector watching the navigator-side stream of a live link.
+
+:class:`StreamMonitor` is a listener of the MAVLink proxy (``MavlinkProxy(listeners=[...])``);
+:func:`monitor_from_run` fits it again from a finished benchmark run, with the run's parameters and
+row threshold.
 
 The monitor rebuilds, message by message, the rows of the navigator view's ``most_frequent``
 table (one row per message of the base topic, every other topic holding its last value, as
@@ -8,8 +12,7 @@ the detector on its trailing ``history_rows_`` rows (the rows that reproduce the
 detectors are causal) and an alarm is logged when the score exceeds the threshold, with the
 scoring latency and, while an attack window is open, the delay since the attack started.
 
-The detector is duck-typed (``columns_``, ``score(DataFrame)``, optional ``history_rows_``): the
-generator does not import the detector package; ``scart-bench proxy --detector`` builds it.
+The detector is duck-typed (``columns_``, ``score(DataFrame)``, optional ``history_rows_``).
 """
 
 from __future__ import annotations
@@ -19,10 +22,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from scart_bench.errors import RunError
 from scart_bench.generator.topics import TOPICS
 
 #: rows scored when a detector does not say how much history it needs (10 s at 50 Hz)
@@ -120,3 +125,59 @@ class StreamMonitor:
         det = f"first alarm in an attack {first.delay_s:.2f} s after its start" if first else "no alarm during an attack"
         return (f"{self.name}: {len(self.scores)} rows scored, {len(self.alarms)} alarm rows; {det}; scoring "
                 f"p50 {np.percentile(lat, 50):.2f} ms, p99 {np.percentile(lat, 99):.2f} ms")
+
+
+def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = None,
+                     log: Callable[[str], None] | None = None) -> StreamMonitor:
+    """A StreamMonitor for detector ``name`` of benchmark run ``run``: refitted on the run's training
+    flights with the job's saved parameters, row threshold calibrated on its saved validation scores.
+
+    The run folder is read as data: the detector is resolved by name among the built-ins, installed
+    plugins and the ``plugins`` given now (``--plugin``), never from a file the run folder names.
+    """
+    from scart_bench.benchmark.protocol import Protocol
+    from scart_bench.benchmark.store import RunStore
+    from scart_bench.detectors import registry
+    from scart_bench.detectors.base import DetectorError
+    from scart_bench.generator.dataset import open_dataset
+
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    store = RunStore(run)
+    if not store.exists():
+        raise RunError(f"--run {run}: not a benchmark run folder (no config.json)")
+    config = store.read_config()
+    status = store.read_status(name)
+    if not status or status.get("status") != "OK":
+        done = [d for d in store.job_names() if (store.read_status(d) or {}).get("status") == "OK"]
+        raise RunError(f"--detector {name!r}: run {run} has no finished (OK) job for it; "
+                       f"finished: {', '.join(done) or '(none)'}")
+    params = (store.read_params(name) or {}).get("params", {})
+    for spec in plugins or []:
+        registry.load_plugin(spec)
+    if name not in registry.available():
+        raise RunError(f"--detector {name!r}: not a built-in or installed detector; the run folder's record of "
+                       "where it came from is not executed: load it with --plugin module:Class or file.py:Class")
+    flights = store.read_flights()
+    train = flights.loc[flights["role"] == "train", "flight_id"].astype(str).tolist()
+    validation = flights.loc[flights["role"] == "validation", "flight_id"].astype(str).tolist()
+    dataset = config.get("dataset", {}).get("path")
+    if not dataset or not Path(dataset).exists():
+        raise RunError(f"--run {run}: its dataset {dataset!r} is gone; the detector cannot be fitted again")
+    ds = open_dataset(dataset)
+    try:
+        det = registry.make(name, **params)
+    except (TypeError, DetectorError) as exc:
+        raise RunError(f"--run {run}: the saved parameters of {name} do not fit the detector installed now "
+                       f"({exc})") from exc
+    log(f"proxy: fitting {name} on the {len(train)} training flights of run {run} ...")
+    t0 = time.perf_counter()
+    det.fit([ds.flight(fid) for fid in train])
+    scores = store.read_scores(name)
+    missing = [fid for fid in validation if fid not in scores]
+    if missing:
+        raise RunError(f"--run {run}: detector {name} has no saved scores for validation flight {missing[0]}")
+    protocol = Protocol.from_dict(config["protocol"])
+    _, row_threshold = protocol.thresholds({fid: np.asarray(scores[fid]) for fid in validation})
+    log(f"proxy: {name} fitted in {time.perf_counter() - t0:.1f} s; row threshold {row_threshold:.4g} "
+        f"({protocol.row_rule.describe()})")
+    return StreamMonitor(det, row_threshold, name=name, log=log)

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# The package as a user installs it: build the wheel, install it into a fresh venv (torch first, deepod
+# with --no-deps), then from an empty folder run `scart-bench run --detectors all` on the quick default.
+# Also checks that the wheel ships the scenario files and installs no top-level `benchmark` module.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PY:-python3}
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+$PY -m venv "$work/venv"
+bin="$work/venv/bin"
+"$bin/pip" install --quiet --upgrade pip
+"$bin/pip" install --quiet torch==2.13.0
+"$bin/pip" wheel --quiet --no-deps . -w "$work/dist"
+wheel=$(ls "$work"/dist/scart_bench-*.whl)
+"$bin/pip" install --quiet "${wheel}[all]"
+"$bin/pip" install --quiet --no-deps deepod==0.4.1
+mkdir "$work/empty"
+cd "$work/empty"
+if "$bin/python" -c "import benchmark" 2>/dev/null; then
+  echo "wheel check: a top-level 'benchmark' module is importable" >&2; exit 1
+fi
+"$bin/python" - <<'PY'
+from importlib import resources
+names = sorted(p.name for p in resources.files("scart_bench.data").joinpath("scenarios").iterdir())
+assert "paper.toml" in names and "quick.toml" in names and "gps_spoof.toml" in names, names
+print(f"wheel check: {len(names)} scenario files shipped")
+PY
+"$bin/scart-bench" run --detectors all --jobs 2
+test -f runs/quick-seed0/metrics.csv
+echo "wheel check: OK ($wheel)"

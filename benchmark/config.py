@@ -1,0 +1,201 @@
+"""What a benchmark run is asked to do: :class:`RunConfig`, from the command line or a ``--config`` file.
+
+A run file (TOML) holds the whole run; every key is optional and the command line's options win
+over it::
+
+    detectors = ["statistical", "goad"]     # or "all"
+    profile = "quick"                        # or: dataset = "path/to/dataset"
+    out = "runs/my-run"
+    seed = 0
+    jobs = 2
+    timeout = 1800                           # seconds per job
+    executor = "local"                       # or "dask" (with scheduler = "tcp://host:8786")
+    plugins = ["my_detector.py:MyDetector"]
+
+    [params.goad]                            # constructor parameters per detector
+    n_trans = 64
+    epochs = 5
+
+    [protocol.flight_rule]                   # threshold rules (see scart_bench.benchmark.protocol)
+    kind = "max"
+    margin = 0.05
+
+A finished run's ``config.json`` holds the same data under ``"run"``; ``--config RUN/config.json``
+reruns it (the file is read as data: nothing in it is imported or executed).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from scart_bench.benchmark.protocol import Protocol, ProtocolError, ThresholdRule
+from scart_bench.errors import RunError
+from scart_bench.generator.profiles import PROFILES
+
+#: The keys a run file may hold.
+RUN_KEYS = ("detectors", "profile", "dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
+            "plugins", "params", "protocol", "resume")
+
+
+@dataclass
+class RunConfig:
+    """What ``scart-bench run`` was asked to do (the CLI's options, as plain values)."""
+
+    detectors: list[str] = field(default_factory=lambda: ["all"])
+    profile: str = "quick"
+    dataset: Path | None = None
+    out: Path | None = None
+    resume: bool = False
+    executor: str = "local"
+    scheduler: str | None = None
+    jobs: int = 1
+    timeout: float | None = None
+    seed: int = 0
+    plugins: list[str] = field(default_factory=list)
+    params: dict[str, dict] = field(default_factory=dict)
+    protocol: Protocol = field(default_factory=Protocol)
+    data_root: Path = Path("data/datasets")
+    runs_root: Path = Path("runs")
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.profile not in PROFILES:
+            raise RunError(f"--profile {self.profile!r}: expected one of {', '.join(PROFILES)}")
+        if self.executor not in ("local", "dask"):
+            raise RunError(f"--executor {self.executor!r}: expected local or dask")
+        if self.scheduler and self.executor != "dask":
+            raise RunError("--scheduler needs --executor dask")
+        if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
+            raise RunError(f"--jobs {self.jobs!r}: expected a positive number of parallel jobs")
+        if self.timeout is not None:
+            try:
+                t = float(self.timeout)
+            except (TypeError, ValueError):
+                t = float("nan")
+            if not (math.isfinite(t) and t > 0):
+                raise RunError(f"--timeout {self.timeout!r}: expected a positive, finite number of seconds")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
+            raise RunError(f"--seed {self.seed!r}: expected an integer in 0..{2**32 - 1}")
+        if not self.detectors:
+            raise RunError("--detectors: expected 'all' or a comma-separated list of names")
+
+    @property
+    def timeout_s(self) -> float:
+        return float(self.timeout) if self.timeout is not None else PROFILES[self.profile].job_timeout_s
+
+    @property
+    def out_path(self) -> Path:
+        return Path(self.out) if self.out is not None else self.runs_root / f"{self.profile}-seed{self.seed}"
+
+    def to_dict(self) -> dict:
+        """The run as plain data, in the run file's schema (what ``--config`` reads back)."""
+        out: dict = {"detectors": list(self.detectors), "profile": self.profile, "seed": int(self.seed),
+                     "jobs": int(self.jobs), "executor": self.executor, "timeout": self.timeout_s,
+                     "plugins": list(self.plugins), "params": {k: dict(v) for k, v in self.params.items()},
+                     "protocol": self.protocol.rules()}
+        if self.dataset is not None:
+            out["dataset"] = str(self.dataset)
+        if self.scheduler:
+            out["scheduler"] = self.scheduler
+        return out
+
+
+def read_run_file(path: str | Path) -> dict:
+    """The run settings in a run file (TOML) or a run folder's ``config.json`` (its ``"run"`` entry)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "config.json"
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RunError(f"--config {p}: cannot read it ({exc.strerror or exc})") from exc
+    if p.suffix == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise RunError(f"--config {p}: not valid JSON ({exc})") from exc
+        if not isinstance(data, dict) or not isinstance(data.get("run"), dict):
+            raise RunError(f"--config {p}: a run folder's config.json with a \"run\" entry was expected")
+        data = data["run"]
+    else:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise RunError(f"--config {p}: not valid TOML ({exc})") from exc
+    unknown = [k for k in data if k not in RUN_KEYS]
+    if unknown:
+        raise RunError(f"--config {p}: unknown key(s) {', '.join(map(repr, unknown))}; expected: "
+                       f"{', '.join(RUN_KEYS)}")
+    return _checked(p, data)
+
+
+def _checked(p: Path, data: dict) -> dict:
+    """Types of a run file's values, named by key when wrong."""
+    def bad(key: str, expected: str) -> RunError:
+        return RunError(f"--config {p}: {key} = {data[key]!r}: expected {expected}")
+
+    out = dict(data)
+    if "detectors" in data:
+        d = data["detectors"]
+        if isinstance(d, str):
+            out["detectors"] = [d]
+        elif isinstance(d, list) and all(isinstance(x, str) for x in d) and d:
+            out["detectors"] = list(d)
+        else:
+            raise bad("detectors", '"all" or a list of detector names')
+    for key in ("profile", "executor", "scheduler", "dataset", "out"):
+        if key in data and not isinstance(data[key], str):
+            raise bad(key, "a string")
+    for key in ("dataset", "out"):
+        if key in data:
+            out[key] = Path(data[key])
+    for key in ("seed", "jobs"):
+        if key in data and (isinstance(data[key], bool) or not isinstance(data[key], int)):
+            raise bad(key, "an integer")
+    if "timeout" in data and (isinstance(data["timeout"], bool) or not isinstance(data["timeout"], int | float)):
+        raise bad("timeout", "a number of seconds")
+    if "resume" in data and not isinstance(data["resume"], bool):
+        raise bad("resume", "true or false")
+    if "plugins" in data and not (isinstance(data["plugins"], list)
+                                  and all(isinstance(x, str) for x in data["plugins"])):
+        raise bad("plugins", "a list of module:Class or file.py:Class strings")
+    if "params" in data:
+        params = data["params"]
+        if not isinstance(params, dict) or not all(isinstance(v, dict) for v in params.values()):
+            raise bad("params", "tables [params.DETECTOR] of parameter = value")
+    if "protocol" in data:
+        out["protocol"] = protocol_from(p, data["protocol"])
+    return out
+
+
+def protocol_from(p: Path, data: object) -> Protocol:
+    """A Protocol from a run file's ``[protocol]`` table (missing rules keep their defaults)."""
+    if not isinstance(data, dict):
+        raise RunError(f"--config {p}: protocol: expected a table with flight_rule and/or row_rule")
+    unknown = [k for k in data if k not in ("flight_rule", "row_rule")]
+    if unknown:
+        raise RunError(f"--config {p}: protocol: unknown key(s) {unknown}; expected flight_rule, row_rule")
+    rules = {}
+    for key in ("flight_rule", "row_rule"):
+        value = data.get(key, {})
+        if not isinstance(value, dict):
+            raise RunError(f"--config {p}: protocol.{key}: expected a table (kind, margin, q)")
+        try:
+            rules[key] = ThresholdRule(**value)
+        except TypeError as exc:
+            raise RunError(f"--config {p}: protocol.{key}: {exc}; expected keys kind, margin, q") from exc
+        except ProtocolError as exc:
+            raise RunError(f"--config {p}: protocol.{key}: {exc}") from exc
+    return Protocol(rules["flight_rule"], rules["row_rule"])
+
+
+def merge_params(base: dict[str, dict], extra: dict[str, dict]) -> dict[str, dict]:
+    """Per-detector parameters of ``base`` updated by ``extra`` (the command line's ``--param``)."""
+    out = {k: dict(v) for k, v in base.items()}
+    for name, values in extra.items():
+        out.setdefault(name, {}).update(values)
+    return out

@@ -1,0 +1,113 @@
+"""One benchmark job: a detector fitted on the train normal flights, scoring every validation and test
+flight. A job runs in a worker process of its own (:mod:`scart_bench.benchmark.executors`) and takes
+and returns plain, picklable data."""
+
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """Everything a worker process needs to run one job (picklable, plain data)."""
+
+    detector: str
+    source: str
+    overrides: dict
+    plugins: tuple[str, ...]
+    dataset: str
+    train: tuple[str, ...]
+    scored: tuple[str, ...]
+    threads: int = 1
+
+@dataclass
+class JobResult:
+    """What a job returns: status, timings, per-row scores (OK only) and the worker's log."""
+
+    status: str
+    message: str = ""
+    fit_seconds: float = float("nan")
+    score_seconds: float = float("nan")
+    rows_scored: int = 0
+    scores: dict[str, np.ndarray] | None = None
+    max_rss_mb: float = float("nan")
+    wall_seconds: float = float("nan")
+    log: str = ""
+
+
+def _load_class(spec: JobSpec) -> type:
+    from scart_bench.detectors import registry
+
+    loaded = {}
+    for p in spec.plugins:
+        info = registry.load_plugin(p)
+        loaded[info.name] = info.cls
+    if spec.detector in loaded:
+        return loaded[spec.detector]
+    return registry.load_plugin(spec.source).cls
+
+
+def _max_rss_mb() -> float:
+    """Peak resident memory of this process (MiB).
+
+    Linux's VmHWM starts afresh when a job process execs; ``ru_maxrss`` is kept across fork and
+    exec, so a job launched by a big process would report the launcher's peak.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    except ImportError:  # pragma: no cover - not on POSIX
+        return float("nan")
+
+
+def run_job(spec: JobSpec) -> JobResult:
+    """Fit one detector on the train flights and score every validation/test flight.
+
+    Never raises for a detector failure: an exception becomes ERROR with its message (the
+    traceback goes to the log), a NaN/inf score or a wrong number of scores becomes ERROR.
+    """
+    from scart_bench.generator.dataset import open_dataset
+
+    fit_s = score_s = float("nan")
+    try:
+        det = _load_class(spec)(**spec.overrides)
+        ds = open_dataset(spec.dataset)
+        train = [ds.flight(fid) for fid in spec.train]
+        t0 = time.perf_counter()
+        det.fit(train)
+        fit_s = time.perf_counter() - t0
+        del train
+        scores: dict[str, np.ndarray] = {}
+        score_s, rows = 0.0, 0
+        for fid in spec.scored:
+            flight = ds.flight(fid)
+            t0 = time.perf_counter()
+            s = det.score(flight)
+            score_s += time.perf_counter() - t0
+            s = np.asarray(s, dtype=np.float64).reshape(-1)
+            if s.shape[0] != len(flight):
+                return JobResult("ERROR", f"returned {s.shape[0]} scores for the {len(flight)} rows of flight {fid}",
+                                 fit_s, score_s, rows, max_rss_mb=_max_rss_mb())
+            bad = np.flatnonzero(~np.isfinite(s))
+            if bad.size:
+                return JobResult("ERROR", f"returned {bad.size} NaN/inf score(s) on flight {fid} "
+                                 f"(first at row {bad[0]})", fit_s, score_s, rows, max_rss_mb=_max_rss_mb())
+            scores[fid] = s
+            rows += s.shape[0]
+        return JobResult("OK", "", fit_s, score_s, rows, scores, max_rss_mb=_max_rss_mb())
+    except Exception as exc:  # a detector failure is a status row, never a crash of the run
+        traceback.print_exc()
+        return JobResult("ERROR", f"{type(exc).__name__}: {exc}".strip(), fit_s, score_s,
+                         max_rss_mb=_max_rss_mb())

@@ -1,0 +1,139 @@
+"""A run's results from its saved files: results.csv (one row per job), the metrics, the breakdown and
+the Markdown tables. Nothing here runs a detector, so a run can be re-scored at any time."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from scart_bench.benchmark.protocol import Protocol
+from scart_bench.benchmark.scoring import (
+    DEFAULT_METRICS,
+    EXTRA_COLUMNS,
+    PAPER_COLUMNS,
+    ScoreError,
+    breakdown,
+    build_evaluation,
+    compute_metrics,
+    markdown_table,
+)
+from scart_bench.benchmark.store import RunStore
+
+_RESULT_COLUMNS = ("detector", "status", "message", "fit_s", "score_s", "rows", "latency_us_per_row",
+                   "n_train_flights", "n_scored_flights", "max_rss_mb", "wall_s", "source", "finished")
+
+
+def _job_order(store: RunStore, config: dict) -> list[str]:
+    return list(dict.fromkeys([*config.get("detectors", []), *store.job_names()]))
+
+
+def _result_row(store: RunStore, config: dict, name: str) -> dict:
+    st = store.read_status(name) or {}
+    rows = st.get("rows_scored") or 0
+    score_s = st.get("score_seconds", float("nan"))
+    score_s = float("nan") if score_s is None else float(score_s)
+    return {
+        "detector": name,
+        "status": st.get("status", "UNFINISHED"),
+        "message": st.get("message", "" if st else "the job did not finish; rerun with --resume"),
+        "fit_s": st.get("fit_seconds"),
+        "score_s": score_s,
+        "rows": rows,
+        "latency_us_per_row": score_s / rows * 1e6 if rows else float("nan"),
+        "n_train_flights": st.get("n_train_flights"),
+        "n_scored_flights": st.get("n_scored_flights"),
+        "max_rss_mb": st.get("max_rss_mb"),
+        "wall_s": st.get("wall_seconds"),
+        "source": config.get("jobs", {}).get(name, {}).get("source"),
+        "finished": st.get("finished"),
+    }
+
+
+def write_results(store: RunStore) -> pd.DataFrame:
+    """results.csv: one row per job of the run (UNFINISHED for a job without status)."""
+    config = store.read_config()
+    df = pd.DataFrame([_result_row(store, config, n) for n in _job_order(store, config)],
+                      columns=list(_RESULT_COLUMNS))
+    store.write_table("results.csv", df)
+    return df
+
+
+def score_run(path: str | Path, write: bool = True) -> pd.DataFrame:
+    """Recompute every metric of a run from its saved scores (no detector runs).
+
+    Writes results.csv, metrics.csv, metrics.md, breakdown.csv and flight_scores.csv (when
+    ``write``) and returns the metrics table, one row per detector.
+    """
+    store = RunStore(path)
+    config = store.read_config()
+    protocol = Protocol.from_dict(config["identity"]["protocol"])
+    flights = store.read_flights()
+    truth = store.read_truth()
+    results = write_results(store) if write else pd.DataFrame(
+        [_result_row(store, config, n) for n in _job_order(store, config)], columns=list(_RESULT_COLUMNS))
+    metric_rows, breakdowns, flight_scores = [], [], []
+    for _, res in results.iterrows():
+        row = {"detector": res["detector"], "status": res["status"], "message": res["message"]}
+        if res["status"] == "OK":
+            try:
+                scores = store.read_scores(res["detector"])
+                ev = build_evaluation(res["detector"], flights, truth, scores, protocol,
+                                      fit_seconds=res["fit_s"], score_seconds=res["score_s"],
+                                      rows_scored=int(res["rows"]))
+            except (ScoreError, OSError, ValueError) as exc:
+                row.update(status="ERROR", message=f"saved scores unusable: {exc}")
+            else:
+                row.update(compute_metrics(ev))
+                breakdowns.append(breakdown(ev))
+                fs = ev.flights[["flight_id", "role", "mode", "score", "flagged"]].copy()
+                fs.insert(0, "detector", res["detector"])
+                flight_scores.append(fs)
+        row.update(fit_s=res["fit_s"], score_s=res["score_s"], rows=res["rows"])
+        metric_rows.append(row)
+    columns = ["detector", "status", "message", *(c for m in DEFAULT_METRICS for c in m.columns),
+               "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
+    metrics = pd.DataFrame(metric_rows, columns=columns)
+    if write:
+        store.write_table("metrics.csv", metrics)
+        store.write_text("metrics.md", metrics_markdown(config, metrics))
+        bd = pd.concat(breakdowns, ignore_index=True) if breakdowns else breakdown_columns()
+        store.write_table("breakdown.csv", bd)
+        fs = pd.concat(flight_scores, ignore_index=True) if flight_scores else pd.DataFrame(
+            columns=["detector", "flight_id", "role", "mode", "score", "flagged"])
+        store.write_table("flight_scores.csv", fs)
+    return metrics
+
+
+def breakdown_columns() -> pd.DataFrame:
+    return pd.DataFrame(columns=["detector", "dimension", "value", "mode", "n", "detected", "tp_rate"])
+
+
+def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
+    """metrics.md: the paper's table, the extra metrics, failures and the protocol used."""
+    ds = config.get("dataset", {})
+    proto = config.get("protocol", {})
+    lines = [f"# Run {config.get('name', '')}", "",
+             f"Dataset `{ds.get('path')}` (fingerprint {str(ds.get('fingerprint', ''))[:12]}), "
+             f"flights per role: {json.dumps(ds.get('flights', {}))}; seed {config.get('seed')}.", "",
+             "## The paper's table", "", markdown_table(metrics, PAPER_COLUMNS), "",
+             "## Further metrics", "", markdown_table(metrics, EXTRA_COLUMNS, status=False), ""]
+    failed = metrics[metrics["status"] != "OK"] if "status" in metrics else metrics.iloc[:0]
+    if len(failed):
+        lines += ["## Failed jobs", ""]
+        lines += [f"- **{r['detector']}**: {r['status']}: {r['message']}" for _, r in failed.iterrows()]
+        lines.append("")
+    lines += ["## Protocol", "",
+              f"- flight score: {proto.get('flight_score')}",
+              f"- flight threshold: {proto.get('flight_threshold')}",
+              f"- row threshold: {proto.get('row_threshold')}",
+              f"- decision: {proto.get('decision')}",
+              "- TP rate: attacked test flights of the mode that are flagged; TN rate: held-out normal "
+              "test flights not flagged; delay: first row alarm inside the attack window.", ""]
+    return "\n".join(lines)
+
+
+def paper_table(metrics: pd.DataFrame) -> str:
+    """The paper's table as printed at the end of a run."""
+    return markdown_table(metrics, PAPER_COLUMNS)

@@ -1,0 +1,43 @@
+"""Dataset profiles: the one table of flight counts, attack grid and job time limit per profile.
+
+Kept free of heavy imports so that the command line can list the profiles without loading the
+generator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Profile:
+    """How many flights a dataset holds, which scenario grid attacks them, and how long a benchmark
+    job on it may take by default."""
+
+    name: str
+    n_train: int
+    n_validation: int
+    n_test: int
+    scenario_grid: str | None  # file under data/scenarios/, or None for normal flights only
+    job_timeout_s: float = 1800.0
+    batch_size: int = 256
+
+    @property
+    def n_normal(self) -> int:
+        return self.n_train + self.n_validation + self.n_test
+
+
+PROFILES: dict[str, Profile] = {
+    "quick": Profile("quick", 8, 4, 4, "quick.toml", job_timeout_s=1800.0),
+    "standard": Profile("standard", 24, 8, 8, "standard.toml", job_timeout_s=7200.0),
+    "paper": Profile("paper", 60, 20, 20, "paper.toml", job_timeout_s=6 * 3600.0),
+}
+
+
+def get_profile(name: str) -> Profile:
+    """The profile called ``name`` (ValueError listing the known ones otherwise)."""
+    if name not in PROFILES:
+        from scart_bench.errors import ScartBenchError
+
+        raise ScartBenchError(f"unknown profile {name!r}; expected one of {', '.join(PROFILES)}")
+    return PROFILES[name]
