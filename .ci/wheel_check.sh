@@ -11,7 +11,9 @@ $PY -m venv "$work/venv"
 bin="$work/venv/bin"
 "$bin/pip" install --quiet --upgrade pip
 "$bin/pip" install --quiet torch==2.13.0
+rm -rf build  # a stale build/lib would ship modules that no longer exist
 "$bin/pip" wheel --quiet --no-deps . -w "$work/dist"
+rm -rf build
 wheel=$(ls "$work"/dist/scart_bench-*.whl)
 "$bin/pip" install --quiet "${wheel}[all]"
 "$bin/pip" install --quiet --no-deps deepod==0.4.1

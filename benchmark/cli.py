@@ -40,8 +40,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ScartBenchError, ValueError, FileNotFoundError, PermissionError) as exc:
+    except (ScartBenchError, ValueError) as exc:
         print(f"scart-bench {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # no space, read-only, permission, missing file: one line naming the path
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"scart-bench {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"scart-bench {args.command}: interrupted", file=sys.stderr)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import threading
@@ -18,6 +19,7 @@ import time
 from pathlib import Path
 
 from scart_bench.benchmark.errors import UsageError
+from scart_bench.names import check_id
 
 
 def _log(msg: str) -> None:
@@ -45,8 +47,10 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         raise UsageError(f"--scenario {args.scenario}: no such file")
     if (args.detector is None) != (args.run is None):
         raise UsageError("--detector and --run go together: the detector is the one fitted in that benchmark run")
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise UsageError(f"--duration {args.duration}: expected a positive, finite number of seconds")
+    if args.flight_id is not None:
+        check_id(args.flight_id, "--flight-id")
     record = Path(args.record) if args.record else None
     if record is not None and record.exists():
         if not record.is_dir():

@@ -65,10 +65,27 @@ def prepare_dataset(cfg: RunConfig) -> Path:
     return Path(generate_dataset(cfg.profile, path, cfg.seed))
 
 
-def dataset_fingerprint(manifest: pd.DataFrame) -> str:
-    """sha256 of the manifest's CSV text: same manifest, same fingerprint."""
-    text = manifest[sorted(manifest.columns)].to_csv(index=False)
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+def dataset_fingerprint(manifest: pd.DataFrame, root: str | Path | None = None) -> str:
+    """sha256 of the manifest's CSV text and, with ``root``, of the flight tables under
+    ``root/flights``: same manifest and tables, same fingerprint.
+
+    A table counts by its path, size and last 4 KiB (a Parquet file's footer holds its schema and
+    column statistics, a CSV's end its last rows): reading every byte of a large dataset would cost
+    minutes, and a copy of the dataset keeps its fingerprint (no timestamps are used).
+    """
+    h = hashlib.sha256(manifest[sorted(manifest.columns)].to_csv(index=False).encode("utf-8"))
+    if root is not None:
+        flights = Path(root) / "flights"
+        for f in sorted(flights.rglob("*")) if flights.is_dir() else []:
+            if not f.is_file():
+                continue
+            size = f.stat().st_size
+            with f.open("rb") as fh:
+                fh.seek(max(0, size - 4096))
+                tail = fh.read()
+            h.update(f"\0{f.relative_to(flights).as_posix()}\0{size}\0".encode())
+            h.update(tail)
+    return h.hexdigest()
 
 
 def package_versions() -> dict[str, str | None]:
@@ -189,11 +206,11 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
 
     store = RunStore(cfg.out_path)
     old = _previous_config(store, cfg.seed)
-    plugins = load_plugins(cfg.plugins)
+    plugins = load_plugins(cfg.plugins, probe_timeout_s=cfg.timeout_s)
     chosen = with_params(resolve_detectors(cfg.detectors, plugins), cfg.params)
     ds = open_dataset(prepare_dataset(cfg))
     splits = Splits.from_manifest(ds.manifest)
-    identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest),
+    identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest, ds.path),
                 "seed": int(cfg.seed), "protocol": cfg.protocol.rules()}
     _check_identity(store, old, identity)
     settings = {c.name: {"source": c.source, "class": f"{c.cls.__module__}:{c.cls.__qualname__}",
@@ -207,6 +224,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         raise
     try:  # from here on the run folder is written
         store.path.mkdir(parents=True, exist_ok=True)
+        lock = store.lock()  # a second writer to this folder is refused here, before it writes anything
+        store.mark_stale()  # old tables must not read as this run's results if it is interrupted
         store.write_config(_run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings))
         store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
             ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])
@@ -237,4 +256,6 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
             write_results(store)
     finally:
         executor.close()
+        if "lock" in locals():
+            lock.release()
     return RunOutcome(store.path, score_run(store.path), [s.detector for s in specs], skipped)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from scart_bench.benchmark.store import json_safe
 from scart_bench.errors import RunError
+from scart_bench.names import check_id
 
 
 @dataclass(frozen=True)
@@ -45,13 +46,21 @@ def _absolute_plugin(spec: str) -> str:
     return spec
 
 
-def load_plugins(specs: list[str]) -> dict[str, DetectorChoice]:
-    """Load ``--plugin`` specs (file paths made absolute so workers anywhere can load them)."""
+def load_plugins(specs: list[str], probe_timeout_s: float | None = None) -> dict[str, DetectorChoice]:
+    """Load ``--plugin`` specs (file paths made absolute so workers anywhere can load them).
+
+    With ``probe_timeout_s``, each spec is first imported and constructed in a child process with that
+    time limit (:mod:`scart_bench.benchmark.probe`), so a plugin that hangs or crashes there is refused
+    instead of hanging or killing this process.
+    """
+    from scart_bench.benchmark.probe import probe_plugin
     from scart_bench.detectors import registry
 
     out = {}
     for spec in specs:
         absolute = _absolute_plugin(spec)
+        if probe_timeout_s is not None:
+            probe_plugin(absolute, probe_timeout_s)
         info = registry.load_plugin(absolute)
         out[info.name] = DetectorChoice(info.name, info.cls, absolute)
     return out
@@ -83,7 +92,10 @@ def resolve_detectors(names: list[str], plugins: dict[str, DetectorChoice]) -> l
         return DetectorChoice(info.name, info.cls, f"{info.cls.__module__}:{info.cls.__qualname__}")
 
     if names == ["all"]:
-        return [choice(info) for info in registry.available().values()]
+        chosen = [choice(info) for info in registry.available().values()]
+        for c in chosen:
+            check_id(c.name, f"detector name (from {c.source})")
+        return chosen
     if "all" in names:
         raise RunError("--detectors: 'all' cannot be combined with names")
     chosen = []
@@ -104,8 +116,7 @@ def resolve_detectors(names: list[str], plugins: dict[str, DetectorChoice]) -> l
                                  "(or load one with --plugin module:Class)")
             chosen.append(choice(known[name]))
     for c in chosen:
-        if not c.name or "/" in c.name or "\\" in c.name or c.name.startswith("."):
-            raise RunError(f"detector name {c.name!r} cannot name a job folder")
+        check_id(c.name, f"detector name (from {c.source})")
     return chosen
 
 

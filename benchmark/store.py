@@ -34,8 +34,11 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.names import check_id, inside
 
 STATUSES = ("OK", "ERROR", "TIMEOUT")
+#: Run-level tables made from the jobs' saved scores (removed when a new invocation starts).
+SUMMARY_FILES = ("results.csv", "metrics.csv", "metrics.md", "breakdown.csv", "flight_scores.csv")
 
 
 class RunStoreError(ScartBenchError):
@@ -116,6 +119,39 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+class RunLock:
+    """An exclusive lock on a run folder (``fcntl.flock`` on ``<run>/.lock``): the kernel releases it when
+    the process ends, however it ends, so a killed run leaves no stale lock behind."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._fh = None
+
+    def acquire(self) -> RunLock:
+        import fcntl
+
+        fh = open(self.path, "a+")  # noqa: SIM115 - held until release()
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "another process"
+            fh.close()
+            raise RunStoreError(f"{self.path.parent}: another scart-bench run is writing to this folder "
+                                f"({holder}); wait for it to finish or choose another --out") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"pid {os.getpid()}\n")
+        fh.flush()
+        self._fh = fh
+        return self
+
+    def release(self) -> None:
+        if self._fh is not None:
+            self._fh.close()  # closing the file releases the flock
+            self._fh = None
+
+
 class RunStore:
     """Paths and reads/writes of one run folder."""
 
@@ -128,7 +164,7 @@ class RunStore:
         return self.path / "config.json"
 
     def job_dir(self, detector: str) -> Path:
-        return self.path / "jobs" / detector
+        return inside(self.path / "jobs", check_id(detector, "detector name"))
 
     def exists(self) -> bool:
         return self.config_path.exists()
@@ -139,6 +175,16 @@ class RunStore:
             raise RunStoreError(f"{self.path}: not a scart-bench run folder (no config.json)")
         return json.loads(self.config_path.read_text())
 
+    def lock(self) -> RunLock:
+        """Hold the run folder for this process (RunStoreError when another process holds it)."""
+        return RunLock(self.path / ".lock").acquire()
+
+    def mark_stale(self) -> None:
+        """Remove the run-level result tables before jobs start; they are written again at the end, so an
+        interrupted run leaves no metrics that look like its own (``scart-bench score RUN`` remakes them)."""
+        for name in SUMMARY_FILES:
+            (self.path / name).unlink(missing_ok=True)
+
     def write_config(self, config: dict) -> None:
         atomic_write_json(self.config_path, config)
 
@@ -148,7 +194,7 @@ class RunStore:
             return
         if not self.path.is_dir():
             raise RunStoreError(f"{self.path}: exists and is not a folder; expected a run folder")
-        if any(self.path.iterdir()) and not self.exists():
+        if any(p.name != ".lock" for p in self.path.iterdir()) and not self.exists():
             raise RunStoreError(f"{self.path}: exists, is not empty and has no config.json; "
                                 "expected a scart-bench run folder or a new path for --out")
 

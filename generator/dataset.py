@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.names import check_id, inside
 
 FORMATS = ("parquet", "csv")
 VIEWS = ("navigator", "simulator")
@@ -271,7 +272,7 @@ class DatasetWriter:
 
 def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
     """Write one flight's raw, sensors and combined folders; returns its manifest row."""
-    root = out / "flights" / record.flight_id
+    root = inside(out / "flights", check_id(record.flight_id, "flight id"))
     for sub in ("raw", "sensors/navigator", "sensors/simulator", "combined"):
         (root / sub).mkdir(parents=True, exist_ok=True)
     (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
@@ -330,7 +331,7 @@ class Dataset:
         return len(self.manifest)
 
     def flight_dir(self, flight_id: str) -> Path:
-        return self.path / "flights" / flight_id
+        return inside(self.path / "flights", check_id(flight_id, f"{self.path}: flight id"))
 
     def flight(self, flight_id: str, view: str = "navigator", table: str = "most_frequent",
                columns: list[str] | None = None) -> pd.DataFrame:

@@ -228,6 +228,45 @@ def test_unknown_messages_pass_byte_identical_both_ways(proxy_pair):
     assert proxy.stats.unknown == 4 and proxy.stats.malformed == 0
 
 
+def test_a_second_sender_cannot_take_the_link_over(proxy_pair):
+    proxy, ap, mc = proxy_pair
+    packer = Packer()
+    heartbeat = packer.pack(KNOWN[0](2, 12, 0, 0, 4, 3), 1, 1, 7)
+    ap.sendto(heartbeat, proxy.listen_address)
+    _, back = mc.recvfrom(65535)
+    intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    intruder.bind(LOCAL)
+    intruder.settimeout(0.5)
+    try:
+        forged = packer.pack(KNOWN[0](6, 8, 0, 0, 0, 3), 1, 1, 99)
+        for _ in range(5):
+            intruder.sendto(forged, proxy.listen_address)
+        arm = packer.pack(KNOWN[76](1, 1, 400, 0, 1.0, 0, 0, 0, 0, 0, 0), 1, 191, 4)
+        mc.sendto(arm, back)  # the mission computer's command still reaches the first peer
+        data, _ = ap.recvfrom(65535)
+        assert data == arm
+        with pytest.raises(TimeoutError):
+            intruder.recvfrom(65535)
+        ap.sendto(heartbeat, proxy.listen_address)  # and the intruder's datagrams never reached the mission computer
+        assert mc.recvfrom(65535)[0] == heartbeat
+    finally:
+        intruder.close()
+    assert proxy.stats.foreign == 5 and proxy.autopilot == ap.getsockname()
+
+
+def test_a_far_future_timestamp_does_not_break_the_clock(proxy_pair):
+    proxy, ap, mc = proxy_pair
+    packer = Packer()
+    gpi = CODECS["global_position_int"]  # a topic the scenario listens to: its time drives the layer
+    values = np.array([47.3977, 8.5456, 498.0, 10.0, 1.0, 2.0, -0.5, 1.0])
+    times_ms = [1_000, 1_020, 1_040, 4_000_000, 1_060, 1_080]
+    for k, t in enumerate(times_ms):
+        ap.sendto(packer.pack(gpi.new_message(values, t * 1000), 1, 1, k), proxy.listen_address)
+        mc.recvfrom(65535)
+    assert proxy.stats.clock_jumps == 1
+    assert proxy.clock_us == 80_000  # the stream's time goes on from where it was
+
+
 # --- 3. malformed datagrams ------------------------------------------------------------------------
 def test_split_frames_counts_each_malformed_piece():
     packer = Packer()

@@ -54,6 +54,9 @@ from scart_bench.generator.topics import TOPICS
 LINK_POINTS = ("link", "command")
 _MAX_DATAGRAM = 65535
 _DRAIN = 64  # datagrams read from one socket before looking at the other
+#: How far (µs) a message timestamp may run ahead of the wall time elapsed since the last accepted one
+#: (twice the wall time, plus this): enough for bursts and a stalled proxy, not for a far-future stamp.
+MAX_CLOCK_LEAD_US = 5_000_000
 
 
 class ProxyError(ScartBenchError):
@@ -88,6 +91,8 @@ class ProxyStats:
     telemetry: int = 0
     commands: int = 0
     no_autopilot: int = 0  # command datagrams before the autopilot was heard from (dropped)
+    foreign: int = 0  # datagrams from a second sender to the listen port (dropped: the first peer is kept)
+    clock_jumps: int = 0  # message timestamps that leapt ahead of the wall clock (not taken as the time)
     errors: int = 0  # datagrams passed unchanged because handling them raised
     handle_ns: array = field(default_factory=lambda: array("q"))
 
@@ -100,7 +105,8 @@ class ProxyStats:
     def summary(self) -> str:
         return (f"{self.datagrams} datagrams, {self.frames} frames: {self.forwarded} forwarded "
                 f"({self.altered} altered), {self.dropped} dropped by the scenario, {self.malformed} malformed "
-                f"dropped, {self.unknown} of unknown message ids passed, {self.errors} errors; handling p50 "
+                f"dropped, {self.unknown} of unknown message ids passed, {self.errors} errors, {self.foreign} "
+                f"from a second sender dropped, {self.clock_jumps} timestamp leaps ignored; handling p50 "
                 f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms")
 
     def to_dict(self) -> dict:
@@ -161,6 +167,7 @@ class MavlinkProxy:
         self.mission_computer: tuple[str, int] = forward
         self.first_time_us: int | None = None
         self.clock_us = 0
+        self._clock_wall = time.monotonic()
         self.started_wall = time.time()
         self._up: socket.socket | None = None
         self._down: socket.socket | None = None
@@ -238,7 +245,16 @@ class MavlinkProxy:
             t0 = time.perf_counter_ns()
             self.stats.datagrams += 1
             if from_autopilot:
-                self.autopilot = addr
+                if self.autopilot is None:
+                    self.autopilot = addr
+                    self.log(f"proxy: autopilot at udp:{addr[0]}:{addr[1]} (the first sender; others are dropped)")
+                elif addr != self.autopilot:  # a second sender must not take over the link
+                    self.stats.foreign += 1
+                    if self.stats.foreign == 1:
+                        self.log(f"proxy: dropping datagrams from udp:{addr[0]}:{addr[1]}: the autopilot is "
+                                 f"udp:{self.autopilot[0]}:{self.autopilot[1]}")
+                    self.stats.handle_ns.append(time.perf_counter_ns() - t0)
+                    continue
                 out = self._guarded(data, True)
                 if out:
                     self._send(self._down, out, self.mission_computer)
@@ -305,10 +321,22 @@ class MavlinkProxy:
         return b"".join(parts)
 
     def _tick(self, t_msg: int | None) -> int:
+        """The layer's clock: the autopilot's message time, never decreasing, and never leaping ahead of
+        the wall clock by more than ``MAX_CLOCK_LEAD_US`` (a garbage or far-future timestamp is counted
+        in ``stats.clock_jumps`` and ignored, so it cannot open a window that never ends)."""
+        now = time.monotonic()
         if t_msg is not None:
             if self.first_time_us is None:
                 self.first_time_us = t_msg
-            self.clock_us = max(self.clock_us, t_msg - self.first_time_us)
+                self._clock_wall = now
+            t_rel = t_msg - self.first_time_us
+            if t_rel > self.clock_us:
+                bound = self.clock_us + MAX_CLOCK_LEAD_US + 2e6 * (now - self._clock_wall)
+                if t_rel > bound:
+                    self.stats.clock_jumps += 1
+                    return self.clock_us
+                self.clock_us = t_rel
+                self._clock_wall = now
         return self.clock_us
 
     def _topic_frame(self, codec, raw: bytes, version: int, signed: bool) -> bytes | None:

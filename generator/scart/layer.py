@@ -16,7 +16,6 @@ work, but they change nothing and their windows are not labelled.
 
 from __future__ import annotations
 
-import importlib
 import zlib
 from dataclasses import dataclass
 
@@ -43,6 +42,29 @@ def _stack(items: list[dict]) -> dict:
         else:
             out[key] = vals[0]
     return out
+
+
+#: Entry-point group of scenario callbacks: a scenario names one by its entry-point name. A scenario
+#: file is data: it can only pick among callbacks installed as plugins, never import a module itself.
+CALLBACK_GROUP = "scart_bench.callbacks"
+
+
+def load_callback(name: str, source: str = "<memory>"):
+    """The callback installed under ``name`` in the entry-point group ``scart_bench.callbacks``."""
+    from importlib.metadata import entry_points
+
+    found = {ep.name: ep for ep in entry_points(group=CALLBACK_GROUP)}
+    if name not in found:
+        raise ScenarioError(f"{source}: callback {name!r} is not an installed callback; scenario files name "
+                            f"callbacks registered in the entry-point group {CALLBACK_GROUP!r} (installed: "
+                            f"{', '.join(sorted(found)) or 'none'})")
+    try:
+        fn = found[name].load()
+    except Exception as exc:  # a broken plugin: say which
+        raise ScenarioError(f"{source}: callback {name!r} ({found[name].value}) cannot be loaded: {exc}") from exc
+    if not callable(fn):
+        raise ScenarioError(f"{source}: callback {name!r} ({found[name].value}) is not callable")
+    return fn
 
 
 def vanilla_callback(ctx, start: np.ndarray, end: np.ndarray, active: np.ndarray, can_start: np.ndarray
@@ -127,11 +149,7 @@ class _Group:
             self.actions.append(ACTIONS[name](params, {k: tuple(v) for k, v in fields.items()}, names))
         self.callback = vanilla_callback
         if first.callback:
-            mod, _, fn = first.callback.partition(":")
-            try:
-                self.callback = getattr(importlib.import_module(mod), fn)
-            except (ImportError, AttributeError) as exc:
-                raise ScenarioError(f"{first.source}: callback {first.callback!r} cannot be loaded: {exc}") from exc
+            self.callback = load_callback(first.callback, first.source)
         self.listeners = set(first.used_topics())
         for c in self.start_conds + self.end_conds:
             self.listeners |= c.topics()

@@ -7,7 +7,7 @@ injection_point = "link"         # link | sensor | command | environment | vehic
 listeners = ["local_position_ned"]   # default: every topic the conditions and actions use
 max_windows = 1                  # attack windows per flight (one contiguous window by default)
 kind = "attack"                  # attack | fault (labels; default fault at "vehicle")
-callback = "package.module:function"   # optional custom callback
+callback = "my-callback"         # optional: a callback installed in the entry-point group scart_bench.callbacks
 
 [[scenario.start]]               # all must hold to start
 condition = "time_window"
@@ -37,6 +37,7 @@ from scart_bench.generator.scart.conditions import CONDITIONS
 from scart_bench.generator.scart.effects import EFFECTS, PHYSICAL_POINTS
 from scart_bench.generator.scart.spec import ScenarioError, read_toml, validate_params
 from scart_bench.generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
+from scart_bench.names import IdError, check_id
 
 INJECTION_POINTS = ("link", "sensor", "command", "environment", "vehicle")
 KINDS = ("attack", "fault")
@@ -205,16 +206,25 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
     if isinstance(max_windows, bool) or not isinstance(max_windows, int) or max_windows < 1:
         raise ScenarioError(f"{loc}.max_windows: expected an integer >= 1, got {max_windows!r}")
     sid = table.get("id", default_id)
-    if not isinstance(sid, str) or not sid:
-        raise ScenarioError(f"{loc}.id: expected a non-empty string, got {sid!r}")
+    try:
+        check_id(sid, f"{loc}.id")
+    except IdError as exc:
+        raise ScenarioError(str(exc)) from None
     listeners = table.get("listeners", [])
     if isinstance(listeners, str):
         listeners = [listeners]
     if not isinstance(listeners, list) or not all(isinstance(x, str) for x in listeners):
         raise ScenarioError(f"{loc}.listeners: expected a list of topic names, got {listeners!r}")
     callback = table.get("callback")
-    if callback is not None and (not isinstance(callback, str) or ":" not in callback):
-        raise ScenarioError(f"{loc}.callback: expected 'module:function', got {callback!r}")
+    if callback is not None:
+        if isinstance(callback, str) and ":" in callback:
+            raise ScenarioError(f"{loc}.callback: {callback!r} names code to import; a scenario file names an "
+                                "installed callback instead (its entry-point name in the group "
+                                "'scart_bench.callbacks'), so that reading a scenario never runs code")
+        try:
+            check_id(callback, f"{loc}.callback")
+        except IdError as exc:
+            raise ScenarioError(str(exc)) from None
     start = _items(table, "start", CONDITIONS, "condition", loc)
     end = _items(table, "end", CONDITIONS, "condition", loc, end=True)
     physical = point in PHYSICAL_POINTS

@@ -1,0 +1,163 @@
+"""Hostile or careless input: ids that would escape their folder, code named by data files, two writers,
+stale results and changed flight tables. Each is refused with one line naming the culprit (exit 2),
+and nothing is written where it should not be."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from run_fixtures import plugin, write_dataset
+
+from scart_bench.benchmark.cli import main
+from scart_bench.benchmark.store import RunStore
+from scart_bench.generator.scart.scenario import scenario_from_dict
+from scart_bench.generator.scart.spec import ScenarioError
+from scart_bench.names import IdError, check_id, inside
+
+ZS = plugin("ZScore")
+BAD_IDS = ["../../x", "a/b", "normal-0000/.", ".hidden", "a..b", "nul\x00byte", "x" * 201, "", "sp ace", "é"]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    return write_dataset(tmp_path_factory.mktemp("data") / "ds")
+
+
+@pytest.mark.parametrize("bad", BAD_IDS)
+def test_the_id_rule_refuses_what_could_leave_a_folder(bad):
+    with pytest.raises(IdError, match="--flight-id"):
+        check_id(bad, "--flight-id")
+
+
+def test_the_id_rule_accepts_the_projects_own_ids():
+    for ok in ["normal-0000", "sim-quick-bias-gps-L2-d10-t20+env-jam", "csv-normal-0003-gps_spoof", "live-20261123.1"]:
+        assert check_id(ok, "id") == ok
+
+
+def test_inside_refuses_a_path_that_resolves_outside(tmp_path):
+    assert inside(tmp_path, "a", "b") == (tmp_path / "a" / "b").resolve()
+    (tmp_path / "link").symlink_to("/")
+    with pytest.raises(IdError, match="outside"):
+        inside(tmp_path, "link", "etc")
+
+
+@pytest.mark.parametrize("bad", ["../../../../x", "a/b", "x" * 300])
+def test_scenario_ids_that_are_not_file_names_are_refused(bad):
+    table = {"id": bad, "start": [{"condition": "time_window", "start_s": 1.0}],
+             "actions": [{"action": "add_white_noise", "target": ["attitude.roll"], "std": 0.1}]}
+    with pytest.raises(ScenarioError, match="scenario.id"):
+        scenario_from_dict(table, source="evil.toml")
+
+
+def test_a_scenario_cannot_name_code_to_import(tmp_path):
+    table = {"id": "cb", "callback": "os:system", "start": [{"condition": "time_window", "start_s": 1.0}],
+             "actions": [{"action": "add_white_noise", "target": ["attitude.roll"], "std": 0.1}]}
+    with pytest.raises(ScenarioError, match="names code to import"):
+        scenario_from_dict(table, source="evil.toml")
+
+
+def test_an_uninstalled_callback_name_is_refused_when_the_layer_is_built():
+    from scart_bench.generator.scart.layer import load_callback
+
+    with pytest.raises(ScenarioError, match="not an installed callback"):
+        load_callback("no-such-callback", "evil.toml")
+
+
+@pytest.mark.parametrize("bad", ["normal-0000/.", "../../x", "a/b", "x" * 300])
+def test_proxy_flight_id_is_checked_before_anything_starts(tmp_path, capsys, bad):
+    pytest.importorskip("pymavlink")
+    rec = tmp_path / "rec"
+    code = main(["proxy", "--listen", "udp:127.0.0.1:0", "--forward", "udp:127.0.0.1:9",
+                 "--scenario", "data/scenarios/gps_spoof.toml", "--record", str(rec), "--flight-id", bad,
+                 "--duration", "0.1"])
+    assert code == 2 and "--flight-id" in capsys.readouterr().err
+    assert not rec.exists()
+
+
+def test_proxy_duration_must_be_finite(capsys):
+    pytest.importorskip("pymavlink")
+    assert main(["proxy", "--scenario", "data/scenarios/gps_spoof.toml", "--duration", "nan"]) == 2
+    assert "--duration nan" in capsys.readouterr().err
+
+
+def test_a_plugin_whose_name_is_a_path_is_refused_even_with_all(tmp_path, dataset, capsys):
+    evil = tmp_path / "evil.py"
+    evil.write_text("from scart_bench.detectors.base import Detector\n"
+                    "class Evil(Detector):\n    name = '../../x'\n"
+                    "    def __init__(self, columns=None, random_state=0):\n"
+                    "        self.columns = columns\n        self.random_state = random_state\n")
+    out = tmp_path / "runs" / "r"
+    assert main(["run", "--detectors", "all", "--plugin", f"{evil}:Evil", "--dataset", str(dataset),
+                 "--out", str(out)]) == 2
+    assert "detector name" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists() and not out.exists()
+
+
+def test_a_second_writer_to_a_run_folder_is_refused(tmp_path, dataset, capsys):
+    out = tmp_path / "run"
+    args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(out)]
+    assert main(args) == 0
+    before = (out / "config.json").read_text()
+    lock = RunStore(out).lock()  # another run holding the folder
+    try:
+        assert main(args) == 2
+        assert "another scart-bench run is writing to this folder" in capsys.readouterr().err
+        assert (out / "config.json").read_text() == before and (out / "metrics.csv").exists()
+    finally:
+        lock.release()
+    assert main(args) == 0  # the lock goes with its holder
+
+
+def test_changed_flight_tables_change_the_run_identity(tmp_path, dataset, capsys):
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    out = tmp_path / "run"
+    args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(ds), "--out", str(out), "--resume"]
+    assert main(args) == 0
+    assert main(args) == 0  # same tables (a copy keeps the fingerprint): resumes
+    table = next((ds / "flights" / "normal-004").rglob("*most_frequent*.parquet"))
+    df = pd.read_parquet(table)
+    df.iloc[5, -1] = df.iloc[5, -1] + 1.0
+    df.to_parquet(table, index=False)
+    assert main(args) == 2
+    assert "dataset_fingerprint" in capsys.readouterr().err
+
+
+def test_run_config_stores_names_not_code_and_score_imports_nothing(tmp_path, dataset):
+    marker = tmp_path / "imported"
+    evil = tmp_path / "evil.py"
+    evil.write_text(f"open({str(marker)!r}, 'w').write('x')\n")
+    out = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset),
+                 "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())
+    config["plugins"] = [f"{evil}:Evil"]
+    config["jobs"]["zscore_test"]["source"] = f"{evil}:Evil"
+    (out / "config.json").write_text(json.dumps(config))
+    assert main(["score", str(out)]) == 0
+    assert main(["report", str(out), "--out", str(tmp_path / "report")]) == 0
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("body, said", [
+    ("import time\ntime.sleep(600)\n", "did not finish within 18 s"),
+    ("import os, signal\nos.kill(os.getpid(), signal.SIGSEGV)\n", "died (SIGSEGV)"),
+    ("def broken(:\n", "SyntaxError"),
+])
+def test_a_plugin_that_hangs_or_crashes_at_import_is_refused_quickly(tmp_path, dataset, capsys, body, said):
+    import time
+
+    evil = tmp_path / "evil.py"
+    evil.write_text(body + "from scart_bench.detectors.base import Detector\nclass Evil(Detector):\n    name = 'evil'\n")
+    out = tmp_path / "run"
+    t0 = time.monotonic()
+    assert main(["run", "--detectors", "evil", "--plugin", f"{evil}:Evil", "--dataset", str(dataset),
+                 "--out", str(out), "--timeout", "3"]) == 2
+    assert time.monotonic() - t0 < 60
+    err = capsys.readouterr().err
+    assert said in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
