@@ -46,6 +46,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from torch.utils.data import DataLoader
 
 from scart_bench.detectors.base import Detector, DetectorError
+from scart_bench.detectors.statistical import pad_start
 
 #: How to install DeepOD: its metadata pins torch<1.13.1, so it goes in without its dependencies
 #: (numpy, scipy, scikit-learn, pandas, torch and tqdm come with scart-bench).
@@ -61,7 +62,6 @@ try:
 except ImportError as exc:  # one clear line instead of a traceback, for every DeepOD detector
     raise DetectorError(f"the DeepOD detectors (deepsvdd, rdp, rca, goad, neutral) need deepod, which is not "
                         f"installed ({exc}): {DEEPOD_INSTALL}") from exc
-from scart_bench.detectors.statistical import pad_start
 
 #: Floor of a feature's training spread, in units of the channel's standard deviation: keeps
 #: features that barely vary in training (a still channel's noise level) from exploding.
