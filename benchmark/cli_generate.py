@@ -15,6 +15,14 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+def check_seed(seed: int) -> int:
+    """``--seed``: numpy's seed sequences take any non-negative integer, but 32 bits are what every
+    consumer (torch included) accepts; refuse the rest up front, naming the option."""
+    if not 0 <= seed < 2**32:
+        raise UsageError(f"--seed {seed}: expected an integer in 0..{2**32 - 1}")
+    return seed
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     from scart_bench.generator.generate import generate_dataset
 
@@ -22,6 +30,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
     if args.flights is not None and args.flights < 1:
         raise UsageError(f"--flights must be at least 1, got {args.flights}")
+    check_seed(args.seed)
     out = Path(args.out)
     existed = out.exists()
     try:

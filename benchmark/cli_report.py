@@ -13,6 +13,12 @@ from scart_bench.benchmark.errors import UsageError
 def cmd_report(args: argparse.Namespace) -> int:
     from scart_bench.reports.report import write_report
 
+    seen: dict[Path, Path] = {}
+    for run in args.runs:
+        key = Path(run).resolve()
+        if key in seen:
+            raise UsageError(f"{run}: given twice (as {seen[key]} too); each run counts once in a leaderboard")
+        seen[key] = Path(run)
     files = write_report(args.runs, args.out, figures=not args.no_figures)
     for note in files.notes:
         print(f"note: {note}", file=sys.stderr)

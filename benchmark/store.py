@@ -115,8 +115,16 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def read_npz(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    """The arrays of a scores file (RunStoreError naming the file when it is not a valid .npz of arrays)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        # numpy's message for a pickled entry suggests allow_pickle=True: never, scores are plain arrays
+        raise RunStoreError(f"{path}: not a valid scores file (a .npz of numeric arrays): "
+                            f"{type(exc).__name__}") from None
 
 
 class RunLock:
@@ -173,7 +181,13 @@ class RunStore:
     def read_config(self) -> dict:
         if not self.config_path.exists():
             raise RunStoreError(f"{self.path}: not a scart-bench run folder (no config.json)")
-        return json.loads(self.config_path.read_text())
+        try:
+            config = json.loads(self.config_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise RunStoreError(f"{self.config_path}: not valid JSON ({exc})") from None
+        if not isinstance(config, dict):
+            raise RunStoreError(f"{self.config_path}: expected a JSON object, got {type(config).__name__}")
+        return config
 
     def lock(self) -> RunLock:
         """Hold the run folder for this process (RunStoreError when another process holds it)."""
@@ -226,7 +240,13 @@ class RunStore:
         atomic_write_bytes(self.path / "truth.parquet", buf.getvalue())
 
     def read_truth(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        df = pd.read_parquet(self.path / "truth.parquet")
+        path = self.path / "truth.parquet"
+        if not path.is_file():
+            raise RunStoreError(f"{path}: missing; the run's labels are gone (run it again into a new --out)")
+        try:
+            df = pd.read_parquet(path)
+        except Exception as exc:  # pyarrow raises its own types for a damaged file
+            raise RunStoreError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
         fid = df["flight_id"].astype(str).to_numpy()
         ts = df["Timestamp"].to_numpy(np.int64)
         lab = df["Is_Anomaly"].to_numpy(np.int8)

@@ -161,3 +161,89 @@ def test_a_plugin_that_hangs_or_crashes_at_import_is_refused_quickly(tmp_path, d
     err = capsys.readouterr().err
     assert said in err and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+# -- scenario files that used to be accepted silently, or crashed ---------------------------------
+
+_NOISE = '[[scenario.actions]]\naction = "add_white_noise"\ntarget = ["attitude.roll"]\nstd = 0.1\n'
+_START = '[[scenario.start]]\ncondition = "time_window"\nstart_s = 5.0\n'
+
+
+@pytest.mark.parametrize("text, named", [
+    ('[scenario]\nid = "a"\n' + _START + '[[scenario.actions]]\naction = "bias"\ntarget = ["attitude.roll"]\noffset = inf\n',
+     "offset: expected a finite number, got inf"),
+    ('[scenario]\nid = "a"\n' + _START + '[[scenario.actions]]\naction = "add_white_noise"\ntarget = ["attitude.roll"]\nstd = inf\n',
+     "std: expected a finite number"),
+    ('[scenario]\nid = "a"\ninjection_point = "environment"\n' + _START
+     + '[[scenario.actions]]\naction = "wind_gust"\nspeed = 1e300\n', "speed: must be <= 100"),
+    ('[scenario]\nid = "a"\n[[scenario.start]]\ncondition = "random_start"\nlow_s = 30.0\nhigh_s = 10.0\n' + _NOISE,
+     "low_s (30) must be <= high_s (10)"),
+    ('[scenario]\nid = "a"\n[[scenario.start]]\ncondition = "time_window"\nstart_s = 30.0\nend_s = 10.0\n' + _NOISE,
+     "start_s (30) must be before end_s (10)"),
+    ('[scenario]\nid = "a"\n' + _START + '[[scenario.actions]]\naction = "add_white_noise"\ntarget = []\nstd = 0.1\n',
+     "target: expected at least 1 item(s), got 0"),
+    ('[scenario]\nid = "a"\n' + _START + '[[scenario.actions]]\naction = "add_white_noise"\ntarget = [1, 2]\nstd = 0.1\n',
+     "target: expected names (strings), got 1"),
+    ('[scenario]\nid = "a"\n' + _START + '[[scenario.actions]]\naction = "delayed"\ntarget = ["attitude"]\ndelay_s = inf\n',
+     "delay_s: expected a finite number"),
+    ('[scenario]\nid = "a"\n' + _START + '[[scenario.actions]]\naction = "duplicate"\ntarget = ["attitude"]\nk = 200000000\n',
+     "k: must be <= 90000"),
+    ('[scenario]\nid = "' + "x" * 300 + '"\n' + _START + _NOISE, "at most 200"),
+    ('[scenario]\nid = "a"\ncallback = 3\n' + _START + _NOISE, "callback"),
+    ("x = " + "[" * 50_000 + "]" * 50_000 + "\n", "nested too deeply"),
+])
+def test_bad_scenario_values_exit_2_naming_file_and_field(tmp_path, capsys, text, named):
+    f = tmp_path / "bad.toml"
+    f.write_text(text)
+    out = tmp_path / "ds"
+    assert main(["generate", "--out", str(out), "--flights", "1", "--scenarios", str(f)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert named in err and str(f) in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_a_huge_grid_is_refused_up_front_with_how_to_allow_it(tmp_path, capsys):
+    import time
+
+    sweep = tmp_path / "sweep.toml"
+    values = ", ".join(str(v / 10) for v in range(1, 101))
+    sweep.write_text('[[scenario]]\nid = "a"\n' + _START + _NOISE
+                     + f'[sweep]\n"a.actions.0.std" = [{values}]\n"a.start.0.start_s" = [{values}]\n'
+                     + f'"a.max_windows" = [{", ".join(str(k) for k in range(1, 101))}]\n')
+    t0 = time.monotonic()
+    assert main(["generate", "--out", str(tmp_path / "ds"), "--flights", "1", "--scenarios", str(sweep)]) == 2
+    err = capsys.readouterr().err
+    assert "1,000,000 configurations" in err and "max_configurations = 1000000" in err, err
+    assert time.monotonic() - t0 < 10
+
+
+def test_run_timeout_and_seed_are_checked(tmp_path, dataset, capsys):
+    base = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(tmp_path / "r")]
+    assert main([*base, "--timeout", "nan"]) == 2
+    assert "--timeout nan" in capsys.readouterr().err
+    assert main([*base, "--seed", str(2**70)]) == 2
+    assert "--seed" in capsys.readouterr().err
+    assert main(["generate", "--out", str(tmp_path / "g"), "--seed", "-1"]) == 2
+    assert "--seed -1" in capsys.readouterr().err
+
+
+def test_the_same_run_twice_in_a_report_is_refused(tmp_path, dataset, capsys):
+    run = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(run)]) == 0
+    assert main(["report", str(run), str(tmp_path / "." / "run"), "--out", str(tmp_path / "rep")]) == 2
+    assert "given twice" in capsys.readouterr().err
+
+
+def test_a_garbage_scores_file_is_named_without_pickle_advice(tmp_path, dataset, capsys):
+    run = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(run)]) == 0
+    (run / "jobs" / "zscore_test" / "scores.npz").write_bytes(b"PK\x03\x04 not really a zip")
+    assert main(["score", str(run)]) == 0  # the job becomes an ERROR row, the rest is scored
+    metrics = pd.read_csv(run / "metrics.csv").set_index("detector")
+    assert metrics.loc["zscore_test", "status"] == "ERROR"
+    assert "not a valid scores file" in metrics.loc["zscore_test", "message"]
+    assert "pickle" not in metrics.loc["zscore_test", "message"]
+    (run / "config.json").write_text("{not json")
+    assert main(["score", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert "config.json: not valid JSON" in err

@@ -16,7 +16,11 @@ from scipy.special import ndtr
 from scart_bench.generator.scart import units
 from scart_bench.generator.scart.spec import Param
 
-_TARGET = Param("target", list, required=True, help='list of "topic" or "topic.field"')
+_TARGET = Param("target", list, required=True, help='list of "topic" or "topic.field"', item=str, min_items=1)
+#: Deepest history an action may reach back (messages): 30 min of a 50 Hz topic.
+MAX_HISTORY_MESSAGES = 90_000
+#: Longest delay or window an action may hold (s).
+MAX_DELAY_S = 1800.0
 _DIRECTION = Param("direction_deg", float, 45.0, help="heading of a displacement, 0 = north")
 
 
@@ -122,7 +126,7 @@ class Duplicate(Action):
     """Replays the value received ``k`` messages earlier (the paper's Duplicate)."""
 
     name = "duplicate"
-    spec = (_TARGET, Param("k", int, required=True, minimum=1))
+    spec = (_TARGET, Param("k", int, required=True, minimum=1, maximum=MAX_HISTORY_MESSAGES))
 
     def lookback(self, topic, rate_hz):
         return int(np.max(self.params["k"])) + 1
@@ -148,7 +152,7 @@ class AvgSensors(Action):
     """Replaces the value by the mean of the last ``window`` messages (a smoothing attack)."""
 
     name = "avg_sensors"
-    spec = (_TARGET, Param("window", int, required=True, minimum=2))
+    spec = (_TARGET, Param("window", int, required=True, minimum=2, maximum=MAX_HISTORY_MESSAGES))
 
     def lookback(self, topic, rate_hz):
         return int(np.max(self.params["window"])) + 1
@@ -244,7 +248,7 @@ class Slow(Action):
     """PX4 failure "slow": only every ``factor``-th message gets through."""
 
     name = "slow"
-    spec = (_TARGET, Param("factor", int, required=True, minimum=2))
+    spec = (_TARGET, Param("factor", int, required=True, minimum=2, maximum=MAX_HISTORY_MESSAGES))
 
     def alter(self, ctx, topic, cur, active):
         k = self.messages_since_start(ctx, topic)
@@ -255,7 +259,7 @@ class Delayed(Action):
     """PX4 failure "delayed": each message carries the value of ``delay_s`` seconds earlier."""
 
     name = "delayed"
-    spec = (_TARGET, Param("delay_s", float, required=True, minimum=0.0, exclusive_min=True))
+    spec = (_TARGET, Param("delay_s", float, required=True, minimum=0.0, exclusive_min=True, maximum=MAX_DELAY_S))
 
     def lookback(self, topic, rate_hz):
         return int(math.ceil(float(np.max(self.params["delay_s"])) * rate_hz)) + 2

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from scart_bench.generator.geo import latlon_to_ned
-from scart_bench.generator.scart.spec import Param
+from scart_bench.generator.scart.spec import Param, ScenarioError
 
 
 class Condition:
@@ -66,7 +66,14 @@ class TimeWindow(Condition):
     """Holds while ``start_s <= t < end_s`` (seconds from the start of the flight)."""
 
     name = "time_window"
-    spec = (Param("start_s", float, 0.0, minimum=0.0), Param("end_s", float, float("inf"), minimum=0.0))
+    spec = (Param("start_s", float, 0.0, minimum=0.0),
+            Param("end_s", float, float("inf"), minimum=0.0, allow_inf=True))
+
+    @staticmethod
+    def check_params(params: dict, where: str) -> None:
+        if params["start_s"] >= params["end_s"]:
+            raise ScenarioError(f"{where}: start_s ({params['start_s']:g}) must be before end_s "
+                                f"({params['end_s']:g}); the window would never hold")
 
     def __call__(self, ctx):
         t = ctx.t_us / 1e6
@@ -88,7 +95,8 @@ class Geofence(Condition):
     """Holds while the received position is within ``radius`` m of ``center`` [north, east] (or outside)."""
 
     name = "geofence"
-    spec = (Param("center", list, required=True, help="[north_m, east_m] from home"),
+    spec = (Param("center", list, required=True, help="[north_m, east_m] from home", item=float, min_items=2,
+                  max_items=2),
             Param("radius", float, required=True, minimum=0.0, exclusive_min=True),
             Param("inside", bool, True), Param("topic", str, "local_position_ned"))
 
@@ -135,6 +143,11 @@ class RandomStart(Condition):
 
     name = "random_start"
     spec = (Param("low_s", float, required=True, minimum=0.0), Param("high_s", float, required=True, minimum=0.0))
+
+    @staticmethod
+    def check_params(params: dict, where: str) -> None:
+        if params["low_s"] > params["high_s"]:
+            raise ScenarioError(f"{where}: low_s ({params['low_s']:g}) must be <= high_s ({params['high_s']:g})")
 
     def __call__(self, ctx):
         lo, hi = self.params["low_s"], self.params["high_s"]

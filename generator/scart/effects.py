@@ -63,8 +63,10 @@ class GpsJamming(Effect):
     given (``js_db`` at ``reference_m``), else it is the same everywhere."""
 
     name = "gps_jamming"
-    spec = (Param("js_db", float, required=True, help="jammer-to-signal ratio at the antenna, dB"),
-            Param("center", list, None, help="[north_m, east_m(, down_m)] of the jammer (default: everywhere)"),
+    spec = (Param("js_db", float, required=True, minimum=-100.0, maximum=200.0,
+                  help="jammer-to-signal ratio at the antenna, dB"),
+            Param("center", list, None, help="[north_m, east_m(, down_m)] of the jammer (default: everywhere)",
+                  item=float, min_items=2, max_items=3),
             Param("reference_m", float, 100.0, minimum=0.0, exclusive_min=True),
             Param("ramp_s", float, 0.0, minimum=0.0, help="seconds to reach full power"))
 
@@ -97,7 +99,7 @@ class GpsRfSpoof(Effect):
     spec = (Param("rate", float, required=True, minimum=0.0, help="drag-off speed, m/s"),
             Param("direction_deg", float, 45.0, help="heading of the drag-off, 0 = north"),
             Param("accel", float, 0.1, minimum=0.0, exclusive_min=True, help="m/s^2 until ``rate``"),
-            Param("max_offset", float, float("inf"), minimum=0.0, help="m"),
+            Param("max_offset", float, float("inf"), minimum=0.0, help="m", allow_inf=True),
             Param("satellites", int, 10, minimum=4, maximum=32))
 
     def apply(self, ctx, active, dist):
@@ -124,9 +126,9 @@ class WindGust(Effect):
     1 - cos over ``rise_s`` and holding while the scenario is active."""
 
     name = "wind_gust"
-    spec = (Param("speed", float, required=True, minimum=0.0, help="m/s"),
+    spec = (Param("speed", float, required=True, minimum=0.0, maximum=100.0, help="m/s"),
             Param("direction_deg", float, 0.0, help="the gust blows toward this heading, 0 = north"),
-            Param("vertical", float, 0.0, help="m/s, positive up"),
+            Param("vertical", float, 0.0, minimum=-50.0, maximum=50.0, help="m/s, positive up"),
             Param("rise_s", float, 2.0, minimum=0.0))
 
     def apply(self, ctx, active, dist):
@@ -147,10 +149,12 @@ class MagInterference(Effect):
     (NED). The magnetometer sees it at the vehicle's true position."""
 
     name = "mag_interference"
-    spec = (Param("center", list, required=True, help="[north_m, east_m(, down_m)]"),
-            Param("strength", float, required=True, help="gauss at reference_m"),
+    spec = (Param("center", list, required=True, help="[north_m, east_m(, down_m)]", item=float, min_items=2,
+                  max_items=3),
+            Param("strength", float, required=True, minimum=-100.0, maximum=100.0, help="gauss at reference_m"),
             Param("reference_m", float, 5.0, minimum=0.0, exclusive_min=True),
-            Param("direction", list, [1.0, 0.0, 0.0], help="[north, east, down] of the disturbing field"))
+            Param("direction", list, [1.0, 0.0, 0.0], help="[north, east, down] of the disturbing field",
+                  item=float, min_items=3, max_items=3))
 
     def apply(self, ctx, active, dist):
         rows = ctx.rows[active]

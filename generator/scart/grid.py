@@ -57,6 +57,23 @@ from scart_bench.generator.scart.scenario import (
 from scart_bench.generator.scart.spec import ScenarioError, read_toml
 
 AXES = ("action", "target", "level", "duration_s", "trigger")
+#: Configurations a grid or sweep may expand to unless its file raises the limit
+#: (``max_configurations = N`` in ``[grid]`` or ``[sweep]``); the paper's grid has 2,048.
+MAX_CONFIGURATIONS = 20_000
+
+
+def _limit(table: dict, where: str) -> int:
+    """The file's own ``max_configurations`` (popped from ``table``), or the default."""
+    value = table.pop("max_configurations", MAX_CONFIGURATIONS)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ScenarioError(f"{where}.max_configurations: expected a positive integer, got {value!r}")
+    return value
+
+
+def _check_count(count: int, limit: int, where: str, table: str) -> None:
+    if count > limit:
+        raise ScenarioError(f"{where}: expands to {count:,} configurations, more than the limit of {limit:,}; "
+                            f"if that is intended, set max_configurations = {count} in [{table}]")
 
 
 def _need(table: dict, key: str, where: str, kind: type | tuple):
@@ -79,6 +96,7 @@ def load_grid(path: str | Path, check_topics: bool = True) -> list[Scenario]:
     grid = _need(doc, "grid", src, dict)
     gid = grid.get("id", path.stem)
     point = grid.get("injection_point", "link")
+    limit = _limit(grid, f"{src}: grid")
     axes = _need(grid, "axes", f"{src}: grid", dict)
     unknown = [k for k in axes if k not in AXES]
     if unknown:
@@ -89,6 +107,10 @@ def load_grid(path: str | Path, check_topics: bool = True) -> list[Scenario]:
             raise ScenarioError(f"{src}: grid.axes: missing axis {k!r} (a list)")
         if not isinstance(v, list) or not v:
             raise ScenarioError(f"{src}: grid.axes.{k}: expected a non-empty list, got {v!r}")
+    count = 1
+    for k in AXES:
+        count *= len(axes[k])
+    _check_count(count, limit, src, "grid")
     targets = doc.get("targets", {})
     actions = doc.get("actions", {})
     triggers = doc.get("triggers", {})
@@ -161,6 +183,7 @@ def load_sweep(path: str | Path, check_topics: bool = True) -> list[list[Scenari
     if not isinstance(tables, list) or not tables or not all(isinstance(t, dict) for t in tables):
         raise ScenarioError(f"{src}: a sweep needs [[scenario]] tables to sweep")
     sweep = _need(doc, "sweep", src, dict)
+    limit = _limit(sweep, f"{src}: sweep")
     if not sweep:
         raise ScenarioError(f"{src}: [sweep] is empty; give at least one \"<scenario id>.<...>.<key>\" = [values]")
     ids = [t.get("id", f"{path.stem}-{i}" if len(tables) > 1 else path.stem) for i, t in enumerate(tables)]
@@ -187,6 +210,10 @@ def load_sweep(path: str | Path, check_topics: bool = True) -> list[list[Scenari
             raise ScenarioError(f"{where}: expected \"<scenario id>.<start|end|actions>.<index>.<key>\" "
                                 f"or \"<scenario id>.<key>\"")
         axes.append((sid, parts, values))
+    count = 1
+    for _, _, values in axes:
+        count *= len(values)
+    _check_count(count, limit, src, "sweep")
     out: list[list[Scenario]] = []
     seen: set[str] = set()
     for combo in itertools.product(*(values for _, _, values in axes)):

@@ -179,7 +179,10 @@ def _items(table: dict, key: str, registry: dict, kind_key: str, where: str, end
         cls = registry[name]
         if kind_key == "condition" and cls.end_only and not end:
             raise ScenarioError(f"{w}: condition {name!r} can only end an attack (use it under [[...end]])")
-        out.append((name, validate_params(item, cls.spec, w, kind_key)))
+        params = validate_params(item, cls.spec, w, kind_key)
+        if hasattr(cls, "check_params"):  # constraints between a table's parameters
+            cls.check_params(params, w)
+        out.append((name, params))
     return out
 
 
