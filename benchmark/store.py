@@ -16,6 +16,7 @@
 <run>/metrics.md               the same as Markdown tables
 <run>/breakdown.csv            TP rate per action / target / injection point (and mode)
 <run>/flight_scores.csv        detector, flight_id, role, mode, score, flagged
+<run>/.lock                    held (flock) by the run writing the folder; a second writer is refused
 ```
 A job is complete exactly when its status.json says OK: status.json is removed when a job
 starts and written after its scores and params.
