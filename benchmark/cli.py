@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "scart_bench.benchmark.cli_run",
     "scart_bench.benchmark.cli_report",
     "scart_bench.benchmark.cli_proxy",
+    "scart_bench.benchmark.cli_sitl",
 )
 
 

@@ -3,7 +3,7 @@
 Acceptance of issue 8: (1) a link GPS spoofing scenario through the proxy moves the true path as
 in simulation mode and the recording scores in a benchmark run; (2) unknown messages and the
 command direction pass byte-identical; (3) malformed datagrams are counted and dropped; (5)
-Ctrl-C leaves a complete recording. (4), the speed, is ``benchmark/perf/proxy_speed.py``.
+Ctrl-C leaves a complete recording. (4), the speed, is ``perf/proxy_speed.py``.
 """
 
 from __future__ import annotations

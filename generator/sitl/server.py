@@ -1,0 +1,763 @@
+"""The SITL flight controller's MAVLink endpoint, with the SCART layer on its link.
+
+::
+
+    Plant (physics, sensors, estimator) --telemetry--> [SCART layer, point link] --> client(s)
+                                                                  |
+                                                                  v  (the view the client gets)
+    Plant (controller) <-- [SCART layer, point command] <-- Commander (modes, mission, offboard)
+                                                                  ^
+    client(s) --COMMAND_LONG/INT, mission, params, offboard setpoints--'
+
+One UDP socket (``listen``) speaks MAVLink 2 as system 1, component 1 (MAV_AUTOPILOT_PX4,
+MAV_TYPE_QUADROTOR). Telemetry goes to every address heard from (the last eight), and to
+``remote`` if given (PX4's ``-o`` port); answers go to the sender. :meth:`SitlServer.serve`
+paces the simulation by the wall clock (``speed`` x real time) or runs it as fast as it can
+(``speed=None``, lockstep: the clock holds until a client is heard); :meth:`SitlServer.advance`
+steps a given simulated time in the caller's thread, reading the socket between steps (the
+step-exact lockstep of the tests).
+"""
+
+from __future__ import annotations
+
+import math
+import selectors
+import socket
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from scart_bench.generator.disturbances import Disturbances
+from scart_bench.generator.mavlink import require_pymavlink
+from scart_bench.generator.mavlink.codec import CODECS
+from scart_bench.generator.scart.layer import AttackLayer
+from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.generator.sitl.commander import (
+    FRAME_BODY_NED,
+    FRAME_BODY_OFFSET,
+    FRAME_LOCAL_NED,
+    FRAME_LOCAL_OFFSET,
+    GLOBAL_FRAMES,
+    HOLD,
+    LAND,
+    MISSION,
+    MISSION_FRAMES,
+    OFFBOARD,
+    POSCTL,
+    RTL,
+    TAKEOFF,
+    Commander,
+    MissionItem,
+    Params,
+    custom_mode,
+    mode_from_custom,
+)
+from scart_bench.generator.sitl.plant import DT, NAV_RATE_HZ, Plant, is_due
+from scart_bench.generator.topics import TOPICS
+
+mavlink = require_pymavlink()
+
+SITL_POINTS = ("link", "command", "sensor", "environment", "vehicle")
+#: effects the sitl's plant does not model (the generator's sensor-instance failover)
+UNSUPPORTED_EFFECTS = frozenset({"sensor_instance_loss"})
+SYSTEM, COMPONENT = 1, 1
+MAX_PEERS = 8
+MISSION_RETRY_S = 0.5
+MISSION_RETRIES = 5
+#: status messages besides the link topics, and their rates (Hz)
+STATUS_RATES = {"HEARTBEAT": 1.0, "SYS_STATUS": 5.0, "EXTENDED_SYS_STATE": 5.0, "HOME_POSITION": 0.5,
+                "MISSION_CURRENT": 1.0, "SYSTEM_TIME": 1.0}
+FORCE_DISARM = 21196
+
+R = mavlink  # short alias for the enums below
+ACCEPTED, TEMP_REJECTED, DENIED, UNSUPPORTED, FAILED = (
+    R.MAV_RESULT_ACCEPTED, R.MAV_RESULT_TEMPORARILY_REJECTED, R.MAV_RESULT_DENIED, R.MAV_RESULT_UNSUPPORTED,
+    R.MAV_RESULT_FAILED)
+_SENSORS = (R.MAV_SYS_STATUS_SENSOR_3D_GYRO | R.MAV_SYS_STATUS_SENSOR_3D_ACCEL | R.MAV_SYS_STATUS_SENSOR_3D_MAG
+            | R.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | R.MAV_SYS_STATUS_SENSOR_GPS
+            | R.MAV_SYS_STATUS_AHRS | R.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
+_CAPABILITIES = (R.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | R.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                 | R.MAV_PROTOCOL_CAPABILITY_MISSION_INT | R.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                 | R.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                 | R.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT | R.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+
+
+class SitlError(ValueError):
+    """The SITL cannot be set up as asked (bad address, a scenario off the link, port in use)."""
+
+
+@dataclass
+class SitlStats:
+    """Counters of a SITL run."""
+
+    datagrams_in: int = 0
+    messages_in: int = 0
+    datagrams_out: int = 0
+    commands: int = 0
+    rejected: int = 0  # commands answered with anything but ACCEPTED
+    offboard_setpoints: int = 0
+    failsafes: int = 0
+    errors: int = 0
+    behind_s: float = 0.0  # simulated time flown while behind the asked pace
+
+    def summary(self) -> str:
+        return (f"{self.messages_in} messages in ({self.commands} commands, {self.rejected} not accepted, "
+                f"{self.offboard_setpoints} offboard setpoints), {self.datagrams_out} datagrams out, "
+                f"{self.failsafes} failsafes, {self.errors} errors"
+                + (f"; could not keep the asked pace for {self.behind_s:.1f} s of flight" if self.behind_s else ""))
+
+
+class _Upload:
+    """A mission upload in progress."""
+
+    def __init__(self, peer, count: int, mission_type: int, sysid: int, compid: int):
+        self.peer, self.count, self.mission_type = peer, count, mission_type
+        self.sysid, self.compid = sysid, compid
+        self.items: list[MissionItem] = []
+        self.sent_wall = 0.0
+        self.retries = 0
+
+
+def check_scenarios(scenarios: list[Scenario]) -> None:
+    for sc in scenarios:
+        if sc.injection_point not in SITL_POINTS:
+            raise SitlError(f"scenario {sc.id!r} ({sc.source}): unknown injection point {sc.injection_point!r}; "
+                            f"the sitl runs scenarios at {', '.join(SITL_POINTS)}")
+        bad = [name for name, _ in sc.actions if name in UNSUPPORTED_EFFECTS]
+        if bad:
+            raise SitlError(f"scenario {sc.id!r} ({sc.source}): action {bad[0]!r} is not modelled by the sitl "
+                            "(no sensor-instance failover); use it in simulation mode")
+
+
+class SitlServer:
+    """One simulated PX4-like vehicle behind a MAVLink UDP endpoint, with ``scenarios`` on its link.
+
+    ``scenarios`` run at the points link, command, sensor, environment and vehicle (one flight,
+    ``seed``); ``record`` keeps both views and the truth for :meth:`record`.
+    """
+
+    def __init__(self, listen: tuple[str, int] = ("127.0.0.1", 0), scenarios: list[Scenario] | None = None,
+                 seed: int = 0, remote: tuple[str, int] | None = None, record: bool = False,
+                 log: Callable[[str], None] | None = None):
+        self.scenarios = list(scenarios or [])
+        check_scenarios(self.scenarios)
+        self.seed = int(seed)
+        self.plant = Plant(self.seed)
+        self.params = Params()
+        self.commander = Commander(self.plant, self.params)
+        self.layer = AttackLayer([self.scenarios], [self.seed], rates={t: v.rate_hz for t, v in TOPICS.items()}) \
+            if self.scenarios else None
+        self.points = self.layer.points if self.layer is not None else frozenset()
+        self.recording = bool(record)
+        self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+        self.stats = SitlStats()
+        self.listen = listen
+        self.remote = remote
+        self.peers: dict[tuple, float] = {}
+        self.mav = mavlink.MAVLink(None, srcSystem=SYSTEM, srcComponent=COMPONENT)
+        self.mav.robust_parsing = True
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.upload: _Upload | None = None
+        self.views: dict[str, dict[str, tuple[list[int], list[np.ndarray]]]] = {"navigator": {}, "simulator": {}}
+        self.started_wall = time.time()
+        self.boot_wall = time.monotonic()
+        self._pending: list[bytes] = []
+        self._error_logged = 0
+        try:
+            family = socket.AF_INET6 if ":" in listen[0] else socket.AF_INET
+            self.sock = socket.socket(family, socket.SOCK_DGRAM)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+            self.sock.bind(listen)
+            self.sock.setblocking(False)
+        except OSError as exc:
+            raise SitlError(f"cannot bind udp:{listen[0]}:{listen[1]}: {exc.strerror or exc}") from exc
+        if self.plant.step_index == 0:
+            self.commander.set_home(np.zeros(3))
+            self.commander.outbox.clear()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """The bound address (the real port when 0 was asked for)."""
+        return self.sock.getsockname()[:2]
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time since boot."""
+        return self.plant.step_index * DT
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> SitlServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- running ----------------------------------------------------------------------------------
+    def advance(self, seconds: float) -> None:
+        """Run ``seconds`` of simulated time now, handling the client's datagrams between steps."""
+        end = self.plant.step_index + int(round(seconds / DT))
+        while self.plant.step_index < end:
+            self.poll()
+            self.step()
+        self.poll()
+
+    def serve(self, stop, speed: float | None = 1.0, duration_s: float | None = None) -> SitlStats:
+        """Run until ``stop`` (a threading.Event) is set or ``duration_s`` of simulated time have passed.
+
+        ``speed``: simulated seconds per wall second; None runs as fast as it can, holding the
+        clock until a client has been heard from.
+        """
+        sel = selectors.DefaultSelector()
+        sel.register(self.sock, selectors.EVENT_READ)
+        wall0, sim0 = time.monotonic(), self.time_s
+        try:
+            while not stop.is_set():
+                if duration_s is not None and self.time_s >= duration_s:
+                    break
+                self.poll()
+                if speed is None and not self.peers and self.remote is None:
+                    sel.select(0.05)
+                    continue
+                self.step()
+                if speed is None:
+                    continue
+                while True:
+                    delay = wall0 + (self.time_s - sim0) / speed - time.monotonic()
+                    if delay <= 0:
+                        break
+                    if sel.select(delay):
+                        self.poll()
+                if delay < -0.25:  # fell behind: go on from now rather than run in a burst
+                    self.stats.behind_s += self.time_s - sim0
+                    wall0, sim0 = time.monotonic(), self.time_s
+        finally:
+            sel.close()
+        return self.stats
+
+    # -- one step ---------------------------------------------------------------------------------
+    def step(self) -> None:
+        """One 4 ms step: physics, telemetry through the layer, navigation, control, status messages."""
+        plant, cmd = self.plant, self.commander
+        k, t_us = plant.step_index, plant.t_us
+        frames: list[bytes] = []
+        env = None
+        if self.layer is not None and self.layer.physical_groups:
+            phys = self.layer.on_physics(k, t_us)
+            env = phys if isinstance(phys, Disturbances) else None
+        hook = None
+        if "sensor" in self.points:
+            def hook(sensor_msgs):
+                return self.layer.on_messages("sensor", k, t_us, sensor_msgs)
+        msgs = plant.step(env, hook)
+        if msgs:
+            if "link" in self.points:
+                altered = self.layer.on_messages("link", k, t_us, msgs)
+            else:
+                altered = {t: (v, None) for t, v in msgs.items()}
+            for topic, (vals, ok) in altered.items():
+                self._keep("simulator", topic, t_us, msgs[topic][0])
+                if ok is not None and not ok[0]:
+                    continue
+                row = vals[0]
+                cmd.perceive(topic, row)
+                self._keep("navigator", topic, t_us, row)
+                frames.append(self._pack(CODECS[topic].new_message(row, t_us)))
+        if is_due(NAV_RATE_HZ, k):
+            sp = cmd.tick(k * DT)[None, :]
+            self._keep("simulator", "setpoint", t_us, sp[0])
+            ok = True
+            if "command" in self.points:
+                sp, delivered = self.layer.on_messages("command", k, t_us, {"setpoint": sp})["setpoint"]
+                ok = bool(delivered[0])
+            if ok:
+                self._keep("navigator", "setpoint", t_us, sp[0])
+            plant.control(sp if ok else None)
+        truth = plant.finish_step()
+        if truth is not None:
+            self._keep("simulator", "truth", t_us, truth[0])
+        for name, rate in STATUS_RATES.items():
+            if is_due(rate, k):
+                frames.append(self._status(name, t_us))
+        frames.extend(self._outbox(t_us))
+        self._retry_upload()
+        if frames:
+            self._broadcast(b"".join(frames))
+
+    def _keep(self, view: str, topic: str, t_us: int, values: np.ndarray) -> None:
+        if self.recording:
+            ts, vals = self.views[view].setdefault(topic, ([], []))
+            ts.append(t_us)
+            vals.append(np.array(values, dtype=np.float64))
+
+    # -- sending ----------------------------------------------------------------------------------
+    def _pack(self, msg) -> bytes:
+        return msg.pack(self.mav)
+
+    def _targets(self) -> list:
+        out = list(self.peers)
+        if self.remote is not None and self.remote not in out:
+            out.append(self.remote)
+        return out
+
+    def _broadcast(self, data: bytes) -> None:
+        for addr in self._targets():
+            self._sendto(data, addr)
+
+    def _sendto(self, data: bytes, addr) -> None:
+        try:
+            self.sock.sendto(data, addr)
+            self.stats.datagrams_out += 1
+        except OSError:  # the peer is gone: UDP semantics
+            pass
+
+    def _reply(self, msg, addr) -> None:
+        self._sendto(self._pack(msg), addr)
+
+    def heartbeat(self):
+        cmd = self.commander
+        base = R.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if cmd.armed:
+            base |= R.MAV_MODE_FLAG_SAFETY_ARMED
+        if cmd.mode in (HOLD, MISSION, RTL, LAND, TAKEOFF, OFFBOARD):
+            base |= R.MAV_MODE_FLAG_AUTO_ENABLED | R.MAV_MODE_FLAG_GUIDED_ENABLED | R.MAV_MODE_FLAG_STABILIZE_ENABLED
+        else:
+            base |= R.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | R.MAV_MODE_FLAG_STABILIZE_ENABLED
+        state = R.MAV_STATE_ACTIVE if cmd.armed else R.MAV_STATE_STANDBY
+        return mavlink.MAVLink_heartbeat_message(R.MAV_TYPE_QUADROTOR, R.MAV_AUTOPILOT_PX4, base,
+                                                 custom_mode(cmd.mode), state, 3)
+
+    def _status(self, name: str, t_us: int) -> bytes:
+        cmd, plant = self.commander, self.plant
+        if name == "HEARTBEAT":
+            msg = self.heartbeat()
+        elif name == "SYS_STATUS":
+            ok = plant.position_valid
+            health = _SENSORS if ok else _SENSORS & ~R.MAV_SYS_STATUS_SENSOR_GPS
+            if ok and not cmd.armed:
+                health |= R.MAV_SYS_STATUS_PREARM_CHECK
+            b = plant.battery[0]
+            msg = mavlink.MAVLink_sys_status_message(
+                _SENSORS | R.MAV_SYS_STATUS_PREARM_CHECK, _SENSORS | R.MAV_SYS_STATUS_PREARM_CHECK, health, 250,
+                int(b[0] * 1000), int(b[1] * 100), int(round(b[2] * 100)), 0, 0, 0, 0, 0, 0)
+        elif name == "EXTENDED_SYS_STATE":
+            msg = mavlink.MAVLink_extended_sys_state_message(R.MAV_VTOL_STATE_UNDEFINED, cmd.landed_state())
+        elif name == "HOME_POSITION":
+            msg = self._home(t_us)
+        elif name == "MISSION_CURRENT":
+            msg = self._mission_current()
+        else:
+            msg = mavlink.MAVLink_system_time_message(0, int(t_us // 1000) & 0xFFFFFFFF)
+        return self._pack(msg)
+
+    def _home(self, t_us: int):
+        lat, lon, alt = self.commander.home_global()
+        h = self.commander.home
+        return mavlink.MAVLink_home_position_message(
+            int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)), float(h[0]), float(h[1]),
+            float(h[2]), [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(t_us))
+
+    def _mission_current(self):
+        cmd = self.commander
+        total = len(cmd.mission)
+        return mavlink.MAVLink_mission_current_message(cmd.seq if total else 0, total, cmd.mission_state,
+                                                       1 if cmd.mode == MISSION else 0)
+
+    def _outbox(self, t_us: int) -> list[bytes]:
+        out = []
+        cmd = self.commander
+        for item in cmd.outbox:
+            kind = item[0]
+            if kind == "statustext":
+                out.append(self._pack(mavlink.MAVLink_statustext_message(item[1], item[2][:50].encode(), 0, 0)))
+                self.log(f"sitl: t={self.time_s:.2f} s: {item[2]}")
+            elif kind == "reached":
+                out.append(self._pack(mavlink.MAVLink_mission_item_reached_message(item[1])))
+            elif kind == "current":
+                out.append(self._pack(self._mission_current()))
+            elif kind == "home":
+                out.append(self._pack(self._home(t_us)))
+            elif kind == "mode":
+                out.append(self._pack(self.heartbeat()))
+            elif kind == "failsafe":
+                self.stats.failsafes += 1
+        cmd.outbox.clear()
+        return out
+
+    # -- receiving --------------------------------------------------------------------------------
+    def poll(self) -> None:
+        """Handle every datagram waiting on the socket."""
+        while True:
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except ConnectionError:
+                continue
+            self.stats.datagrams_in += 1
+            if addr not in self.peers:
+                self.peers[addr] = time.monotonic()
+                if len(self.peers) > MAX_PEERS:
+                    del self.peers[next(iter(self.peers))]
+            try:
+                msgs = self.parser.parse_buffer(data) or []
+            except mavlink.MAVError:
+                msgs = []
+            for msg in msgs:
+                self.stats.messages_in += 1
+                try:
+                    self.handle(msg, addr)
+                except Exception as exc:  # a malformed request must not stop the vehicle
+                    self.stats.errors += 1
+                    if self._error_logged < 5:
+                        self._error_logged += 1
+                        self.log(f"sitl: error handling {msg.get_type()} ({type(exc).__name__}: {exc})")
+            if self.commander.outbox:
+                frames = self._outbox(self.plant.t_us)
+                if frames:
+                    self._broadcast(b"".join(frames))
+
+    def _for_us(self, msg) -> bool:
+        ts = getattr(msg, "target_system", 0)
+        return ts in (0, SYSTEM)
+
+    def handle(self, msg, addr) -> None:
+        """Answer one message from a client."""
+        name = msg.get_type()
+        if name in ("BAD_DATA", "HEARTBEAT") or not self._for_us(msg):
+            return
+        handler = getattr(self, f"_on_{name.lower()}", None)
+        if handler is not None:
+            handler(msg, addr)
+
+    # commands
+    def _ack(self, msg, command: int, result: int, addr) -> None:
+        self.stats.commands += 1
+        if result != ACCEPTED:
+            self.stats.rejected += 1
+        h = msg.get_header()
+        self._reply(mavlink.MAVLink_command_ack_message(command, result, 0, 0, h.srcSystem, h.srcComponent), addr)
+
+    def _on_command_long(self, msg, addr) -> None:
+        p = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+        self._ack(msg, msg.command, self.command(msg.command, p, R.MAV_FRAME_GLOBAL, addr), addr)
+
+    def _on_command_int(self, msg, addr) -> None:
+        x = msg.x / 1e7 if msg.frame in GLOBAL_FRAMES else msg.x / 1e4
+        y = msg.y / 1e7 if msg.frame in GLOBAL_FRAMES else msg.y / 1e4
+        if msg.frame in GLOBAL_FRAMES and msg.x == 0 and msg.y == 0:
+            x = y = float("nan")
+        p = [msg.param1, msg.param2, msg.param3, msg.param4, x, y, msg.z]
+        self._ack(msg, msg.command, self.command(msg.command, p, msg.frame, addr), addr)
+
+    def command(self, command: int, p: list[float], frame: int, addr) -> int:
+        """Execute one command; the MAV_RESULT."""
+        cmd = self.commander
+
+        def result(ok_reason):
+            ok, reason = ok_reason
+            if not ok and reason:
+                cmd.say(reason, severity=4)
+            return ACCEPTED if ok else TEMP_REJECTED
+
+        if command == R.MAV_CMD_COMPONENT_ARM_DISARM:
+            if p[0] > 0.5:
+                return result(cmd.arm())
+            return result(cmd.disarm(force=int(round(p[1])) == FORCE_DISARM))
+        if command == R.MAV_CMD_NAV_TAKEOFF:
+            return result(cmd.takeoff(p[6], p[3]))
+        if command == R.MAV_CMD_NAV_LAND:
+            ok = cmd.set_mode(LAND)
+            if ok[0] and not (math.isnan(p[4]) or math.isnan(p[5])):
+                cmd.target = cmd.to_ned(R.MAV_FRAME_GLOBAL, p[4], p[5], float("nan"))
+            return result(ok)
+        if command == R.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return result(cmd.set_mode(RTL))
+        if command == R.MAV_CMD_NAV_LOITER_UNLIM:
+            return result(cmd.set_mode(HOLD))
+        if command == R.MAV_CMD_DO_SET_MODE:
+            if not int(p[0]) & R.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                return UNSUPPORTED
+            mode = mode_from_custom(int(p[1]), int(p[2]))
+            if mode is None:
+                cmd.say(f"Mode {int(p[1])}.{int(p[2])} is not flown by this vehicle (no RC)", severity=4)
+                return DENIED
+            return result(cmd.set_mode(mode))
+        if command == R.MAV_CMD_MISSION_START:
+            if not cmd.mission:
+                cmd.say("Mission rejected: no mission uploaded", severity=4)
+                return DENIED
+            if p[0] > 0 and int(p[0]) < len(cmd.mission):
+                cmd.set_current(int(p[0]))
+            return result(cmd.set_mode(MISSION))
+        if command == R.MAV_CMD_DO_SET_MISSION_CURRENT:
+            return ACCEPTED if cmd.set_current(int(p[0])) else DENIED
+        if command == R.MAV_CMD_DO_REPOSITION:
+            fr = frame if frame in GLOBAL_FRAMES else R.MAV_FRAME_GLOBAL
+            target = cmd.to_ned(fr, p[4], p[5], p[6])
+            return result(cmd.reposition(target, p[0], p[3]))
+        if command == R.MAV_CMD_DO_CHANGE_SPEED:
+            if p[1] > 0:
+                cmd.speed = float(p[1])
+                if cmd.mode == MISSION:
+                    cmd.mission_speed = float(p[1])
+            return ACCEPTED
+        if command == R.MAV_CMD_DO_SET_HOME:
+            if p[0] > 0.5:
+                cmd.set_home(self.plant.position)
+            else:
+                cmd.set_home(cmd.to_ned(R.MAV_FRAME_GLOBAL, p[4], p[5], p[6]))
+            return ACCEPTED
+        if command in (R.MAV_CMD_SET_MESSAGE_INTERVAL,):
+            return ACCEPTED  # rates are fixed (the link topics' schedule); acknowledged like PX4
+        if command == R.MAV_CMD_REQUEST_MESSAGE:
+            return self._request_message(int(p[0]), addr)
+        if command == R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            return self._request_message(R.MAVLINK_MSG_ID_AUTOPILOT_VERSION, addr)
+        if command == R.MAV_CMD_GET_HOME_POSITION:
+            return self._request_message(R.MAVLINK_MSG_ID_HOME_POSITION, addr)
+        return UNSUPPORTED
+
+    def _request_message(self, msgid: int, addr) -> int:
+        t_us = self.plant.t_us
+        if msgid == R.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            msg = mavlink.MAVLink_autopilot_version_message(
+                _CAPABILITIES, (1 << 24) | (14 << 16) | (0 << 8) | 255, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
+                0, 0, 0x5CA7, [0] * 18)
+        elif msgid == R.MAVLINK_MSG_ID_HOME_POSITION:
+            msg = self._home(t_us)
+        elif msgid == R.MAVLINK_MSG_ID_HEARTBEAT:
+            msg = self.heartbeat()
+        elif msgid == R.MAVLINK_MSG_ID_MISSION_CURRENT:
+            msg = self._mission_current()
+        elif msgid == R.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            msg = mavlink.MAVLink_extended_sys_state_message(R.MAV_VTOL_STATE_UNDEFINED,
+                                                             self.commander.landed_state())
+        else:
+            return UNSUPPORTED
+        self._reply(msg, addr)
+        return ACCEPTED
+
+    def _on_set_mode(self, msg, addr) -> None:
+        mode = mode_from_custom((msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF)
+        if mode is not None:
+            self.commander.set_mode(mode)
+
+    # parameters
+    def _param_value(self, name: str):
+        idx = self.params.names.index(name)
+        return mavlink.MAVLink_param_value_message(name.encode(), self.params.wire_value(name),
+                                                   self.params.specs[name].kind, len(self.params.names), idx)
+
+    def _on_param_request_list(self, msg, addr) -> None:
+        for name in self.params.names:
+            self._reply(self._param_value(name), addr)
+
+    def _on_param_request_read(self, msg, addr) -> None:
+        name = _text(msg.param_id)
+        if msg.param_index >= 0:
+            if msg.param_index >= len(self.params.names):
+                return
+            name = self.params.names[msg.param_index]
+        if name in self.params.specs:
+            self._reply(self._param_value(name), addr)
+
+    def _on_param_set(self, msg, addr) -> None:
+        name = _text(msg.param_id)
+        if name not in self.params.specs:
+            self.commander.say(f"Parameter {name} unknown", severity=4)
+            self._outbox_now(addr)
+            return
+        self.params.set(name, self.params.from_wire(name, msg.param_value, msg.param_type))
+        if name == "MPC_XY_CRUISE" and self.commander.mode in (HOLD, POSCTL):
+            self.commander.speed = self.params[name]
+        self._broadcast(self._pack(self._param_value(name)))
+
+    def _outbox_now(self, addr) -> None:
+        frames = self._outbox(self.plant.t_us)
+        if frames:
+            self._sendto(b"".join(frames), addr)
+
+    # mission protocol
+    def _mission_ack(self, addr, sysid: int, compid: int, result: int, mission_type: int = 0) -> None:
+        self._reply(mavlink.MAVLink_mission_ack_message(sysid, compid, result, mission_type), addr)
+
+    def _on_mission_count(self, msg, addr) -> None:
+        h = msg.get_header()
+        mtype = getattr(msg, "mission_type", 0)
+        if mtype != R.MAV_MISSION_TYPE_MISSION:
+            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_UNSUPPORTED, mtype)
+            return
+        if msg.count == 0:
+            self.upload = None
+            self.commander.set_mission([])
+            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ACCEPTED, mtype)
+            return
+        self.upload = _Upload(addr, msg.count, mtype, h.srcSystem, h.srcComponent)
+        self._request_item()
+
+    def _request_item(self) -> None:
+        up = self.upload
+        seq = len(up.items)
+        self._reply(mavlink.MAVLink_mission_request_int_message(up.sysid, up.compid, seq, up.mission_type), up.peer)
+        up.sent_wall = time.monotonic()
+
+    def _retry_upload(self) -> None:
+        up = self.upload
+        if up is None or time.monotonic() - up.sent_wall < MISSION_RETRY_S:
+            return
+        up.retries += 1
+        if up.retries > MISSION_RETRIES:
+            self.upload = None
+            self.commander.say("Mission upload timed out", severity=4)
+            return
+        self._request_item()
+
+    def _on_mission_item_int(self, msg, addr) -> None:
+        glob = msg.frame in GLOBAL_FRAMES
+        x = msg.x / 1e7 if glob else msg.x / 1e4
+        y = msg.y / 1e7 if glob else msg.y / 1e4
+        self._mission_item(msg, x, y, addr)
+
+    def _on_mission_item(self, msg, addr) -> None:
+        self._mission_item(msg, msg.x, msg.y, addr)
+
+    def _mission_item(self, msg, x: float, y: float, addr) -> None:
+        up = self.upload
+        h = msg.get_header()
+        if up is None or getattr(msg, "mission_type", 0) != up.mission_type:
+            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ERROR, getattr(msg, "mission_type", 0))
+            return
+        if msg.seq != len(up.items):
+            if msg.seq > len(up.items):
+                self._request_item()
+            return
+        frame = msg.frame
+        if frame not in MISSION_FRAMES:
+            self.upload = None
+            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_UNSUPPORTED_FRAME, up.mission_type)
+            return
+        up.items.append(MissionItem(msg.seq, frame, msg.command, msg.param1, msg.param2, msg.param3, msg.param4,
+                                    x, y, msg.z, msg.autocontinue))
+        up.retries = 0
+        if len(up.items) < up.count:
+            self._request_item()
+            return
+        self.upload = None
+        self.commander.set_mission(up.items)
+        self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ACCEPTED, up.mission_type)
+        self.commander.say(f"Mission of {up.count} items accepted")
+        self._outbox_now(addr)
+
+    def _on_mission_request_list(self, msg, addr) -> None:
+        h = msg.get_header()
+        mtype = getattr(msg, "mission_type", 0)
+        n = len(self.commander.mission) if mtype == R.MAV_MISSION_TYPE_MISSION else 0
+        self._reply(mavlink.MAVLink_mission_count_message(h.srcSystem, h.srcComponent, n, mtype), addr)
+
+    def _send_item(self, msg, addr, as_int: bool) -> None:
+        h = msg.get_header()
+        items = self.commander.mission
+        if getattr(msg, "mission_type", 0) != R.MAV_MISSION_TYPE_MISSION or not 0 <= msg.seq < len(items):
+            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_INVALID_SEQUENCE,
+                              getattr(msg, "mission_type", 0))
+            return
+        it = items[msg.seq]
+        current = 1 if it.seq == self.commander.seq else 0
+        glob = it.frame in GLOBAL_FRAMES
+        if as_int:
+            scale = 1e7 if glob else 1e4
+            out = mavlink.MAVLink_mission_item_int_message(
+                h.srcSystem, h.srcComponent, it.seq, it.frame, it.command, current, it.autocontinue, it.param1,
+                it.param2, it.param3, it.param4, int(round(it.x * scale)), int(round(it.y * scale)), it.z, 0)
+        else:
+            out = mavlink.MAVLink_mission_item_message(
+                h.srcSystem, h.srcComponent, it.seq, it.frame, it.command, current, it.autocontinue, it.param1,
+                it.param2, it.param3, it.param4, it.x, it.y, it.z, 0)
+        self._reply(out, addr)
+
+    def _on_mission_request_int(self, msg, addr) -> None:
+        self._send_item(msg, addr, True)
+
+    def _on_mission_request(self, msg, addr) -> None:
+        self._send_item(msg, addr, False)
+
+    def _on_mission_clear_all(self, msg, addr) -> None:
+        h = msg.get_header()
+        mtype = getattr(msg, "mission_type", 0)
+        if mtype in (R.MAV_MISSION_TYPE_MISSION, R.MAV_MISSION_TYPE_ALL):
+            self.upload = None
+            self.commander.set_mission([])
+        self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ACCEPTED, mtype)
+        self._outbox_now(addr)
+
+    def _on_mission_set_current(self, msg, addr) -> None:
+        if not self.commander.set_current(msg.seq):
+            self.commander.say(f"Mission item {msg.seq} does not exist", severity=4)
+        self._outbox_now(addr)
+
+    # offboard
+    def _on_set_position_target_local_ned(self, msg, addr) -> None:
+        mask, cmd = msg.type_mask, self.commander
+        pos = np.array([msg.x, msg.y, msg.z], dtype=float)
+        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+        pos[[bool(mask & 1), bool(mask & 2), bool(mask & 4)]] = np.nan
+        vel[[bool(mask & 8), bool(mask & 16), bool(mask & 32)]] = np.nan
+        c, s = math.cos(cmd.yaw), math.sin(cmd.yaw)
+        rot = np.array([[c, -s], [s, c]])  # body (forward, right) -> (north, east) at the current heading
+        if msg.coordinate_frame in (FRAME_BODY_NED, FRAME_BODY_OFFSET):
+            if not np.isnan(pos[:2]).any():
+                pos[:2] = rot @ pos[:2]
+            pos = cmd.pos + pos  # NaN stays NaN: that axis is not commanded
+            if not np.isnan(vel[:2]).any():
+                vel[:2] = rot @ vel[:2]
+        elif msg.coordinate_frame == FRAME_LOCAL_OFFSET:
+            pos = cmd.pos + pos
+        elif msg.coordinate_frame != FRAME_LOCAL_NED:
+            return
+        self._offboard(msg, pos, vel)
+
+    def _on_set_position_target_global_int(self, msg, addr) -> None:
+        mask, cmd = msg.type_mask, self.commander
+        pos = np.full(3, np.nan)
+        if not mask & 7 and msg.coordinate_frame in GLOBAL_FRAMES:
+            pos = cmd.to_ned(msg.coordinate_frame, msg.lat_int / 1e7, msg.lon_int / 1e7, msg.alt)
+        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+        vel[[bool(mask & 8), bool(mask & 16), bool(mask & 32)]] = np.nan
+        self._offboard(msg, pos, vel)
+
+    def _offboard(self, msg, pos: np.ndarray, vel: np.ndarray) -> None:
+        mask = msg.type_mask
+        yaw = float("nan") if mask & 1024 else float(msg.yaw)
+        rate = float("nan") if mask & 2048 else float(msg.yaw_rate)
+        self.stats.offboard_setpoints += 1
+        self.commander.offboard_setpoint(self.plant.t_us, pos, vel, yaw, rate)
+
+    def _on_timesync(self, msg, addr) -> None:
+        if msg.tc1 == 0:
+            now_ns = int(self.time_s * 1e9)
+            self._reply(mavlink.MAVLink_timesync_message(now_ns, msg.ts1), addr)
+
+    # -- the recorded flight ------------------------------------------------------------------------
+    def windows(self) -> list[tuple[int, int]]:
+        if self.layer is None:
+            return []
+        return self.layer.windows(0, self.plant.t_us + 1)
+
+    def record(self, flight_id: str, extra_config: dict | None = None, split: str = "test"):
+        """The flight so far as a :class:`scart_bench.generator.dataset.FlightRecord` (both views, truth, labels)."""
+        from scart_bench.generator.sitl.record import sitl_record
+
+        return sitl_record(self, flight_id, extra_config or {}, split)
+
+
+def _text(value) -> str:
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    return value.split("\x00", 1)[0]
+
