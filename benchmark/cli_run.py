@@ -19,10 +19,16 @@ def _print_table(path: Path, metrics) -> None:
     print(f"\nrun folder: {path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
 
 
+def _patterns(values: list[str] | None) -> list[str] | None:
+    out = [p.strip() for v in (values or []) for p in v.split(",") if p.strip()]
+    return out or None
+
+
 #: run option -> the RunConfig field it sets (the run file uses the field names)
 _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
-            "timeout": "timeout", "seed": "seed", "plugin": "plugins"}
+            "timeout": "timeout", "seed": "seed", "plugin": "plugins", "features": "features",
+            "exclude": "exclude"}
 
 
 def run_config(args: argparse.Namespace):
@@ -45,6 +51,8 @@ def run_config(args: argparse.Namespace):
         value = getattr(args, option)
         if value is None or value is False:
             continue
+        if option in ("features", "exclude"):
+            value = _patterns(value)
         given[key] = [value] if option == "detectors" else list(value) if option == "plugin" else value
     given["params"] = merge_params(cfg.params, parse_params(args.param or []))
     return dataclasses.replace(cfg, **given)
@@ -94,6 +102,12 @@ def register(sub) -> None:
     r.add_argument("--seed", type=int, help="dataset and detector seed (default 0)")
     r.add_argument("--plugin", action="append", metavar="SPEC",
                    help="load a detector from module:Class or path/to/file.py:Class (repeatable)")
+    r.add_argument("--features", action="append", metavar="GLOB,...",
+                   help="use only these columns as features, e.g. 'vehicle_gps_position.*' (repeatable; default: "
+                        "the feature rule: every topic.field column in all training flights that is not a "
+                        "timestamp, counter, id or reset counter and not constant)")
+    r.add_argument("--exclude", action="append", metavar="GLOB,...",
+                   help="drop these columns from the features, e.g. 'battery_status.*' (repeatable)")
     r.set_defaults(func=cmd_run)
 
     s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores")

@@ -11,6 +11,8 @@ over it::
     timeout = 1800                           # seconds per job
     executor = "local"                       # or "dask" (with scheduler = "tcp://host:8786")
     plugins = ["my_detector.py:MyDetector"]
+    features = ["vehicle_gps_position.*"]    # optional: the feature columns (glob patterns), or
+    exclude = ["battery_status.*"]           #   columns to leave out of the default feature rule
 
     [params.goad]                            # constructor parameters per detector
     n_trans = 64
@@ -38,7 +40,7 @@ from scart_bench.generator.profiles import PROFILES
 
 #: The keys a run file may hold.
 RUN_KEYS = ("detectors", "profile", "dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
-            "plugins", "params", "protocol", "resume")
+            "plugins", "params", "protocol", "resume", "features", "exclude")
 
 
 @dataclass
@@ -57,6 +59,10 @@ class RunConfig:
     seed: int = 0
     plugins: list[str] = field(default_factory=list)
     params: dict[str, dict] = field(default_factory=dict)
+    #: feature selection for every detector (glob patterns on ``topic.field``;
+    #: scart_bench.detectors.base.feature_columns)
+    features: list[str] | None = None
+    exclude: list[str] | None = None
     protocol: Protocol = field(default_factory=Protocol)
     data_root: Path = Path("data/datasets")
     runs_root: Path = Path("runs")
@@ -101,6 +107,10 @@ class RunConfig:
             out["dataset"] = str(self.dataset)
         if self.scheduler:
             out["scheduler"] = self.scheduler
+        if self.features:
+            out["features"] = list(self.features)
+        if self.exclude:
+            out["exclude"] = list(self.exclude)
         return out
 
 
@@ -163,6 +173,9 @@ def _checked(p: Path, data: dict) -> dict:
     if "plugins" in data and not (isinstance(data["plugins"], list)
                                   and all(isinstance(x, str) for x in data["plugins"])):
         raise bad("plugins", "a list of module:Class or file.py:Class strings")
+    for key in ("features", "exclude"):
+        if key in data and not (isinstance(data[key], list) and all(isinstance(x, str) for x in data[key])):
+            raise bad(key, "a list of glob patterns on topic.field, e.g. [\"vehicle_gps_position.*\"]")
     if "params" in data:
         params = data["params"]
         if not isinstance(params, dict) or not all(isinstance(v, dict) for v in params.values()):

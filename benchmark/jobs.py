@@ -24,6 +24,8 @@ class JobSpec:
     train: tuple[str, ...]
     scored: tuple[str, ...]
     threads: int = 1
+    features: tuple[str, ...] | None = None
+    exclude: tuple[str, ...] | None = None
 
 @dataclass
 class JobResult:
@@ -83,6 +85,10 @@ def run_job(spec: JobSpec) -> JobResult:
     fit_s = score_s = float("nan")
     try:
         det = _load_class(spec)(**spec.overrides)
+        if spec.features:
+            det.features = list(spec.features)
+        if spec.exclude:
+            det.exclude = list(spec.exclude)
         ds = open_dataset(spec.dataset)
         train = [ds.flight(fid) for fid in spec.train]
         t0 = time.perf_counter()

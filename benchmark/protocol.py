@@ -8,6 +8,8 @@ Roles, from the dataset manifest:
 - ``test_normal``: normal flights with split "test" (held out: the TN rate).
 - ``test_attacked``: every attacked flight (mode "simulation" or "csv"; their split must be
   "test"): the TP rates.
+- normal flights with split "csv_source" are kept as csv-mode attack sources only: neither
+  trained on nor scored.
 
 Thresholds (a flight is flagged, a row alarms, when its score is strictly above the threshold):
 
@@ -97,16 +99,16 @@ def assign_roles(manifest: pd.DataFrame) -> pd.Series:
         raise ProtocolError(f"manifest mode {mode[bad_mode].iloc[0]!r}: expected one of "
                             f"{(NORMAL_MODE, *ATTACK_MODES)}")
     normal = mode == NORMAL_MODE
-    bad_split = normal & ~split.isin(("train", "validation", "test"))
+    bad_split = normal & ~split.isin(("train", "validation", "test", "csv_source"))
     if bad_split.any():
         raise ProtocolError(f"normal flight {manifest['flight_id'][bad_split].iloc[0]!r} has split "
-                            f"{split[bad_split].iloc[0]!r}; expected train, validation or test")
+                            f"{split[bad_split].iloc[0]!r}; expected train, validation, test or csv_source")
     leaked = ~normal & (split != "test")
     if leaked.any():
         raise ProtocolError(f"attacked flight {manifest['flight_id'][leaked].iloc[0]!r} has split "
                             f"{split[leaked].iloc[0]!r}; attacked flights must all be 'test'")
-    roles = np.where(normal, split.map({"train": "train", "validation": "validation",
-                                        "test": "test_normal"}), "test_attacked")
+    roles = np.where(normal, split.map({"train": "train", "validation": "validation", "test": "test_normal",
+                                        "csv_source": "csv_source"}), "test_attacked")
     return pd.Series(roles, index=manifest.index, name="role")
 
 

@@ -212,6 +212,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     splits = Splits.from_manifest(ds.manifest)
     identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest, ds.path),
                 "seed": int(cfg.seed), "protocol": cfg.protocol.rules()}
+    if cfg.features or cfg.exclude:  # absent otherwise: runs made before these options stay comparable
+        identity["features"] = {"include": list(cfg.features or []), "exclude": list(cfg.exclude or [])}
     _check_identity(store, old, identity)
     settings = {c.name: {"source": c.source, "class": f"{c.cls.__module__}:{c.cls.__qualname__}",
                          "params": c.params_of(cfg.seed)} for c in chosen}
@@ -235,7 +237,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         skipped = [c.name for c in chosen if cfg.resume and _finished(store, c.name, keys[c.name])]
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
         specs = [JobSpec(c.name, c.source, c.overrides(cfg.seed), tuple(p.source for p in plugins.values()),
-                         str(ds.path.resolve()), splits.train, splits.scored, threads)
+                         str(ds.path.resolve()), splits.train, splits.scored, threads,
+                         tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None)
                  for c in chosen if c.name not in skipped]
         for spec in specs:
             store.start_job(spec.detector)

@@ -47,13 +47,13 @@ class RunStoreError(ScartBenchError):
 
 
 def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    return repr(obj)
+    """numpy values and paths as JSON (generator.dataset's rule); anything else as its repr."""
+    from scart_bench.generator.dataset import json_default
+
+    try:
+        return json_default(obj)
+    except TypeError:
+        return repr(obj)
 
 
 def _nan_to_none(obj):

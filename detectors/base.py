@@ -12,6 +12,8 @@ Modelled on scikit-learn estimators: constructor arguments are plain parameters 
 
 from __future__ import annotations
 
+import fnmatch
+import re
 from functools import lru_cache
 
 import numpy as np
@@ -20,6 +22,57 @@ from sklearn.base import BaseEstimator
 
 from scart_bench.errors import ScartBenchError
 from scart_bench.generator.topics import TOPICS, sensor_columns
+
+#: Field names that are not sensor values (the feature rule, matched on the part after ``topic.``):
+#: timestamps, counters, ids and reset counters/deltas. Constant columns go too (see feature_columns).
+NON_FEATURE_FIELDS = re.compile(
+    r"(^|_)timestamp(_|$)|^time_utc_usec$|_time_relative$|^time_|"  # clocks
+    r"(^|_)(device_)?id$|_ids?$|^serial_number$|_device_id$|"  # identifiers
+    r"_reset_counter$|(^|_)delta_.*reset|_reset(_\d+)?$|"  # estimator resets and their deltas
+    r"_counter$|_count$|^count$"  # counters
+)
+
+
+def is_feature_name(column: str) -> bool:
+    """False for a ``topic.field`` column whose field is a timestamp, counter, id or reset counter."""
+    return not NON_FEATURE_FIELDS.search(column.partition(".")[2])
+
+
+def feature_columns(flights: list[pd.DataFrame], include: list[str] | None = None,
+                    exclude: list[str] | None = None) -> tuple[list[str], dict[str, list[str]]]:
+    """The feature rule: which columns of the training flights a detector uses, and why others not.
+
+    A feature is a ``topic.field`` column present in every training flight that is not a
+    timestamp, counter, id or reset counter (:data:`NON_FEATURE_FIELDS`) and is not constant
+    over the training flights (constant or all missing; +/-inf counts as missing).
+    ``include`` (glob patterns, e.g. ``vehicle_gps_position.*``) keeps only matching columns and
+    overrides the name rule; ``exclude`` drops matching columns. Returns (features, dropped) with
+    ``dropped`` mapping each reason to its columns.
+    """
+    common = [c for c in sensor_columns(flights[0].columns) if all(c in f.columns for f in flights[1:])]
+    dropped: dict[str, list[str]] = {"not in every training flight": sorted(
+        {c for f in flights for c in sensor_columns(f.columns)} - set(common))}
+    if include:
+        keep = [c for c in common if any(fnmatch.fnmatchcase(c, p) for p in include)]
+        dropped["not in --features"] = [c for c in common if c not in keep]
+    else:
+        keep = [c for c in common if is_feature_name(c)]
+        dropped["timestamp, counter, id or reset"] = [c for c in common if c not in keep]
+    if exclude:
+        dropped["--exclude"] = [c for c in keep if any(fnmatch.fnmatchcase(c, p) for p in exclude)]
+        keep = [c for c in keep if c not in dropped["--exclude"]]
+    constant = []
+    for c in keep:
+        lo, hi = np.inf, -np.inf
+        for f in flights:
+            v = pd.to_numeric(f[c], errors="coerce").to_numpy(dtype=np.float64)
+            v = v[np.isfinite(v)]
+            if v.size:
+                lo, hi = min(lo, float(v.min())), max(hi, float(v.max()))
+        if not hi > lo:
+            constant.append(c)
+    dropped["constant or missing"] = constant
+    return [c for c in keep if c not in constant], {k: v for k, v in dropped.items() if v}
 
 
 class DetectorError(ScartBenchError):
@@ -39,10 +92,16 @@ class Detector(BaseEstimator):
     handles column selection, missing-value filling, standardisation and input checks.
 
     Parameters shared by all detectors (define them in the subclass ``__init__``):
-    ``columns`` (list of column names or None for every sensor column) and ``random_state``.
+    ``columns`` (list of column names or None for the features chosen by
+    :func:`feature_columns`) and ``random_state``. The run may also set the attributes
+    ``features`` / ``exclude`` (glob patterns, ``scart-bench run --features/--exclude``).
+
+    Feature preparation, the same for every detector: +/-inf is missing (NaN); mean and scale
+    are NaN-aware statistics of the training rows; missing values are filled *after*
+    standardising and causally (the last value of the column, then 0, its training mean).
 
     Fitted attributes set by the base class (reserved names): ``columns_``, ``mean_``,
-    ``scale_``, ``n_features_in_``. A detector may also set ``history_rows_``: how many trailing
+    ``scale_``, ``n_features_in_``, ``dropped_columns_``. A detector may also set ``history_rows_``: how many trailing
     rows reproduce the score of the last row when streaming (used by the latency benchmark and
     the live proxy).
     """
@@ -61,11 +120,14 @@ class Detector(BaseEstimator):
         if not flights:
             raise DetectorError(f"{self.name}: fit needs at least one training flight, got none")
         cols = getattr(self, "columns", None)
+        self.dropped_columns_: dict[str, list[str]] = {}
         if cols is None:
-            cols = sensor_columns(flights[0].columns)
+            cols, self.dropped_columns_ = feature_columns(flights, getattr(self, "features", None),
+                                                          getattr(self, "exclude", None))
         cols = list(cols)
         if not cols:
-            raise DetectorError(f"{self.name}: the training flights have no sensor columns (topic.field)")
+            raise DetectorError(f"{self.name}: the training flights have no usable sensor columns (topic.field); "
+                                f"dropped: { {k: v[:5] for k, v in self.dropped_columns_.items()} }")
         for i, f in enumerate(flights):
             missing = [c for c in cols if c not in f.columns]
             if missing:
@@ -75,9 +137,15 @@ class Detector(BaseEstimator):
         if stacked.shape[0] == 0:
             raise DetectorError(f"{self.name}: the training flights have no rows")
         self.columns_ = cols
-        self.mean_ = stacked.mean(axis=0)
-        std = stacked.std(axis=0)
-        self.scale_ = np.where(std > 1e-12, std, 1.0)
+        with np.errstate(all="ignore"):
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: mean 0, scale 1
+                mean = np.nanmean(stacked, axis=0)
+                std = np.nanstd(stacked, axis=0)
+        self.mean_ = np.where(np.isfinite(mean), mean, 0.0)
+        self.scale_ = np.where(np.isfinite(std) & (std > 1e-12), std, 1.0)
         self._fit([self._standardise(x) for x in raw])
         self.n_features_in_ = len(cols)
         return self
@@ -92,8 +160,19 @@ class Detector(BaseEstimator):
             raise DetectorError(f"{self.name}: produced {s.shape[0]} scores for {X.shape[0]} rows")
         if not np.all(np.isfinite(s)):
             bad = int(np.flatnonzero(~np.isfinite(s))[0])
-            raise DetectorError(f"{self.name}: non-finite score {s[bad]} at row {bad} (NaN is a failure, not a 0)")
+            j = int(np.argmax(np.abs(np.nan_to_num(X[bad], nan=np.inf))))
+            names = self._feature_names()
+            raw = self._raw_matrix(flight.iloc[: bad + 1], self.columns_)[bad, j]
+            raise DetectorError(f"{self.name}: non-finite score {s[bad]} at row {bad}: column {names[j]!r} is the "
+                                f"most extreme there (value {raw:g}, standardised {X[bad, j]:g}); "
+                                "NaN is a failure, not a 0")
         return s
+
+    def _feature_names(self) -> list[str]:
+        """Names of the prepared matrix's columns (angles become ``col:sin`` and ``col:cos`` at the end)."""
+        angles = _angle_columns(tuple(self.columns_))
+        rest = [c for i, c in enumerate(self.columns_) if i not in angles]
+        return rest + [f"{self.columns_[i]}:sin" for i in angles] + [f"{self.columns_[i]}:cos" for i in angles]
 
     def alarms(self, flight: pd.DataFrame) -> np.ndarray:  # pragma: no cover - optional
         """Boolean alarm per row, for detectors with their own thresholding."""
@@ -134,11 +213,15 @@ class Detector(BaseEstimator):
         return self._standardise(self._raw_matrix(flight, self.columns_))
 
     def _standardise(self, raw: np.ndarray) -> np.ndarray:
-        return (raw - self.mean_) / self.scale_
+        """Standardise, then fill missing values causally: the column's last value, else 0 (its mean)."""
+        z = (raw - self.mean_) / self.scale_
+        if np.isnan(z).any():
+            z = pd.DataFrame(z).ffill().fillna(0.0).to_numpy()
+        return z
 
     @staticmethod
     def _raw_matrix(flight: pd.DataFrame, cols: list[str]) -> np.ndarray:
-        """Selected columns as float64, NaN filled causally (last value, then 0 at the start).
+        """Selected columns as float64 with +/-inf as missing (NaN; filled after standardising).
 
         Angle fields (yaw, heading, course: ``quantity == "angle"`` in generator.topics) wrap
         around; each is replaced by its sine and cosine so that a wrap is not a jump.
@@ -148,8 +231,7 @@ class Detector(BaseEstimator):
             arr = block.to_numpy(dtype=np.float64, copy=True)
         else:
             arr = block.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
-        if np.isnan(arr).any():
-            arr = pd.DataFrame(arr).ffill().fillna(0.0).to_numpy()
+        arr[np.isinf(arr)] = np.nan
         angles = _angle_columns(tuple(cols))
         if angles:
             a = arr[:, angles]

@@ -14,14 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter, FlightRecord
-from scart_bench.generator.modes import (
-    csv_mode,
-    scenario_manifest,
-    simulation_mode,
-    simulation_record,
-    with_labels,
-)
+from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
+from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.simulate import FlightConfig
@@ -78,15 +72,9 @@ def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: l
         src = [sources[i % len(sources)] for i in idx]
         link = [{t: df for t, df in s[1].items() if t != "truth"} for s in src]
         results = csv_mode(link, [configs[i] for i in idx], [s[2] for s in src])
-        for (nav, windows, events), i, (sid, topics, sseed) in zip(results, idx, src):
-            config = configs[i]
-            manifest = scenario_manifest(config, "csv", sseed, source=sid)
-            last = max(int(df["Timestamp"].iloc[-1]) for df in topics.values() if len(df))
-            manifest["duration_s"] = (last + 1) / 1e6
-            cfg = {**config_dict, "mode": "csv", "source_flight": sid, "scenarios": [sc.to_dict() for sc in config]}
-            writer.write(FlightRecord(flight_id=f"csv-{config_id(config)}", navigator=nav,
-                                      simulator=with_labels(topics, windows), manifest=manifest, config=cfg,
-                                      windows=windows, events=events))
+        for result, i, (sid, topics, sseed) in zip(results, idx, src):
+            writer.write(csv_record(f"csv-{config_id(configs[i])}", topics, result, configs[i], sseed, sid,
+                                    {**config_dict, "source_flight": sid}))
 
 
 def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[str, dict, int]], seed: int,

@@ -63,6 +63,30 @@ class FlightRecord:
     events: list[dict] = field(default_factory=list)
 
 
+#: Manifest values of a flight that does not set them (a normal flight, no attack).
+MANIFEST_DEFAULTS = {
+    "mode": "normal", "scenario_id": "", "action": "", "target": "", "injection_point": "", "params": "{}",
+    "seed": 0, "split": "test", "source_flight": "", "kind": "",
+}
+
+
+def flight_record(flight_id: str, navigator: dict[str, pd.DataFrame], simulator: dict[str, pd.DataFrame],
+                  manifest: dict, config: dict, windows: Iterable[tuple] = (), events: Iterable[dict] = (),
+                  end_us: int | None = None) -> FlightRecord:
+    """The one way a flight record is built (generator, attack layer, import, proxy recording).
+
+    ``manifest`` holds what differs from :data:`MANIFEST_DEFAULTS` (mode, split, seed, the
+    attack fields...); ``duration_s`` is ``end_us`` / 1e6, where ``end_us`` (the end of the
+    flight, exclusive) defaults to one microsecond after the last timestamp of any table.
+    """
+    if end_us is None:
+        last = [int(df["Timestamp"].iloc[-1]) for view in (navigator, simulator) for df in view.values() if len(df)]
+        end_us = max(last) + 1 if last else 0
+    row = {**MANIFEST_DEFAULTS, **manifest, "duration_s": int(end_us) / 1e6}
+    return FlightRecord(flight_id=str(flight_id), navigator=navigator, simulator=simulator, manifest=row,
+                        config=config, windows=list(windows), events=list(events))
+
+
 #: The label columns of every table, in order, after ``Timestamp``.
 LABEL_COLUMNS = ("Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
 
@@ -202,22 +226,35 @@ def is_dataset(path: Path) -> bool:
 class DatasetWriter:
     """Writes flights one by one and the manifest last (call ``close`` to complete).
 
-    A writer that is not closed leaves no manifest, so the folder never looks complete.
+    The only writer of manifests. A new dataset: a writer that is not closed leaves no
+    manifest, so the folder never looks complete. ``append=True`` adds flights to the dataset
+    at ``out`` (a new one if there is none): its format is kept, a flight id already there is
+    refused before anything is written, and the manifest is replaced atomically at ``close``,
+    so the dataset is complete before and after; ``abort`` removes the flights it wrote.
     """
 
     def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
-                 overwrite: bool = False, workers: int = 0):
+                 overwrite: bool = False, workers: int = 0, append: bool = False):
         if fmt not in FORMATS:
             raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
         self.out = Path(out)
         self.fmt = fmt
         self.info = dict(info or {})
-        check_output_dir(self.out, overwrite=overwrite)
-        if self.out.exists() and any(self.out.iterdir()):
-            for name in ("manifest.parquet", "manifest.csv"):
-                (self.out / name).unlink(missing_ok=True)
-            shutil.rmtree(self.out / "flights", ignore_errors=True)
+        self.existing: pd.DataFrame | None = None
+        self.written: list[str] = []
+        if append and is_dataset(self.out):
+            ds = open_dataset(self.out)
+            self.existing = ds.manifest
+            self.fmt = ds.info.get("format", "csv" if (self.out / "manifest.csv").exists() else "parquet")
+            self.info = {**ds.info, **{k: v for k, v in self.info.items() if k not in ds.info}}
+        else:
+            check_output_dir(self.out, overwrite=overwrite)
+            if self.out.exists() and any(self.out.iterdir()):
+                for name in ("manifest.parquet", "manifest.csv"):
+                    (self.out / name).unlink(missing_ok=True)
+                shutil.rmtree(self.out / "flights", ignore_errors=True)
         (self.out / "flights").mkdir(parents=True, exist_ok=True)
+        self.ids: set[str] = set() if self.existing is None else set(self.existing["flight_id"].astype(str))
         self.rows: list[dict] = []
         self.workers = int(workers)
         self._pending: list = []
@@ -230,6 +267,14 @@ class DatasetWriter:
 
     def write(self, record: FlightRecord) -> None:
         """Write one flight's raw, sensors and combined folders (in a worker process if any)."""
+        check_id(record.flight_id, "flight id")  # before any path is made from it
+        if record.flight_id in self.ids:
+            raise DatasetError(f"{self.out}: a flight {record.flight_id!r} is already in the dataset; "
+                               "flight ids must be unique")
+        self.ids.add(record.flight_id)
+        self.written.append(record.flight_id)
+        if self.existing is not None:  # a folder left by an append that never finished
+            shutil.rmtree(inside(self.out / "flights", record.flight_id), ignore_errors=True)
         if self._pool is None:
             self.rows.append(write_flight(self.out, self.fmt, record))
             return
@@ -238,13 +283,17 @@ class DatasetWriter:
         self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record))
 
     def abort(self) -> None:
-        """Stop the worker processes without writing a manifest (the folder stays incomplete)."""
+        """Stop without writing a manifest: a new dataset stays incomplete; an appended-to dataset
+        keeps its manifest and loses the flights this writer wrote."""
         if self._pool is not None:
             for f in self._pending:
                 f.cancel()
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
             self._pending = []
+        if self.existing is not None:
+            for fid in self.written:
+                shutil.rmtree(inside(self.out / "flights", fid), ignore_errors=True)
 
     def close(self) -> Path:
         """Write dataset.json and, last, the manifest. Returns the manifest path."""
@@ -256,10 +305,13 @@ class DatasetWriter:
                 self._pool.shutdown()
                 self._pool = None
         (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt}, indent=2,
-                                                          sort_keys=True, default=_json_default))
+                                                          sort_keys=True, default=json_default))
         manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
+        if self.existing is not None:
+            old = self.existing.reindex(columns=list(MANIFEST_COLUMNS))
+            manifest = pd.concat([old, manifest], ignore_index=True) if len(manifest) else old
         for col in ("attack_start_us", "attack_end_us"):
-            manifest[col] = manifest[col].astype("Int64")
+            manifest[col] = pd.to_numeric(manifest[col]).astype("Int64")
         final = self.out / f"manifest.{self.fmt}"
         tmp = self.out / f".manifest.tmp.{self.fmt}"
         if self.fmt == "parquet":
@@ -276,7 +328,7 @@ def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
     for sub in ("raw", "sensors/navigator", "sensors/simulator", "combined"):
         (root / sub).mkdir(parents=True, exist_ok=True)
     (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
-                                                         default=_json_default))
+                                                         default=json_default))
     events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
     events.to_csv(root / "raw" / "events.csv", index=False)
     n_rows = 0
@@ -297,7 +349,8 @@ def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
     return row
 
 
-def _json_default(obj):
+def json_default(obj):
+    """``json.dumps(default=...)`` for numpy values and paths; TypeError for anything else."""
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):
@@ -361,3 +414,24 @@ class Dataset:
 def open_dataset(path: str | Path) -> Dataset:
     """Open a complete dataset (raises DatasetError naming the folder when it is not one)."""
     return Dataset(path)
+
+
+def append_flights(out: str | Path, records: Iterable[FlightRecord], fmt: str = "parquet",
+                   info: dict | None = None) -> Path:
+    """Add flights to the dataset at ``out`` (created when there is none), atomically.
+
+    ``records`` may be a generator (one flight in memory at a time). A repeated flight id, or any
+    error while the records are made or written, removes the flights written so far and leaves
+    the dataset as it was; the manifest is replaced last, in one rename. Returns the manifest path.
+    """
+    writer = DatasetWriter(out, fmt=fmt, info=info, append=True)
+    try:
+        for r in records:
+            writer.write(r)
+    except BaseException:
+        writer.abort()
+        if writer.existing is None:  # nothing was there before: leave nothing behind
+            shutil.rmtree(writer.out / "flights", ignore_errors=True)
+            (writer.out / "dataset.json").unlink(missing_ok=True)
+        raise
+    return writer.close()

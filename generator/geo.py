@@ -1,4 +1,15 @@
-"""Geodesy used by PX4: the azimuthal-equidistant local tangent plane at home and the ISA baro model."""
+"""Geodesy.
+
+Two kinds of conversion live here:
+
+- the simulator's own projection, PX4's azimuthal-equidistant plane on a sphere at home
+  (``ned_to_latlon`` / ``latlon_to_ned``), which the generator uses because PX4 does;
+- metres <-> latitude/longitude for everything that edits or reads a *recorded* position (attack
+  actions, conditions, the geofence): a WGS-84 local tangent plane (ENU) at each flight's own
+  origin, through pymap3d (``ne_from_latlon`` / ``latlon_from_ne``, ``offset_latlon``,
+  ``metres_per_degree``). A 50 m offset east is 50 m east at any latitude.
+"""
+
 
 from __future__ import annotations
 
@@ -43,10 +54,55 @@ def latlon_to_ned(lat: np.ndarray, lon: np.ndarray, lat0: float = HOME_LAT, lon0
     return x, y
 
 
-def metres_per_degree(lat: float = HOME_LAT) -> tuple[float, float]:
-    """Metres per degree of latitude and of longitude near ``lat`` (for unit conversion)."""
-    m_lat = np.deg2rad(1.0) * EARTH_RADIUS
-    return m_lat, m_lat * np.cos(np.deg2rad(lat))
+def metres_per_degree(lat=HOME_LAT) -> tuple[np.ndarray, np.ndarray]:
+    """Metres per degree of latitude and of longitude at latitude ``lat`` (WGS-84; arrays work).
+
+    From the meridian and transverse radii of curvature (pymap3d.rcurve), so a degree of
+    longitude at 63 deg N is 50.7 km, not the sphere's 50.5 km.
+    """
+    from pymap3d import rcurve
+
+    lat = np.asarray(lat, dtype=np.float64)
+    m_lat = np.deg2rad(1.0) * rcurve.meridian(lat, deg=True)
+    m_lon = np.deg2rad(1.0) * rcurve.parallel(lat, deg=True)
+    return m_lat, m_lon
+
+
+def ne_from_latlon(lat, lon, lat0, lon0) -> tuple[np.ndarray, np.ndarray]:
+    """North/east metres of ``lat``/``lon`` in the WGS-84 tangent plane at ``lat0``/``lon0`` (deg).
+
+    All arguments broadcast (one origin per flight: pass ``lat0`` with the flights' shape).
+    Heights are taken as 0 on the ellipsoid: a horizontal conversion.
+    """
+    import pymap3d
+
+    lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+    e, n, _ = pymap3d.geodetic2enu(lat, lon, np.zeros_like(lat), lat0, lon0, 0.0)
+    return np.asarray(n, dtype=np.float64), np.asarray(e, dtype=np.float64)
+
+
+def latlon_from_ne(n, e, lat0, lon0) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`ne_from_latlon`: the latitude/longitude (deg) of a tangent-plane point.
+
+    Only latitude/longitude are returned (the plane's height above the surface, d^2 / 2R,
+    moves them by less than a micrometre within kilometres of the origin).
+    """
+    import pymap3d
+
+    n, e = np.asarray(n, dtype=np.float64), np.asarray(e, dtype=np.float64)
+    lat, lon, _ = pymap3d.enu2geodetic(e, n, np.zeros_like(n), lat0, lon0, 0.0)
+    return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+
+
+def offset_latlon(lat, lon, d_north, d_east, lat0=None, lon0=None) -> tuple[np.ndarray, np.ndarray]:
+    """``lat``/``lon`` moved by ``d_north``/``d_east`` metres in the tangent plane at the origin.
+
+    The origin defaults to the point itself (an exact local displacement).
+    """
+    lat0 = lat if lat0 is None else lat0
+    lon0 = lon if lon0 is None else lon0
+    n, e = ne_from_latlon(lat, lon, lat0, lon0)
+    return latlon_from_ne(n + d_north, e + d_east, lat0, lon0)
 
 
 def pressure_at(alt_amsl: np.ndarray) -> np.ndarray:

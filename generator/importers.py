@@ -2,9 +2,10 @@
 
 ``load_flight_file(path)`` accepts a PX4 ULog (``.ulg``), a CSV (``.csv``, also ``.csv.gz`` etc.),
 a Parquet file (``.parquet``) or a scart-bench dataset flight folder, and returns
-``{topic: DataFrame}``. Every table has an int64 ``Timestamp`` column (microseconds; the
-earliest timestamp over all returned topics is 0), sorted and strictly increasing, followed by
-the topic's numeric fields as float64 columns. See ``load_flight_file`` for the rules per format.
+``{topic: DataFrame}``. Every table has an int64 ``Timestamp`` column (microseconds from the
+start of the log: a ULog's logging start, else the earliest timestamp in the file, whichever
+topics are asked for), sorted and strictly increasing, followed by the topic's numeric fields as
+float64 columns. See ``load_flight_file`` for the rules per format.
 ``ulog_info(path)`` summarises a ULog (start, duration, topics with message counts and rates).
 """
 
@@ -25,9 +26,19 @@ from scart_bench.generator.dataset import DatasetError
 
 logger = logging.getLogger(__name__)
 
-#: Accepted timestamp column names (compared case-insensitively), in order of preference.
-TIME_COLUMNS_US = ("timestamp", "time_us", "timestamp_us", "time_usec")
-TIME_COLUMNS_S = ("time", "time_s", "t")
+#: Accepted timestamp column names (compared case-insensitively), in order of preference, with the
+#: unit their name states; None: the unit is inferred from the sampling interval (see time_unit).
+TIME_COLUMNS: dict[str, str | None] = {
+    "timestamp": None, "time_us": "us", "timestamp_us": "us", "time_usec": "us", "timestamp_ns": "ns",
+    "time_ns": "ns", "timestamp_ms": "ms", "time_ms": "ms", "time": None, "time_s": "s", "t": None,
+    "%time": None, "field.header.stamp": None,
+}
+#: Microseconds per unit.
+TIME_UNITS = {"ns": 1e-3, "us": 1.0, "ms": 1e3, "s": 1e6}
+#: What a drone log's time column must look like in a unit for that unit to be plausible: the
+#: median sampling interval (s) and the span of the log (s).
+PLAUSIBLE_INTERVAL_S = (1e-4, 2.0)
+PLAUSIBLE_SPAN_S = (0.5, 12 * 3600.0)
 #: Columns of scart-bench tables that are not sensor data.
 IGNORED_COLUMNS = ("index", "is_anomaly", "anomaly_ids", "anomaly_kind")
 _UNNAMED = re.compile(r"^Unnamed: \d+$")  # pandas' name for a written index without a name
@@ -96,20 +107,26 @@ def _make_table(ts: np.ndarray, fields: dict[str, np.ndarray]) -> tuple[pd.DataF
     return pd.DataFrame(cols), n_dup
 
 
-def _finish(raw: dict[str, tuple[np.ndarray, dict[str, np.ndarray], dict]], source: Path) -> dict[str, pd.DataFrame]:
-    """Build the topic tables and shift time so the earliest timestamp over all topics is 0.
+def _finish(raw: dict[str, tuple[np.ndarray, dict[str, np.ndarray], dict]], source: Path,
+            topics: list[str] | None = None, origin: int | None = None) -> dict[str, pd.DataFrame]:
+    """Build the topic tables (``topics`` only, if given) with time zero at ``origin``.
 
+    ``origin`` defaults to the earliest timestamp over *all* topics of ``raw`` (before the
+    selection, so time zero does not move with ``topics``). Messages before it (a ULog's latched
+    topics, published before logging started) are put at 0: their value holds at the start.
     Each table's ``attrs`` record ``source``, ``topic``, ``origin_us`` (the value in the file's
     own time base that became 0), ``duplicates_dropped`` and any format-specific notes.
     """
     raw = {k: v for k, v in raw.items() if len(v[0]) > 0}
     if not raw:
         raise DatasetError(f"{source}: the log is empty (no messages / data rows)")
-    origin = int(min(int(np.min(ts)) for ts, _, _ in raw.values()))
+    if origin is None:
+        origin = int(min(int(np.min(ts)) for ts, _, _ in raw.values()))
+    raw = _select(raw, topics, source)
     out: dict[str, pd.DataFrame] = {}
     for topic in raw:  # the loaders' order: sorted for ULogs and folders, column order for tables
         ts, fields, notes = raw[topic]
-        table, n_dup = _make_table(np.asarray(ts, dtype=np.int64) - origin, fields)
+        table, n_dup = _make_table(np.maximum(np.asarray(ts, dtype=np.int64) - origin, 0), fields)
         if n_dup:
             logger.debug("%s: topic %s: dropped %d row(s) with a duplicate timestamp (kept the last)",
                          source, topic, n_dup)
@@ -197,6 +214,21 @@ def _ulog_fields(data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], di
     return out, notes
 
 
+def ulog_truncated(path: Path) -> tuple[bool, int, int]:
+    """(truncated, bytes in whole messages, file size): walks the ULog's message headers; a file
+    whose last message runs past its end was cut (copied while written, a full SD card ...)."""
+    size = path.stat().st_size
+    pos = 16  # the file header
+    with open(path, "rb") as fh:  # header by header: the log is never held in memory twice
+        while pos + 3 <= size:
+            fh.seek(pos)
+            n = int.from_bytes(fh.read(2), "little")
+            if pos + 3 + n > size:
+                return True, pos, size
+            pos += 3 + n
+    return pos != size, pos, size
+
+
 def _load_ulog(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict[str, pd.DataFrame]:
     names = None
     if topics is not None:
@@ -206,8 +238,17 @@ def _load_ulog(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dic
         n = sum(len(d.data["timestamp"]) for d in ulog.data_list)
         if not allow_corrupt or n == 0:
             raise DatasetError(f"{path}: the ULog file is corrupt (pyulog found invalid data; {n} message(s) "
-                               "readable); pass allow_corrupt=True to load the readable part")
+                               "readable); pass --allow-corrupt (allow_corrupt=True) to load the readable part")
         logger.warning("%s: ULog file corruption detected; loading the %d readable message(s)", path, n)
+    cut, read, size = ulog_truncated(path)
+    if cut:
+        seconds = (int(ulog.last_timestamp) - int(ulog.start_timestamp)) / 1e6
+        if not allow_corrupt:
+            raise DatasetError(f"{path}: the ULog is truncated (its last message runs past the end of the file: "
+                               f"{read} of {size} bytes hold whole messages, {seconds:.1f} s of logging); pass "
+                               "--allow-corrupt (allow_corrupt=True) to use what was read")
+        logger.warning("%s: the ULog is truncated; using the %.1f s of logging read (%d of %d bytes)",
+                       path, seconds, read, size)
     if not ulog.data_list and topics is None:
         raise DatasetError(f"{path}: the ULog has no logged messages (empty log)")
     raw: dict[str, tuple] = {}
@@ -225,8 +266,8 @@ def _load_ulog(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dic
         if missing:
             available = sorted(ulog_info(path)["topics"])
             raise DatasetError(f"{path}: topic(s) {missing} not found in the ULog; it has: {available}")
-        raw = {t: raw[t] for t in topics}
-    return _finish(raw, path)
+    # time zero: the start of logging, whichever messages were parsed
+    return _finish(raw, path, topics, origin=int(ulog.start_timestamp))
 
 
 def _rate(ts: np.ndarray) -> tuple[float | None, float | None]:
@@ -314,8 +355,32 @@ def _numeric(series: pd.Series, column: str, source: Path, is_csv: bool) -> np.n
     return coerced.to_numpy(dtype=np.float64)
 
 
-def _timestamps(series: pd.Series, column: str, seconds: bool, source: Path, is_csv: bool) -> np.ndarray:
-    """The time column as int64 microseconds."""
+def time_unit(values: np.ndarray, column: str, source: Path) -> str:
+    """The unit (ns, us, ms or s) of a time column, from its sampling interval and span.
+
+    A unit is plausible when the median interval between distinct times is 0.1 ms .. 2 s and
+    the span 0.5 s .. 12 h in it. Exactly one plausible unit is the answer; none or several
+    raise DatasetError naming the column (rename it with a unit suffix, e.g. ``timestamp_us``).
+    """
+    v = np.unique(values[np.isfinite(values)])
+    if v.shape[0] < 2:
+        raise DatasetError(f"{source}: time column {column!r} has fewer than two distinct times; its unit "
+                           "cannot be inferred: name it with a unit suffix (timestamp_us, time_s ...)")
+    d = float(np.median(np.diff(v)))
+    span = float(v[-1] - v[0])
+    fits = [u for u, us in TIME_UNITS.items()
+            if PLAUSIBLE_INTERVAL_S[0] <= d * us / 1e6 <= PLAUSIBLE_INTERVAL_S[1]
+            and PLAUSIBLE_SPAN_S[0] <= span * us / 1e6 <= PLAUSIBLE_SPAN_S[1]]
+    if len(fits) == 1:
+        return fits[0]
+    why = "fits none of ns, us, ms, s" if not fits else f"is ambiguous ({' or '.join(fits)})"
+    raise DatasetError(f"{source}: time column {column!r}: the unit {why} for a median interval of {d:g} and a "
+                       f"span of {span:g}; name the column with its unit: timestamp_ns, timestamp_us, "
+                       "timestamp_ms or time_s")
+
+
+def _timestamps(series: pd.Series, column: str, unit: str | None, source: Path, is_csv: bool) -> np.ndarray:
+    """The time column as int64 microseconds (``unit`` None: inferred with :func:`time_unit`)."""
     if series.dtype.kind in "mM":  # Parquet datetime / duration columns
         s = series
         if isinstance(s.dtype, pd.DatetimeTZDtype):
@@ -323,57 +388,67 @@ def _timestamps(series: pd.Series, column: str, seconds: bool, source: Path, is_
         if s.isna().any():
             i = int(np.flatnonzero(s.isna().to_numpy())[0])
             raise DatasetError(f"{source}: time column {column!r} is empty in {_where(i, is_csv)}")
-        unit = "datetime64[us]" if s.dtype.kind == "M" else "timedelta64[us]"
-        return s.to_numpy(dtype=unit).astype(np.int64)
+        kind = "datetime64[us]" if s.dtype.kind == "M" else "timedelta64[us]"
+        return s.to_numpy(dtype=kind).astype(np.int64)
     values = _numeric(series, column, source, is_csv)
     missing = np.flatnonzero(~np.isfinite(values))
     if missing.size:
         i = int(missing[0])
         raise DatasetError(f"{source}: time column {column!r} is empty or not finite in {_where(i, is_csv)}")
-    if seconds:
-        return np.rint(values * 1e6).astype(np.int64)
-    frac = np.flatnonzero(values != np.rint(values))
-    if frac.size:
-        i = int(frac[0])
-        raise DatasetError(f"{source}: time column {column!r} must hold integer microseconds, but "
-                           f"{_where(i, is_csv)} has {values[i]!r}; if the times are in seconds, "
-                           f"name the column one of {list(TIME_COLUMNS_S)}")
-    if series.dtype.kind in "iu":
-        return series.to_numpy(dtype=np.int64)
-    return values.astype(np.int64)
+    if unit is None:
+        unit = time_unit(values, column, source)
+    if series.dtype.kind in "iu" and unit in ("us", "ms", "s"):
+        return series.to_numpy(dtype=np.int64) * int(TIME_UNITS[unit])
+    if series.dtype.kind in "iu" and unit == "ns":
+        return (series.to_numpy(dtype=np.int64) + 500) // 1000
+    return np.rint(values * TIME_UNITS[unit]).astype(np.int64)
 
 
-def _time_column(columns: list[str], source: Path) -> tuple[str, bool]:
-    """(column name, is_seconds) of the first accepted timestamp column, by preference order."""
+def _time_column(columns: list[str], source: Path) -> tuple[str, str | None]:
+    """(column name, unit or None to infer) of the first accepted timestamp column, by preference."""
     lower = {str(c).lower(): c for c in reversed(columns)}
-    for name in TIME_COLUMNS_US:
+    for name, unit in TIME_COLUMNS.items():
         if name in lower:
-            return lower[name], False
-    for name in TIME_COLUMNS_S:
-        if name in lower:
-            return lower[name], True
-    raise DatasetError(f"{source}: no timestamp column; expected one of "
-                       f"{list(TIME_COLUMNS_US)} (integer microseconds) or {list(TIME_COLUMNS_S)} "
-                       f"(seconds), case-insensitive; found columns {list(columns)[:20]}")
+            return lower[name], unit
+    raise DatasetError(f"{source}: no timestamp column; expected one of {list(TIME_COLUMNS)} "
+                       f"(case-insensitive; the unit is inferred unless the name states it); "
+                       f"found columns {list(columns)[:20]}")
+
+
+def own_layout(columns: list[str]) -> bool:
+    """True for a table in scart-bench's dataset layout (``Timestamp`` with ``Index``/``Is_Anomaly``):
+    microseconds from the flight's start."""
+    return "Timestamp" in columns and ("Is_Anomaly" in columns or "Index" in columns)
+
+
+#: Column prefix of ROS ``rostopic echo -p`` exports (``field.x``): not a topic name.
+ROS_FIELD_PREFIX = "field"
 
 
 def _frame_topics(df: pd.DataFrame, source: Path, stem: str, is_csv: bool,
-                  split: bool = True) -> dict[str, tuple]:
-    """Topic tables of one flat table: split ``topic.field`` columns, else one topic ``stem``."""
+                  split: bool = True, unit: str | None = None) -> dict[str, tuple]:
+    """Topic tables of one flat table: split ``topic.field`` columns, else one topic ``stem``.
+
+    A ROS export (every column ``field.<name>``) is one topic named after the file, fields
+    ``<name>`` (``field.header.seq`` -> ``header_seq``).
+    """
     columns = [str(c) for c in df.columns]
     df.columns = columns
-    tcol, seconds = _time_column(columns, source)
+    tcol, named_unit = _time_column(columns, source)
+    if own_layout(columns):
+        named_unit = "us"  # scart-bench's own tables: microseconds by definition
     fields = [c for c in columns if c != tcol and c.lower() not in IGNORED_COLUMNS and not _UNNAMED.match(c)]
     if not fields:
         raise DatasetError(f"{source}: no data columns besides the time column {tcol!r}")
     if len(df) == 0:
         raise DatasetError(f"{source}: the table is empty (a header but no data rows)")
-    ts = _timestamps(df[tcol], tcol, seconds, source, is_csv)
+    ts = _timestamps(df[tcol], tcol, unit or named_unit, source, is_csv)
     values = {c: _numeric(df[c], c, source, is_csv) for c in fields}
     dotted = split and all(re.fullmatch(r"[^.]+\.[^.].*", c) for c in fields)
+    ros = dotted and {c.split(".", 1)[0] for c in fields} == {ROS_FIELD_PREFIX}
     groups: dict[str, list[str]] = {}
     for c in fields:
-        topic = sanitize_topic_name(c.split(".", 1)[0]) if dotted else sanitize_topic_name(stem)
+        topic = sanitize_topic_name(c.split(".", 1)[0]) if dotted and not ros else sanitize_topic_name(stem)
         groups.setdefault(topic, []).append(c)
     raw: dict[str, tuple] = {}
     for topic, cols in groups.items():
@@ -447,9 +522,8 @@ def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.Da
     for stem, p in files.items():
         is_csv = p.suffix.lower() in CSV_SUFFIXES
         df = _read_csv(p) if is_csv else _read_parquet(p)
-        part = _frame_topics(df, p, stem, is_csv, split=False)
-        raw.update(part)
-    return _finish(_select(raw, topics, path), path)
+        raw.update(_frame_topics(df, p, stem, is_csv, split=False, unit="us"))  # our own tables: microseconds
+    return _finish(raw, path, topics, origin=0)  # already in time from the flight's start
 
 
 # ----------------------------------------------------------------------------------------------
@@ -457,11 +531,15 @@ def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.Da
 
 
 def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
-                     allow_corrupt: bool = False) -> dict[str, pd.DataFrame]:
+                     allow_corrupt: bool = False, start_s: float | None = None,
+                     end_s: float | None = None) -> dict[str, pd.DataFrame]:
     """Load a flight log as ``{topic: DataFrame}`` for csv mode.
 
-    Every table: int64 ``Timestamp`` (microseconds; the earliest timestamp over all returned
-    topics becomes 0, and ``df.attrs["origin_us"]`` holds the original value), sorted and
+    Every table: int64 ``Timestamp`` (microseconds from time zero: a ULog's start of logging,
+    ``ULog.start_timestamp``; for tables the earliest timestamp in the file over all its topics;
+    tables in scart-bench's own layout and flight folders keep their time; the same whichever
+    ``topics`` are asked for. ``df.attrs["origin_us"]`` holds
+    the original value; messages before it, a ULog's latched topics, are put at 0), sorted and
     strictly increasing (exact duplicate timestamps are dropped keeping the last row; the count
     is in ``df.attrs["duplicates_dropped"]`` and logged at debug level), then the numeric fields
     as float64. No ``Is_Anomaly`` column. ``topics`` restricts the result to those topics
@@ -479,24 +557,60 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
       in place (x 1e-7), and integer ``alt`` / ``alt_ellipsoid`` from millimetres to metres
       (x 1e-3); ``df.attrs["converted"]`` lists what was converted. Float ``lat``/``lon``
       (``vehicle_global_position``) and newer ``latitude_deg``/``longitude_deg`` are already
-      degrees and kept as they are. A corrupt file raises DatasetError unless
-      ``allow_corrupt=True`` (then the readable part is loaded, with a warning).
-    * CSV / Parquet: the time column is the first of ``Timestamp``/``timestamp``, ``time_us``,
-      ``timestamp_us``, ``time_usec`` (integer microseconds) or ``time``, ``time_s``, ``t``
-      (seconds, rounded to microseconds), compared case-insensitively. ``Index``,
-      the label columns and pandas ``Unnamed: N`` columns are ignored. If every other column is
-      ``topic.field`` (scart-bench's combined tables), there is one topic per prefix and rows
-      where all of that topic's fields are empty are dropped; otherwise the table is one topic
-      named after the file stem (sanitised to ``[a-z0-9_]``). Load a flight's ``all_sensors``
+      degrees and kept as they are. A corrupt or truncated file (its last message runs past
+      the end) raises DatasetError unless ``allow_corrupt=True`` (then what was read is loaded,
+      with a warning saying how much).
+    * CSV / Parquet: the time column is the first of :data:`TIME_COLUMNS` (compared
+      case-insensitively). A name with a unit (``timestamp_us``, ``time_ns``, ``time_s`` ...)
+      is taken at its word; for ``timestamp``, ``time``, ``t`` and ROS's ``%time`` the unit (ns,
+      us, ms or s) is inferred from the sampling interval and span (:func:`time_unit`), and
+      an ambiguous column is refused, naming it. ``Index``, the label columns and pandas
+      ``Unnamed: N`` columns are ignored. If every other column is ``topic.field``
+      (scart-bench's combined tables), there is one topic per prefix and rows where all of that
+      topic's fields are empty are dropped; otherwise, and for ROS exports whose columns are all
+      ``field.<name>``, the table is one topic named after the file stem (sanitised to
+      ``[a-z0-9_]``). Load a flight's ``all_sensors``
       table, not ``most_frequent``: the latter is resampled (values repeated at the base rate).
     * A scart-bench dataset flight folder: the navigator-view topic tables in
       ``sensors/navigator`` (Parquet preferred over CSV), ``Is_Anomaly`` dropped.
+
+    ``start_s`` / ``end_s`` keep the messages in ``[start_s, end_s)`` seconds from time zero (e.g.
+    before an injected fault or a crash) and make ``start_s`` the new time zero.
 
     Raises DatasetError naming the file for: a missing file, an unknown extension, an
     unreadable or corrupt ULog, a table without a recognised time column, non-numeric data
     (with the column and first bad row), and empty logs.
     """
-    path = Path(path)
+    tables = _load_any(Path(path), topics, allow_corrupt)
+    if start_s is None and end_s is None:
+        return tables
+    return trim(tables, start_s, end_s, Path(path))
+
+
+def trim(tables: dict[str, pd.DataFrame], start_s: float | None, end_s: float | None,
+         source: Path) -> dict[str, pd.DataFrame]:
+    """The messages in ``[start_s, end_s)`` with time zero moved to ``start_s``."""
+    lo = int(round((start_s or 0.0) * 1e6))
+    hi = None if end_s is None else int(round(end_s * 1e6))
+    if lo < 0 or (hi is not None and hi <= lo):
+        raise DatasetError(f"{source}: --start {start_s} / --end {end_s}: expected 0 <= start < end (seconds)")
+    out = {}
+    for topic, df in tables.items():
+        ts = df["Timestamp"].to_numpy()
+        keep = (ts >= lo) & (ts < hi if hi is not None else True)
+        part = df[keep].reset_index(drop=True)
+        part["Timestamp"] = part["Timestamp"] - lo
+        part.attrs = {**df.attrs, "origin_us": int(df.attrs.get("origin_us", 0)) + lo,
+                      "trimmed_s": [start_s or 0.0, end_s]}
+        if len(part):
+            out[topic] = part
+    if not out:
+        last = max(int(df["Timestamp"].iloc[-1]) for df in tables.values() if len(df)) / 1e6
+        raise DatasetError(f"{source}: no message in [{start_s or 0.0}, {end_s}) s; the log spans 0 - {last:.1f} s")
+    return out
+
+
+def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict[str, pd.DataFrame]:
     if not path.exists():
         raise DatasetError(f"{path}: no such file or folder (expected a flight log: .ulg, .csv, .parquet "
                            "or a scart-bench flight folder)")
@@ -508,11 +622,14 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
         return _load_ulog(path, topics, allow_corrupt)
     if suffix in CSV_SUFFIXES or (suffix in COMPRESSION_SUFFIXES and len(suffixes) == 2
                                   and suffixes[0] in CSV_SUFFIXES):
-        raw = _frame_topics(_read_csv(path), path, _stem(path), is_csv=True)
+        df = _read_csv(path)
+        raw = _frame_topics(df, path, _stem(path), is_csv=True)
     elif suffix in PARQUET_SUFFIXES:
-        raw = _frame_topics(_read_parquet(path), path, _stem(path), is_csv=False)
+        df = _read_parquet(path)
+        raw = _frame_topics(df, path, _stem(path), is_csv=False)
     else:
         raise DatasetError(f"{path}: unknown file type {suffix or '(no extension)'!r}; expected a PX4 ULog "
                            "(.ulg), a CSV (.csv, optionally compressed), a Parquet file (.parquet) or a "
                            "scart-bench flight folder")
-    return _finish(_select(raw, topics, path), path)
+    # scart-bench's own tables already count from the flight's start: keep it as time zero
+    return _finish(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import LABEL_COLUMNS, FlightRecord, insert_labels
+from scart_bench.generator.dataset import LABEL_COLUMNS, FlightRecord, flight_record, insert_labels
 from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
@@ -55,13 +55,21 @@ def simulation_record(batch: BatchResult, layer: AttackLayer, i: int, flight_id:
     end_us = (int(batch.exit_step[i]) + 1) * STEP_US
     windows = layer.labelled_windows(i, end_us)
     nav, sim = flight_views(batch, i, windows)
-    manifest = scenario_manifest(scenarios, "simulation", batch.seeds[i])
-    manifest["duration_s"] = end_us / 1e6
     cfg = {**config, "seed": batch.seeds[i], "status": batch.status[i], "mode": "simulation",
            "scenarios": [s.to_dict() for s in scenarios], "wind_mean_ned": batch.wind[i].tolist(),
            "waypoints_ned": batch.waypoints[i].tolist()}
-    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=manifest, config=cfg,
-                        windows=windows, events=layer.event_log(i, end_us))
+    return flight_record(flight_id, nav, sim, scenario_manifest(scenarios, "simulation", batch.seeds[i]), cfg,
+                         windows, layer.event_log(i, end_us), end_us=end_us)
+
+
+def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, scenarios: list[Scenario],
+               seed: int, source_name: str, config: dict) -> FlightRecord:
+    """An attacked csv-mode flight: ``result`` is one entry of :func:`csv_mode` on ``source``
+    (the unattacked topic tables, which become the simulator view)."""
+    nav, windows, events = result
+    cfg = {**config, "mode": "csv", "seed": seed, "scenarios": [s.to_dict() for s in scenarios]}
+    return flight_record(flight_id, nav, with_labels(source, windows),
+                         scenario_manifest(scenarios, "csv", seed, source=source_name), cfg, windows, events)
 
 
 def _same_schedule(flights: list[dict[str, pd.DataFrame]]) -> bool:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import FlightRecord, insert_labels
+from scart_bench.generator.dataset import FlightRecord, flight_record, insert_labels
 from scart_bench.generator.link import field_names
 from scart_bench.generator.simulate import STEP_US, BatchResult
 
@@ -39,11 +39,7 @@ def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
 def normal_record(batch: BatchResult, i: int, flight_id: str, split: str, config: dict) -> FlightRecord:
     """A normal (unattacked) flight ready for the dataset writer."""
     nav, sim = flight_views(batch, i)
-    duration = (int(batch.exit_step[i]) + 1) * STEP_US / 1e6
-    manifest = {
-        "mode": "normal", "scenario_id": "", "action": "", "target": "", "injection_point": "",
-        "params": "{}", "seed": batch.seeds[i], "split": split, "duration_s": duration, "source_flight": "",
-    }
     cfg = {**config, "seed": batch.seeds[i], "status": batch.status[i],
            "wind_mean_ned": batch.wind[i].tolist(), "waypoints_ned": batch.waypoints[i].tolist()}
-    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=manifest, config=cfg)
+    return flight_record(flight_id, nav, sim, {"mode": "normal", "seed": batch.seeds[i], "split": split}, cfg,
+                         end_us=(int(batch.exit_step[i]) + 1) * STEP_US)

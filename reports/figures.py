@@ -176,7 +176,8 @@ def _table(ds: Dataset, fid: str, view: str) -> pd.DataFrame:
 
 def _path_xy(ds: Dataset, fid: str, view: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(timestamps us, north m, east m) of a flight: the ``truth`` topic in the simulator view when
-    there is one, else ``local_position_ned`` x/y, else lat/lon around the first fix."""
+    there is one, else a local x/y position, else lat/lon around the first fix (any topic of the
+    quantity ``position``: generated flights and PX4 logs alike)."""
     try:
         has_truth = view == "simulator" and "truth" in ds.topics(fid, "simulator")
     except OSError:
@@ -186,15 +187,22 @@ def _path_xy(ds: Dataset, fid: str, view: str) -> tuple[np.ndarray, np.ndarray, 
         return t["Timestamp"].to_numpy(np.int64), t["x"].to_numpy(float), t["y"].to_numpy(float)
     df = _table(ds, fid, view)
     ts = df["Timestamp"].to_numpy(np.int64)
-    if {"local_position_ned.x", "local_position_ned.y"} <= set(df.columns):
-        return ts, df["local_position_ned.x"].to_numpy(float), df["local_position_ned.y"].to_numpy(float)
-    if {"global_position_int.lat", "global_position_int.lon"} <= set(df.columns):
-        lat, lon = df["global_position_int.lat"].to_numpy(float), df["global_position_int.lon"].to_numpy(float)
-        lat0, lon0 = np.nanmean(lat[:1]), np.nanmean(lon[:1])
-        r = 6_378_137.0
-        return ts, np.radians(lat - lat0) * r, np.radians(lon - lon0) * r * np.cos(np.radians(lat0))
-    raise ReportError(f"{ds.flight_dir(fid)}: no position columns (local_position_ned.x/y or "
-                     f"global_position_int.lat/lon) in the {view} view")
+    from scart_bench.generator.geo import ne_from_latlon
+    from scart_bench.generator.scart.meanings import QUANTITIES
+
+    pos = QUANTITIES["position"]  # local x/y first, then lat/lon (MAVLink or PX4 uORB names)
+    for a, b in (("x", "y"), ("lat", "lon")):
+        for ca, cb in zip(pos[a], pos[b]):
+            if {ca, cb} <= set(df.columns) and ca.split(".")[0] == cb.split(".")[0]:
+                u, v = df[ca].to_numpy(float), df[cb].to_numpy(float)
+                if a == "x":
+                    return ts, u, v
+                ok = np.flatnonzero(np.isfinite(u) & np.isfinite(v))
+                if ok.size:
+                    n, e = ne_from_latlon(u, v, u[ok[0]], v[ok[0]])
+                    return ts, n, e
+    raise ReportError(f"{ds.flight_dir(fid)}: no position columns (the quantity 'position': "
+                     f"{', '.join(pos['x'] + pos['lat'])}) in the {view} view")
 
 
 def reference_flight(ds: Dataset, fid: str) -> str | None:

@@ -13,8 +13,7 @@ import pytest
 
 from scart_bench.generator.dataset import DatasetError, DatasetWriter, FlightRecord, combine, label_rows
 from scart_bench.generator.importers import (
-    TIME_COLUMNS_S,
-    TIME_COLUMNS_US,
+    TIME_COLUMNS,
     load_flight_file,
     sanitize_field_name,
     sanitize_topic_name,
@@ -129,11 +128,11 @@ def test_multi_instance_names_and_topic_filter(ulogs):
         assert tables[f"estimator_global_position_{i}"].attrs["multi_id"] == i
     part = load_flight_file(RFLYMAD, topics=["sensor_gps", "estimator_global_position_2"])
     assert list(part) == ["sensor_gps", "estimator_global_position_2"]
-    # the origin is the earliest timestamp over the returned topics only
-    assert min(int(df["Timestamp"].iloc[0]) for df in part.values()) == 0
+    # time zero is the start of logging, with or without a topic filter
     origin = part["sensor_gps"].attrs["origin_us"]
+    assert origin == tables["sensor_gps"].attrs["origin_us"] == 1_184_000  # ULog start_timestamp
     full = tables["sensor_gps"]
-    np.testing.assert_array_equal(part["sensor_gps"]["Timestamp"] + origin, full["Timestamp"])
+    np.testing.assert_array_equal(part["sensor_gps"]["Timestamp"], full["Timestamp"])
     pd.testing.assert_frame_equal(part["sensor_gps"].drop(columns="Timestamp"), full.drop(columns="Timestamp"))
     with pytest.raises(DatasetError, match=r"no_such_topic.*sensor_combined"):
         load_flight_file(RFLYMAD, topics=["no_such_topic"])
@@ -184,9 +183,8 @@ def _synthetic_topics(seed: int = 0) -> dict[str, pd.DataFrame]:
 
 
 def _expected(topics: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
-    origin = min(int(df["Timestamp"].min()) for df in topics.values())
-    return {k: df.drop(columns="Is_Anomaly").assign(Timestamp=df["Timestamp"] - origin).reset_index(drop=True)
-            for k, df in topics.items()}
+    """scart-bench's own tables keep their time (already from the flight's start)."""
+    return {k: df.drop(columns="Is_Anomaly").reset_index(drop=True) for k, df in topics.items()}
 
 
 @pytest.mark.parametrize("fmt", ["csv", "parquet"])
@@ -247,12 +245,15 @@ def test_single_topic_csv_rules(tmp_path):
 
 
 def test_time_column_names(tmp_path):
-    for name in (*TIME_COLUMNS_US, "Timestamp", "TIME_USEC"):
-        (tmp_path / "a.csv").write_text(f"{name},v\n100,1\n300,2\n")
-        assert load_flight_file(tmp_path / "a.csv")["a"]["Timestamp"].tolist() == [0, 200]
-    for name in TIME_COLUMNS_S:
-        (tmp_path / "a.csv").write_text(f"{name},v\n1.0000004,1\n1.5,2\n")
-        assert load_flight_file(tmp_path / "a.csv")["a"]["Timestamp"].tolist() == [0, 500_000]
+    """A name with a unit is taken at its word; generic names infer the unit (a 10 Hz, 2 s log)."""
+    per_unit = {"ns": 1000, "us": 1, "ms": 0.001, "s": 1e-6}
+    for name in (*TIME_COLUMNS, "Timestamp", "TIME_USEC"):
+        unit = TIME_COLUMNS.get(name.lower()) or "us"
+        ts = [v * per_unit[unit] for v in range(1_000_000, 3_000_001, 100_000)]
+        text = "\n".join(f"{t:.6f},{i}" if unit == "s" else f"{int(t)},{i}" for i, t in enumerate(ts))
+        (tmp_path / "a.csv").write_text(f"{name},v\n{text}\n")
+        got = load_flight_file(tmp_path / "a.csv")["a"]["Timestamp"].tolist()
+        assert got[:3] == [0, 100_000, 200_000] and got[-1] == 2_000_000, name
 
 
 def test_name_sanitising():
@@ -277,7 +278,7 @@ def test_missing_and_unknown_files(tmp_path):
 
 
 @needs_ulogs
-def test_bad_ulogs(tmp_path):
+def test_bad_ulogs(tmp_path, caplog):
     data = PX4_SAMPLE.read_bytes()
     cases = {
         "garbage.ulg": (np.random.default_rng(0).bytes(4096), "not a readable PX4 ULog"),
@@ -298,9 +299,14 @@ def test_bad_ulogs(tmp_path):
         load_flight_file(bad)
     part = load_flight_file(bad, allow_corrupt=True)
     assert "sensor_combined" in part and part["sensor_combined"].attrs["file_corruption"]
-    # a truncated log (power cut) is readable: its messages up to the cut
+    # a truncated log (power cut, copied while written): refused, saying how much is readable,
+    # unless that is asked for (then a warning says how much was read)
     (tmp_path / "half.ulg").write_bytes(data[: len(data) // 2])
-    assert "sensor_combined" in load_flight_file(tmp_path / "half.ulg")
+    with pytest.raises(DatasetError, match=r"half\.ulg: the ULog is truncated.*bytes.*s of logging.*--allow-corrupt"):
+        load_flight_file(tmp_path / "half.ulg")
+    with caplog.at_level("WARNING"):
+        assert "sensor_combined" in load_flight_file(tmp_path / "half.ulg", allow_corrupt=True)
+    assert re.search(r"truncated; using the \d+\.\d s of logging read", caplog.text)
     # definitions but no data messages
     from pyulog import ULog
     ULog(str(PX4_SAMPLE), []).write_ulog(str(tmp_path / "no_data.ulg"))
@@ -319,13 +325,15 @@ def test_bad_csvs(tmp_path):
         for p in patterns:
             assert re.search(p, message), (p, message)
 
-    accepted = [*TIME_COLUMNS_US, *TIME_COLUMNS_S]
+    accepted = list(TIME_COLUMNS)
     fails("clock,x\n1,2\n", "no timestamp column", *[re.escape(repr(n)) for n in accepted], "'clock'")
     fails("timestamp,x,y\n1,2,3\n2,3,4\n3,oops,5\n", r"column 'x'.*'oops'.*row 3 \(line 4")
     fails("", "empty")
     fails("timestamp,x\n", "empty")
     fails("timestamp\n1\n2\n", "no data columns")
-    fails("timestamp,x\n1.5,2\n", r"integer microseconds.*time_s")
+    fails("timestamp,x\n1.5,2\n", r"'timestamp'.*fewer than two distinct times.*timestamp_us")
+    # ambiguous units (1 ms or 1 s apart, over 10 s or 10000 s): refused, naming the column
+    fails("time,x\n" + "".join(f"{i * 1000},{i}\n" for i in range(10_001)), r"'time'.*ambiguous \(us or ms\)")
     fails("timestamp,x\n1,2\n,3\n", r"time column 'timestamp'.*row 2")
     fails("timestamp,x,x\n1,2,3\n", r"duplicate column.*'x'")
     fails("Index,Timestamp,Is_Anomaly,gps.lat\n0,1,0,\n", "empty")  # every row empty

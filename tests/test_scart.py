@@ -324,7 +324,7 @@ def test_bad_scenario_files_name_file_key_and_allowed_values(tmp_path, capsys, n
         assert word in str(err.value), (name, str(err.value))
     # through the CLI: exit code 2 and nothing written
     flight = tmp_path / "flight.csv"
-    pd.DataFrame({"timestamp": [0, 20000, 40000], "x": [0.0, 1.0, 2.0]}).to_csv(flight, index=False)
+    pd.DataFrame({"timestamp_us": [0, 20000, 40000], "x": [0.0, 1.0, 2.0]}).to_csv(flight, index=False)
     out = tmp_path / "out"
     assert main(["attack", "--input", str(flight), "--scenario", str(path), "--out", str(out)]) == 2
     assert str(path) in capsys.readouterr().err
@@ -358,4 +358,5 @@ start = [{ condition = "time_window", start_s = 15.0 }]
     ds = open_dataset(out)
     assert sorted(ds.manifest["flight_id"]) == sorted(f"csv-ulog-{a}-gps-L{k}-d3-t" for a in ("bias", "add_white_noise")
                                                       for k in (0, 1))
-    assert (ds.manifest["attack_start_us"] == 15_000_000).all()
+    # time zero is the start of logging: the first message at or after 15 s starts it
+    assert ds.manifest["attack_start_us"].between(15_000_000, 15_010_000).all()

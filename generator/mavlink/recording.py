@@ -13,7 +13,6 @@ is complete before and after.
 
 from __future__ import annotations
 
-import os
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -21,14 +20,13 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.generator.dataset import (
-    MANIFEST_COLUMNS,
     DatasetError,
-    DatasetWriter,
     FlightRecord,
+    append_flights,
+    flight_record,
     insert_labels,
     is_dataset,
     open_dataset,
-    write_flight,
 )
 from scart_bench.generator.modes import scenario_manifest
 from scart_bench.generator.topics import TOPICS
@@ -51,7 +49,6 @@ def proxy_record(proxy, flight_id: str, extra_config: dict) -> FlightRecord:
     nav = {t: _table(t, *proxy.views.forwarded[t], windows) for t in TOPICS if t in proxy.views.forwarded}
     sim = {t: _table(t, *proxy.views.received[t], windows) for t in TOPICS if t in proxy.views.received}
     manifest = scenario_manifest(proxy.scenarios, "simulation", proxy.seed, source=LIVE_SOURCE)
-    manifest["duration_s"] = end_us / 1e6
     config = {
         **extra_config, "seed": proxy.seed, "mode": "simulation", "source": LIVE_SOURCE,
         "listen": f"udp:{proxy.listen[0]}:{proxy.listen[1]}",
@@ -60,8 +57,8 @@ def proxy_record(proxy, flight_id: str, extra_config: dict) -> FlightRecord:
         "first_autopilot_time_us": proxy.first_time_us,
         "recorded_at": datetime.fromtimestamp(proxy.started_wall, UTC).isoformat(timespec="seconds"),
     }
-    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=manifest, config=config,
-                        windows=windows, events=proxy.layer.event_log(0, end_us))
+    return flight_record(flight_id, nav, sim, manifest, config, windows, proxy.layer.event_log(0, end_us),
+                         end_us=end_us)
 
 
 def new_flight_id(path: str | Path | None = None, prefix: str = "live") -> str:
@@ -82,24 +79,4 @@ def save_recording(record: FlightRecord, out: str | Path, fmt: str = "parquet") 
     out = Path(out)
     if record.navigator == {}:
         raise DatasetError(f"{out}: nothing was recorded (no telemetry of a known topic passed the proxy)")
-    if not is_dataset(out):
-        writer = DatasetWriter(out, fmt=fmt, info={"profile": "live", "source": LIVE_SOURCE})
-        writer.write(record)
-        return writer.close()
-    ds = open_dataset(out)
-    if (ds.manifest["flight_id"].astype(str) == record.flight_id).any():
-        raise DatasetError(f"{out}: a flight {record.flight_id!r} is already in the dataset")
-    fmt = ds.info.get("format", "parquet")
-    row = write_flight(out, fmt, record)
-    manifest = pd.concat([ds.manifest, pd.DataFrame([row], columns=list(MANIFEST_COLUMNS))], ignore_index=True)
-    for col in ("attack_start_us", "attack_end_us"):
-        if col in manifest.columns:
-            manifest[col] = pd.to_numeric(manifest[col]).astype("Int64")
-    final = out / f"manifest.{fmt}"
-    tmp = out / f".manifest.tmp.{fmt}"
-    if fmt == "parquet":
-        manifest.to_parquet(tmp, index=False)
-    else:
-        manifest.to_csv(tmp, index=False)
-    os.replace(tmp, final)
-    return final
+    return append_flights(out, [record], fmt=fmt, info={"profile": "live", "source": LIVE_SOURCE})

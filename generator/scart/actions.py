@@ -2,7 +2,10 @@
 
 Each action alters the current value of its target fields (or drops the message) for the
 flights where the scenario is active, leaving the others untouched. Magnitudes are in physical
-units (m, m/s, rad, ...) and converted per field by scart_bench.generator.scart.units. Numeric parameters
+units (m, m/s, rad, ...) and converted per field by scart_bench.generator.scart.units. Actions that move a
+value by metres (``metric = True``) see a message's latitude/longitude as north/east metres in the
+WGS-84 tangent plane at the flight's origin (``ctx.origin``) and their result is converted back,
+so a displacement has the same length at any latitude. Numeric parameters
 are per-flight arrays, so one group applies many parameter settings at once.
 """
 
@@ -13,6 +16,7 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
+from scart_bench.generator import geo
 from scart_bench.generator.scart import units
 from scart_bench.generator.scart.spec import Param
 
@@ -31,6 +35,8 @@ class Action:
     spec: tuple[Param, ...] = ()
     #: True for actions that need random numbers on every message of a target topic
     random = False
+    #: True for actions whose magnitudes are lengths: lat/lon are edited as metres (see module doc)
+    metric = False
 
     def __init__(self, params: dict, fields: dict[str, tuple[int, ...]], field_names: dict[str, tuple[str, ...]]):
         self.params = params
@@ -85,13 +91,52 @@ class Action:
     def apply(self, ctx, topic: str, values: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Alter ``values`` (N, F, a copy) where ``active``; returns (values, delivered)."""
         idx = list(self.fields[topic])
-        cur = values[:, idx]
+        pair = units.latlon_pair(topic, self.field_names[topic]) if self.metric else None
+        if pair is None or not active.any():  # inactive: alter only for its random draws, nothing changes
+            cur = values[:, idx]
+            new, delivered = self.alter(ctx, topic, cur, active)
+            values[:, idx] = np.where(active[:, None], new, cur)
+            return values, np.where(active, delivered, True)
+        work = to_metres(ctx, values, pair)
+        cur = work[:, idx]
         new, delivered = self.alter(ctx, topic, cur, active)
-        values[:, idx] = np.where(active[:, None], new, cur)
-        return values, np.where(active, delivered, True)
+        work[:, idx] = new
+        return from_metres(ctx, values, work, pair, idx, active), np.where(active, delivered, True)
 
     def alter(self, ctx, topic: str, cur: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
+
+
+def _origin(ctx, values: np.ndarray, pair: tuple[int, int]) -> np.ndarray:
+    """(N, 2) lat/lon origin of each flight; a flight with none yet uses this message's position."""
+    o = np.array(ctx.origin, dtype=np.float64, copy=True)
+    unknown = ~np.isfinite(o).all(axis=1)
+    if unknown.any():
+        o[unknown, 0] = values[unknown, pair[0]]
+        o[unknown, 1] = values[unknown, pair[1]]
+    return o
+
+
+def to_metres(ctx, values: np.ndarray, pair: tuple[int, int]) -> np.ndarray:
+    """A copy of ``values`` with the lat/lon columns ``pair`` as north/east metres from the origin."""
+    work = values.copy()
+    o = _origin(ctx, values, pair)
+    n, e = geo.ne_from_latlon(values[:, pair[0]], values[:, pair[1]], o[:, 0], o[:, 1])
+    work[:, pair[0]], work[:, pair[1]] = n, e
+    return work
+
+
+def from_metres(ctx, values: np.ndarray, work: np.ndarray, pair: tuple[int, int], idx: list[int],
+                active: np.ndarray) -> np.ndarray:
+    """``values`` with the target columns ``idx`` taken from ``work`` where ``active`` (metres ->
+    lat/lon for the pair); everything else unchanged, bit for bit."""
+    out = values.copy()
+    o = _origin(ctx, values, pair)
+    lat, lon = geo.latlon_from_ne(work[:, pair[0]], work[:, pair[1]], o[:, 0], o[:, 1])
+    back = work.copy()
+    back[:, pair[0]], back[:, pair[1]] = lat, lon
+    out[:, idx] = np.where(active[:, None], back[:, idx], values[:, idx])
+    return out
 
 
 def _keep(n: int) -> np.ndarray:
@@ -102,6 +147,7 @@ class AddWhiteNoise(Action):
     """Adds zero-mean Gaussian noise of standard deviation ``std`` (physical units)."""
 
     name = "add_white_noise"
+    metric = True
     spec = (_TARGET, Param("std", float, required=True, minimum=0.0, exclusive_min=True))
     random = True
 
@@ -114,6 +160,7 @@ class RandomChange(Action):
     """Adds a uniform random change in [-range, +range] (physical units) to each message."""
 
     name = "random_change"
+    metric = True
     spec = (_TARGET, Param("range", float, required=True, minimum=0.0, exclusive_min=True))
     random = True
 
@@ -163,6 +210,10 @@ class AvgSensors(Action):
         return mean[:, list(self.fields[topic])], _keep(cur.shape[0])
 
 
+#: Course-over-ground fields (radians, 0 = north) that gps_spoof turns with the velocity.
+COURSE_FIELDS = ("cog", "cog_rad")
+
+
 class GpsSpoof(Action):
     """GPS spoofing with a growing angular deviation (the paper's spoofing attack).
 
@@ -177,27 +228,32 @@ class GpsSpoof(Action):
 
     def apply(self, ctx, topic, values, active):
         names = self.field_names[topic]
-        idx = set(self.fields[topic])
+        idx = sorted(set(self.fields[topic]))
         q = {units.quantity(topic, names[i]): i for i in idx}
         theta = np.deg2rad(np.minimum(self.p("rate_deg_s")[:, 0] * (ctx.t_us - ctx.start_us) / 1e6,
                                       self.p("max_deg")[:, 0]))
         c, s = np.cos(theta), np.sin(theta)
-        v0 = self.start_values(ctx, topic, values.copy())
-        out = values.copy()
-        for a, b, sn, se in (("latitude", "longitude", units.M_PER_DEG_LAT, units.M_PER_DEG_LON),
-                             ("position_n", "position_e", 1.0, 1.0)):
+        pair = units.latlon_pair(topic, names)
+        work = to_metres(ctx, values, pair) if pair is not None else values.copy()
+        v0 = self.start_values(ctx, topic, work.copy())
+        out = work.copy()
+        # lat/lon are north/east metres here: a rotation in the tangent plane keeps distances
+        for a, b in (("latitude", "longitude"), ("position_n", "position_e")):
             if a in q and b in q:
                 ia, ib = q[a], q[b]
-                dn = (values[:, ia] - v0[:, ia]) * sn
-                de = (values[:, ib] - v0[:, ib]) * se
-                out[:, ia] = v0[:, ia] + (c * dn - s * de) / sn
-                out[:, ib] = v0[:, ib] + (s * dn + c * de) / se
+                dn = work[:, ia] - v0[:, ia]
+                de = work[:, ib] - v0[:, ib]
+                out[:, ia] = v0[:, ia] + (c * dn - s * de)
+                out[:, ib] = v0[:, ib] + (s * dn + c * de)
         if "velocity_n" in q and "velocity_e" in q:
             ia, ib = q["velocity_n"], q["velocity_e"]
-            out[:, ia] = c * values[:, ia] - s * values[:, ib]
-            out[:, ib] = s * values[:, ia] + c * values[:, ib]
-        if "angle" in q and names[q["angle"]] in ("cog",):
-            out[:, q["angle"]] = np.mod(values[:, q["angle"]] + theta, 2 * math.pi)
+            out[:, ia] = c * work[:, ia] - s * work[:, ib]
+            out[:, ib] = s * work[:, ia] + c * work[:, ib]
+        for i in idx:  # course over ground turns with the velocity
+            if names[i] in COURSE_FIELDS:
+                out[:, i] = np.mod(work[:, i] + theta, 2 * math.pi)
+        if pair is not None:
+            return from_metres(ctx, values, out, pair, idx, active), _keep(values.shape[0])
         values = np.where(active[:, None], out, values)
         return values, _keep(values.shape[0])
 
@@ -226,6 +282,7 @@ class Garbage(Action):
     """PX4 failure "garbage": values replaced by uniform noise in [-range, +range] (physical units)."""
 
     name = "garbage"
+    metric = True
     spec = (_TARGET, Param("range", float, 1000.0, minimum=0.0, exclusive_min=True))
     random = True
 
@@ -238,6 +295,7 @@ class Wrong(Action):
     """PX4 failure "wrong": a constant wrong value, ``offset`` away from the value at attack start."""
 
     name = "wrong"
+    metric = True
     spec = (_TARGET, Param("offset", float, required=True), _DIRECTION)
 
     def alter(self, ctx, topic, cur, active):
@@ -287,6 +345,7 @@ class Bias(Action):
     """Adds a constant ``offset`` (physical units, along ``direction_deg`` for horizontal fields)."""
 
     name = "bias"
+    metric = True
     spec = (_TARGET, Param("offset", float, required=True), _DIRECTION)
 
     def alter(self, ctx, topic, cur, active):
@@ -308,6 +367,7 @@ class Sinusoid(Action):
     """Adds ``amplitude`` sin(2 pi frequency_hz (t - start)) (physical units)."""
 
     name = "sinusoid"
+    metric = True
     spec = (_TARGET, Param("amplitude", float, required=True),
             Param("frequency_hz", float, 0.5, minimum=0.0, exclusive_min=True), _DIRECTION)
 
@@ -322,6 +382,7 @@ class Drift(Action):
     that same ``rate``, so position and velocity stay consistent (other fields drift at rate/s)."""
 
     name = "drift"
+    metric = True
     spec = (_TARGET, Param("rate", float, required=True), _DIRECTION)
 
     def alter(self, ctx, topic, cur, active):

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.generator.geo import latlon_to_ned
+from scart_bench.generator.geo import ne_from_latlon
 from scart_bench.generator.scart.spec import Param, ScenarioError
+from scart_bench.generator.scart.units import latlon_pair
 
 
 class Condition:
@@ -41,15 +42,20 @@ def _latest(ctx, topic: str) -> tuple[np.ndarray, tuple[str, ...]] | tuple[None,
     return h.latest()[ctx.rows], ctx.fields(topic)
 
 
-def position_ne(values: np.ndarray, fields: tuple[str, ...]) -> np.ndarray:
-    """(N, 2) north/east metres from a message with lat/lon or x/y fields."""
-    if "lat" in fields and "lon" in fields:
-        n, e = latlon_to_ned(values[:, fields.index("lat")], values[:, fields.index("lon")])
+def position_ne(values: np.ndarray, fields: tuple[str, ...], origin: np.ndarray, topic: str = "") -> np.ndarray:
+    """(N, 2) north/east metres from a message with lat/lon fields (in the WGS-84 tangent plane at
+    each flight's ``origin``, (N, 2) lat/lon) or x/y fields (already metres from the origin)."""
+    pair = latlon_pair(topic, fields)
+    if pair is not None:
+        o = np.asarray(origin, dtype=np.float64)
+        lat, lon = values[:, pair[0]], values[:, pair[1]]
+        o0 = np.where(np.isfinite(o[:, 0]), o[:, 0], lat)
+        o1 = np.where(np.isfinite(o[:, 1]), o[:, 1], lon)
+        n, e = ne_from_latlon(lat, lon, o0, o1)
         return np.column_stack([n, e])
-    if "latitude_deg" in fields:
-        n, e = latlon_to_ned(values[:, fields.index("latitude_deg")], values[:, fields.index("longitude_deg")])
-        return np.column_stack([n, e])
-    return np.column_stack([values[:, fields.index("x")], values[:, fields.index("y")]])
+    if "x" in fields and "y" in fields:
+        return np.column_stack([values[:, fields.index("x")], values[:, fields.index("y")]])
+    raise KeyError(f"{topic}: no position fields (lat/lon or x/y) in {', '.join(fields)}")
 
 
 def altitude(values: np.ndarray, fields: tuple[str, ...]) -> np.ndarray:
@@ -98,13 +104,14 @@ class Geofence(Condition):
     spec = (Param("center", list, required=True, help="[north_m, east_m] from home", item=float, min_items=2,
                   max_items=2),
             Param("radius", float, required=True, minimum=0.0, exclusive_min=True),
-            Param("inside", bool, True), Param("topic", str, "local_position_ned"))
+            Param("inside", bool, True), Param("topic", str, "position",
+                                               help="a position topic or the quantity 'position'"))
 
     def __call__(self, ctx):
         vals, fields = _latest(ctx, self.params["topic"])
         if vals is None:
             return np.zeros(ctx.rows.shape, bool)
-        pos = position_ne(vals, fields)
+        pos = position_ne(vals, fields, ctx.origin, self.params["topic"])
         c = np.asarray(self.params["center"], dtype=float)
         d = np.hypot(pos[:, 0] - c[..., 0], pos[:, 1] - c[..., 1])
         inside = d <= self.params["radius"]
@@ -115,7 +122,9 @@ class AltitudeAbove(Condition):
     """Holds while the received altitude above home exceeds ``height`` m."""
 
     name = "altitude_above"
-    spec = (Param("height", float, required=True), Param("topic", str, "local_position_ned"))
+    spec = (Param("height", float, required=True),
+            Param("topic", str, "altitude", help="a topic with z, relative_alt or altitude_relative, or the "
+                  "quantity 'altitude'"))
 
     def __call__(self, ctx):
         vals, fields = _latest(ctx, self.params["topic"])
@@ -128,7 +137,9 @@ class MissionPhase(Condition):
     """Holds once the mission has passed waypoint ``after_waypoint`` (current item > k)."""
 
     name = "mission_phase"
-    spec = (Param("after_waypoint", int, required=True, minimum=0), Param("topic", str, "setpoint"),
+    spec = (Param("after_waypoint", int, required=True, minimum=0),
+            Param("topic", str, "mission", help="the quantity 'mission' (setpoint.seq on generated flights, "
+                  "mission_result.seq_current on PX4 logs) or a topic"),
             Param("field", str, "seq"))
 
     def __call__(self, ctx):

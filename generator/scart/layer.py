@@ -28,7 +28,7 @@ from scart_bench.generator.scart.actions import ACTIONS, Action
 from scart_bench.generator.scart.conditions import CONDITIONS, Condition
 from scart_bench.generator.scart.effects import EFFECTS
 from scart_bench.generator.scart.history import History
-from scart_bench.generator.scart.scenario import Scenario, check_composition, point_topics
+from scart_bench.generator.scart.scenario import Scenario, check_composition, listened_topics, point_topics
 from scart_bench.generator.scart.spec import ScenarioError
 
 
@@ -84,6 +84,11 @@ class _Context:
         self.rows = group.rows
         self.n_batch = layer.n
         self.start_us = group.start_us
+
+    @property
+    def origin(self) -> np.ndarray:
+        """(N, 2) latitude/longitude origin (deg) of the group's flights (NaN: none seen yet)."""
+        return self.layer.origin[self.rows]
 
     def fields(self, topic: str) -> tuple[str, ...]:
         return self.layer.fields(topic)
@@ -222,10 +227,24 @@ class AttackLayer:
 
     def __init__(self, scenarios: list[list[Scenario]], seeds: list[int],
                  fields: dict[str, tuple[str, ...]] | None = None, rates: dict[str, float] | None = None,
-                 physics: bool = True):
+                 physics: bool = True, origin: np.ndarray | None = None):
         self.n = len(scenarios)
         self.physics = physics
+        #: each flight's origin (lat, lon in deg): the tangent plane where metres meet degrees.
+        #: Given, or learnt from the first message with a valid lat/lon pair (see learn_origin).
+        self.origin = np.full((self.n, 2), np.nan)
+        if origin is not None:
+            self.origin[:] = np.asarray(origin, dtype=np.float64).reshape(-1, 2)[:, :2]
+        self._origin_open = not np.isfinite(self.origin).all()
         scenarios = [check_composition(lst, lst[0].source if lst else "<memory>") for lst in scenarios]
+        given = dict(fields) if fields is not None else None
+        resolved: dict[int, Scenario] = {}
+        for lst in scenarios:  # quantities -> this input's topics (the same object resolves once)
+            for sc in lst:
+                if id(sc) not in resolved:
+                    resolved[id(sc)] = (sc.resolved(given) if given is not None else
+                                        sc.resolved(point_topics(sc.injection_point), listened_topics()))
+        scenarios = [[resolved[id(sc)] for sc in lst] for lst in scenarios]
         self._state_maps: dict[tuple[str, int], list[tuple[_Group, np.ndarray, np.ndarray]]] = {}
         self._fields = dict(fields or {})
         self.events: list[Event] = []
@@ -283,6 +302,8 @@ class AttackLayer:
     def on_messages(self, point: str | None, step: int, t_us: int, messages: dict[str, np.ndarray]
                     ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Run the scenarios at ``point`` (None: every scenario, as in csv mode) on this step's messages."""
+        if self._origin_open:
+            self.learn_origin(messages)
         for topic, vals in messages.items():
             if topic in self.listened:
                 self._fields.setdefault(topic, self.fields(topic))
@@ -308,6 +329,22 @@ class AttackLayer:
                     ok[g.rows] &= delivered
                     out[topic] = (vals, ok)
         return out
+
+    def learn_origin(self, messages: dict[str, np.ndarray]) -> None:
+        """Take a flight's origin from the first finite, non-zero lat/lon pair it receives."""
+        from scart_bench.generator.scart.units import latlon_pair
+
+        for topic, vals in messages.items():
+            pair = latlon_pair(topic, self.fields(topic))
+            if pair is None:
+                continue
+            lat, lon = vals[:, pair[0]], vals[:, pair[1]]
+            need = ~np.isfinite(self.origin).all(axis=1) & np.isfinite(lat) & np.isfinite(lon) \
+                & ((lat != 0) | (lon != 0)) & (np.abs(lat) <= 90)
+            if need.any():
+                self.origin[need, 0] = lat[need]
+                self.origin[need, 1] = lon[need]
+        self._origin_open = not np.isfinite(self.origin).all()
 
     def on_physics(self, step: int, t_us: int) -> Disturbances | dict:
         """Run the environment and vehicle scenarios: this step's physical disturbances."""

@@ -27,6 +27,7 @@ A file holds one ``[scenario]`` or several ``[[scenario]]`` tables (applied toge
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +36,7 @@ from scart_bench.generator.link import SENSOR_TOPICS
 from scart_bench.generator.scart.actions import ACTIONS
 from scart_bench.generator.scart.conditions import CONDITIONS
 from scart_bench.generator.scart.effects import EFFECTS, PHYSICAL_POINTS
+from scart_bench.generator.scart.meanings import resolve_condition_topic, resolve_target
 from scart_bench.generator.scart.spec import ScenarioError, read_toml, validate_params
 from scart_bench.generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
 from scart_bench.names import IdError, check_id
@@ -54,6 +56,11 @@ def point_topics(point: str) -> dict[str, tuple[str, ...]]:
     if point in PHYSICAL_POINTS:
         return {}  # physical actions touch no message
     raise ScenarioError(f"injection_point {point!r}: expected one of {', '.join(INJECTION_POINTS)}")
+
+
+def listened_topics() -> dict[str, tuple[str, ...]]:
+    """Every topic a condition can listen to in the generator (all points that carry messages)."""
+    return {**point_topics("link"), **point_topics("command"), **point_topics("sensor")}
 
 
 @dataclass
@@ -134,9 +141,41 @@ class Scenario:
     def target_label(self) -> str:
         return ",".join(sorted(self.targets()))
 
-    def validate_topics(self, available: dict[str, tuple[str, ...]], where: str | None = None) -> None:
-        """Check that every topic and field the scenario names exists in ``available``."""
+    def resolved(self, available: dict[str, tuple[str, ...]], listen: dict[str, tuple[str, ...]] | None = None,
+                 where: str | None = None) -> Scenario:
+        """This scenario with every quantity (generator.scart.meanings) replaced by the concrete
+        topics/fields of an input: ``available`` for action targets, ``listen`` (default the same)
+        for condition topics and listeners. Raises ScenarioError naming what the input lacks."""
         where = where or self.source
+        listen = available if listen is None else listen
+        actions = []
+        for i, (name, p) in enumerate(self.actions):
+            if "target" in p:
+                targets: list[str] = []
+                for t in p["target"]:
+                    for r in resolve_target(t, available, f"{where}: scenario.actions[{i}].target"):
+                        if r not in targets:
+                            targets.append(r)
+                p = {**p, "target": targets}
+            actions.append((name, p))
+        conds = {}
+        for key, items in (("start", self.start), ("end", self.end)):
+            conds[key] = [(n, resolve_condition_topic(n, p, listen, f"{where}: scenario.{key}[{i}]"))
+                          for i, (n, p) in enumerate(items)]
+        listeners: list[str] = []
+        for t in self.listeners:
+            for r in resolve_target(t, listen, f"{where}: scenario.listeners"):
+                if r.partition(".")[0] not in listeners:
+                    listeners.append(r.partition(".")[0])
+        return dataclasses.replace(self, actions=actions, start=conds["start"], end=conds["end"], listeners=listeners)
+
+    def validate_topics(self, available: dict[str, tuple[str, ...]], where: str | None = None,
+                        listen: dict[str, tuple[str, ...]] | None = None) -> None:
+        """Check that every topic and field the scenario names (after resolving quantities) exists in
+        ``available`` (``listen``, default the same, for conditions)."""
+        where = where or self.source
+        listen = available if listen is None else listen
+        self = self.resolved(available, listen, where)
         names = sorted(available)
         allowed = ", ".join(names[:40]) + (f", ... ({len(names)} topics)" if len(names) > 40 else "")
         for i, (_, p) in enumerate(self.actions):
@@ -148,12 +187,9 @@ class Scenario:
                 if fld and fld not in available[topic]:
                     raise ScenarioError(f"{where}: scenario.actions[{i}].target: unknown field {t!r}; "
                                         f"{topic} has: {', '.join(available[topic])}")
-        for key, items in (("start", self.start), ("end", self.end)):
-            for i, (_n, p) in enumerate(items):
-                topic = p.get("topic")
-                if isinstance(topic, str) and topic not in available and topic not in TOPICS:
-                    raise ScenarioError(f"{where}: scenario.{key}[{i}].topic: unknown topic {topic!r}; "
-                                        f"allowed: {allowed}")
+        for t in self.listeners:
+            if t not in listen:
+                raise ScenarioError(f"{where}: scenario.listeners: topic {t!r} is not in this input")
 
 
 def _finite(obj):
@@ -240,7 +276,7 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
                   actions=actions, max_windows=max_windows, kind=kind, callback=callback,
                   description=str(table.get("description", "")), source=source)
     if check_topics:
-        sc.validate_topics(point_topics(point), where=source)
+        sc.validate_topics(point_topics(point), where=source, listen=listened_topics())
     return sc
 
 

@@ -2,6 +2,11 @@
 
 A field's quantity comes from scart_bench.generator.topics for the project's own topics and is guessed
 from the field name for imported logs (PX4 uORB names); a scenario may override it.
+
+Latitude/longitude fields are never scaled by a fixed number of metres per degree: actions and
+conditions convert a message's lat/lon pair to north/east metres in the WGS-84 tangent plane at
+the flight's own origin (generator.geo), work in metres and convert back. In that metric
+space a latitude is a north position and a longitude an east position (scale 1).
 """
 
 from __future__ import annotations
@@ -12,14 +17,15 @@ import re
 from scart_bench.generator.geo import metres_per_degree
 from scart_bench.generator.topics import TOPICS
 
-M_PER_DEG_LAT, M_PER_DEG_LON = metres_per_degree()
+#: Metres per degree at the generator's home (WGS-84): for tests and plots only, never for attacks.
+M_PER_DEG_LAT, M_PER_DEG_LON = (float(v) for v in metres_per_degree())
 #: hPa per metre of altitude near the home altitude (ISA: rho * g)
 HPA_PER_M = 0.1127
 
 #: quantity -> (field units per physical unit, horizontal axis "n"/"e" or "", sign for "up")
 _QUANTITY = {
-    "latitude": (1.0 / M_PER_DEG_LAT, "n", 1.0),
-    "longitude": (1.0 / M_PER_DEG_LON, "e", 1.0),
+    "latitude": (1.0, "n", 1.0),  # in the tangent plane at the flight's origin (see module doc)
+    "longitude": (1.0, "e", 1.0),
     "position_n": (1.0, "n", 1.0),
     "position_e": (1.0, "e", 1.0),
     "velocity_n": (1.0, "n", 1.0),
@@ -36,6 +42,7 @@ _GUESSES = [
     (r"^(x|north|pos_n)$", "position_n"),
     (r"^(y|east|pos_e)$", "position_e"),
     (r"^(z|down|pos_d)$", "position_d"),
+    (r"^(cog|cog_rad|course|course_rad)$", "angle"),
     (r"^(vx|vn|vel_n_m_s|vel_n)$", "velocity_n"),
     (r"^(vy|ve|vel_e_m_s|vel_e)$", "velocity_e"),
     (r"^(vz|vd|vel_d_m_s|vel_d)$", "velocity_d"),
@@ -54,6 +61,19 @@ def quantity(topic: str, field: str) -> str:
         if re.match(pattern, field):
             return q
     return "other"
+
+
+@functools.lru_cache(maxsize=1024)
+def latlon_pair(topic: str, names: tuple[str, ...]) -> tuple[int, int] | None:
+    """Indices of the latitude and longitude fields of a message, or None if it has not both."""
+    lat = lon = None
+    for i, n in enumerate(names):
+        q = quantity(topic, n)
+        if q == "latitude" and lat is None:
+            lat = i
+        elif q == "longitude" and lon is None:
+            lon = i
+    return (lat, lon) if lat is not None and lon is not None else None
 
 
 def scale(topic: str, field: str) -> float:

@@ -1,0 +1,174 @@
+"""Topics by meaning: scenario targets and condition topics named by what they measure.
+
+A scenario may name a *quantity* (``gps``, ``position``, ...) instead of a topic, alone (every
+field of the quantity) or with one of its fields (``gps.lat``). Against a given input (the
+topics passing an injection point of the generator, or the topics of a user's log) a quantity
+resolves to every candidate ``topic.field`` the input has: MAVLink names on generated flights,
+PX4 uORB names on ULogs, and the generator's sensor topics at the sensor point. The table below
+is the documented mapping (docs/scenarios.md, "Topics by meaning", is generated from it).
+
+An action target that is a topic of the input is that topic (``altitude`` on a generated flight
+is the ALTITUDE message); otherwise a quantity is resolved. A condition's ``topic`` that is a
+quantity always resolves as one (PX4 logs have a uORB topic named ``mission``), to the first
+candidate topic that has what the condition reads. Nothing resolving is an error naming it.
+"""
+
+from __future__ import annotations
+
+from scart_bench.generator.scart.spec import ScenarioError
+
+#: quantity -> field -> candidates ("topic.field"), MAVLink / generator sensor / PX4 uORB.
+QUANTITIES: dict[str, dict[str, tuple[str, ...]]] = {
+    "position": {
+        "lat": ("global_position_int.lat", "gps_raw_int.lat", "sensor_gps.lat", "vehicle_global_position.lat",
+                "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg", "sensor_gps.latitude_deg"),
+        "lon": ("global_position_int.lon", "gps_raw_int.lon", "sensor_gps.lon", "vehicle_global_position.lon",
+                "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg", "sensor_gps.longitude_deg"),
+        "x": ("local_position_ned.x", "vehicle_local_position.x"),
+        "y": ("local_position_ned.y", "vehicle_local_position.y"),
+    },
+    "velocity": {
+        "vn": ("global_position_int.vx", "local_position_ned.vx", "gps_raw_int.vn", "sensor_gps.vn",
+               "vehicle_local_position.vx", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s"),
+        "ve": ("global_position_int.vy", "local_position_ned.vy", "gps_raw_int.ve", "sensor_gps.ve",
+               "vehicle_local_position.vy", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s"),
+        "vd": ("global_position_int.vz", "local_position_ned.vz", "gps_raw_int.vd", "sensor_gps.vd",
+               "vehicle_local_position.vz", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s"),
+    },
+    "altitude": {
+        "z": ("local_position_ned.z", "vehicle_local_position.z"),
+        "relative": ("global_position_int.relative_alt", "altitude.altitude_relative"),
+        "amsl": ("global_position_int.alt", "altitude.altitude_amsl", "vehicle_global_position.alt"),
+    },
+    "attitude": {
+        "roll": ("attitude.roll",),
+        "pitch": ("attitude.pitch",),
+        "yaw": ("attitude.yaw",),
+        # PX4 logs the attitude as a quaternion: components are unit-free (magnitudes apply as is)
+        "q": ("vehicle_attitude.q_0", "vehicle_attitude.q_1", "vehicle_attitude.q_2", "vehicle_attitude.q_3"),
+    },
+    "gps": {
+        "lat": ("gps_raw_int.lat", "sensor_gps.lat", "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg",
+                "sensor_gps.latitude_deg"),
+        "lon": ("gps_raw_int.lon", "sensor_gps.lon", "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg",
+                "sensor_gps.longitude_deg"),
+        "alt": ("gps_raw_int.alt", "sensor_gps.alt", "vehicle_gps_position.alt", "vehicle_gps_position.altitude_msl_m",
+                "sensor_gps.altitude_msl_m"),
+        "vn": ("gps_raw_int.vn", "sensor_gps.vn", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s"),
+        "ve": ("gps_raw_int.ve", "sensor_gps.ve", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s"),
+        "vd": ("gps_raw_int.vd", "sensor_gps.vd", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s"),
+        "cog": ("gps_raw_int.cog", "vehicle_gps_position.cog_rad", "sensor_gps.cog_rad"),
+    },
+    "imu": {
+        "xacc": ("highres_imu.xacc", "sensor_accel.x", "sensor_combined.accelerometer_m_s2_0"),
+        "yacc": ("highres_imu.yacc", "sensor_accel.y", "sensor_combined.accelerometer_m_s2_1"),
+        "zacc": ("highres_imu.zacc", "sensor_accel.z", "sensor_combined.accelerometer_m_s2_2"),
+        "xgyro": ("highres_imu.xgyro", "sensor_gyro.x", "sensor_combined.gyro_rad_0"),
+        "ygyro": ("highres_imu.ygyro", "sensor_gyro.y", "sensor_combined.gyro_rad_1"),
+        "zgyro": ("highres_imu.zgyro", "sensor_gyro.z", "sensor_combined.gyro_rad_2"),
+    },
+    "baro": {
+        "pressure": ("scaled_pressure.press_abs", "highres_imu.abs_pressure", "sensor_baro.pressure",
+                     "vehicle_air_data.baro_pressure_pa"),
+        "alt": ("highres_imu.pressure_alt", "vehicle_air_data.baro_alt_meter"),
+    },
+    "mag": {
+        "x": ("highres_imu.xmag", "sensor_mag.x", "vehicle_magnetometer.magnetometer_ga_0"),
+        "y": ("highres_imu.ymag", "sensor_mag.y", "vehicle_magnetometer.magnetometer_ga_1"),
+        "z": ("highres_imu.zmag", "sensor_mag.z", "vehicle_magnetometer.magnetometer_ga_2"),
+    },
+    "battery": {
+        "voltage": ("battery_status.voltage", "battery_status.voltage_v"),
+        "current": ("battery_status.current", "battery_status.current_a"),
+        "remaining": ("battery_status.remaining",),
+    },
+    "mission": {
+        "seq": ("setpoint.seq", "mission_result.seq_current"),
+    },
+}
+
+#: What a condition reads from its topic, as (quantity, fields that must all be there) options in
+#: order of preference; the condition's ``topic`` defaults to the quantity.
+CONDITION_NEEDS: dict[str, tuple[tuple[str, ...], ...]] = {
+    "geofence": (("x", "y"), ("lat", "lon")),
+    "altitude_above": (("z",), ("relative",)),
+    "mission_phase": (("seq",),),
+}
+
+
+def _split(name: str) -> tuple[str, str]:
+    topic, _, field = name.partition(".")
+    return topic, field
+
+
+def is_quantity(name: str) -> bool:
+    q, f = _split(name)
+    return q in QUANTITIES and (not f or f in QUANTITIES[q])
+
+
+def _candidates(name: str) -> list[str]:
+    q, f = _split(name)
+    fields = [f] if f else list(QUANTITIES[q])
+    return [c for fld in fields for c in QUANTITIES[q][fld]]
+
+
+def _describe(available: dict[str, tuple[str, ...]]) -> str:
+    names = sorted(available)
+    return ", ".join(names[:40]) + (f", ... ({len(names)} topics)" if len(names) > 40 else "")
+
+
+def resolve_target(name: str, available: dict[str, tuple[str, ...]], where: str) -> list[str]:
+    """The concrete ``topic`` / ``topic.field`` targets of one scenario target in this input."""
+    topic, field = _split(name)
+    if topic in available and (not field or field in available[topic] or not is_quantity(name)):
+        return [name]
+    if not is_quantity(name):
+        return [name]  # validate_topics names what is wrong
+    found = [c for c in _candidates(name) if _split(c)[1] in available.get(_split(c)[0], ())]
+    if not found:
+        looked = sorted({_split(c)[0] for c in _candidates(name)})
+        raise ScenarioError(f"{where}: {name!r} (a quantity) matches no topic of this input; it looks for "
+                            f"{', '.join(looked)}; the input has: {_describe(available)}")
+    return found
+
+
+def resolve_condition_topic(condition: str, params: dict, available: dict[str, tuple[str, ...]],
+                            where: str) -> dict:
+    """The condition's parameters with a quantity ``topic`` replaced by a concrete topic (and, for
+    mission_phase, its ``field``). Raises ScenarioError naming the topic when the input lacks it."""
+    name = params.get("topic")
+    if not isinstance(name, str):
+        return params
+    if name not in QUANTITIES:
+        if name not in available:
+            raise ScenarioError(f"{where}.topic: topic {name!r} is not in this input; it has: {_describe(available)}")
+        if condition == "mission_phase" and params.get("field") not in available[name]:
+            raise ScenarioError(f"{where}.field: {name} has no field {params.get('field')!r}; it has: "
+                                f"{', '.join(available[name])}")
+        return params
+    for need in CONDITION_NEEDS.get(condition, (tuple(QUANTITIES[name]),)):
+        picks = {}
+        for fld in need:
+            if fld not in QUANTITIES[name]:
+                break
+            topics = [(t, f) for t, f in map(_split, QUANTITIES[name][fld]) if f in available.get(t, ())]
+            if topics:
+                picks[fld] = topics[0]
+        if len(picks) == len(need) and len({t for t, _ in picks.values()}) == 1:
+            topic = next(iter(picks.values()))[0]
+            out = {**params, "topic": topic}
+            if condition == "mission_phase":
+                out["field"] = picks["seq"][1]
+            return out
+    looked = sorted({_split(c)[0] for c in _candidates(name)})
+    raise ScenarioError(f"{where}.topic: {name!r} (a quantity) matches no topic of this input that {condition} "
+                        f"can read; it looks for {', '.join(looked)}; the input has: {_describe(available)}")
+
+
+def meanings_markdown() -> str:
+    """The mapping table as Markdown (docs/scenarios.md)."""
+    lines = ["| quantity | field | resolves to (every one the input has) |", "|---|---|---|"]
+    for q, fields in QUANTITIES.items():
+        for f, cands in fields.items():
+            lines.append(f"| {q} | {f} | {', '.join(f'`{c}`' for c in cands)} |")
+    return "\n".join(lines) + "\n"
