@@ -16,6 +16,8 @@ $(STAMP): pyproject.toml Makefile
 	$(BIN)/pip install --quiet -e '.[dev]'
 	# deepod pins an old torch in its metadata; its real needs are installed above
 	$(BIN)/pip install --quiet --no-deps deepod==0.4.1
+	# TSB-AD's reference metrics for the cross-check test; its pins would downgrade numpy
+	$(BIN)/pip install --quiet --no-deps tsb-ad==1.5
 	# the example detector plugin, installed as a user would (its tests check it is discovered)
 	$(BIN)/pip install --quiet --no-deps -e examples/custom_detector
 	touch $(STAMP)

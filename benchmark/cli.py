@@ -3,7 +3,8 @@
 Each sub-command lives in its own module exposing ``register(subparsers)``; the handler it sets
 with ``set_defaults(func=...)`` returns the exit code. Bad options raise ``UsageError``; the library
 raises the errors of :mod:`scart_bench.errors` (``ValueError`` subclasses). Both exit with code 2 and
-one clear line.
+one clear line; ``run`` exits 3
+when a job ended ERROR or TIMEOUT (after writing the run folder and naming those jobs).
 """
 
 from __future__ import annotations

@@ -8,11 +8,18 @@ from pathlib import Path
 
 from scart_bench.generator.profiles import PROFILES
 
+#: Exit status of ``scart-bench run`` when a job ended ERROR or TIMEOUT (the run is written).
+EXIT_JOBS_FAILED = 3
+
 
 def _print_table(path: Path, metrics) -> None:
     from scart_bench.benchmark.results import paper_table
+    from scart_bench.benchmark.scoring import rate_summary
+    from scart_bench.benchmark.store import RunStore
 
     print(paper_table(metrics))
+    no_effect = (RunStore(path).read_config().get("dataset") or {}).get("no_effect") or []
+    print("\n".join(line for line in rate_summary(metrics, no_effect) if line.startswith("- ")))
     failed = metrics[metrics["status"] != "OK"]
     for _, r in failed.iterrows():
         print(f"{r['detector']}: {r['status']}: {r['message']}", file=sys.stderr)
@@ -63,6 +70,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     outcome = run_benchmark(run_config(args))
     _print_table(outcome.path, outcome.metrics)
+    failed = outcome.metrics[outcome.metrics["status"].isin(("ERROR", "TIMEOUT"))]
+    if len(failed):
+        names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
+        print(f"scart-bench run: {len(failed)} job(s) did not finish OK: {names}; everything else is written "
+              "(rerun with --resume to run only those again)", file=sys.stderr)
+        return EXIT_JOBS_FAILED
     return 0
 
 

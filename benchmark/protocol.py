@@ -7,9 +7,15 @@ Roles, from the dataset manifest:
   calibrated on.
 - ``test_normal``: normal flights with split "test" (held out: the TN rate).
 - ``test_attacked``: every attacked flight (mode "simulation" or "csv"; their split must be
-  "test"): the TP rates.
-- normal flights with split "csv_source" are kept as csv-mode attack sources only: neither
-  trained on nor scored.
+  "test") whose attack changed something: the TP rates.
+- ``no_effect``: attacked flights marked ``no_effect`` in the manifest (the attack changed no
+  row relative to the simulator view or the csv source): not scored, counted in the summary.
+- ``csv_source``: normal flights with split "csv_source", reserved as the recordings csv mode
+  attacks; never fitted on, calibrated on or scored.
+
+A csv-mode flight replaying a train or validation flight (``source_flight``) is refused: its
+detector would have seen the very rows it is asked to flag, and its threshold would be calibrated
+on them.
 
 Thresholds (a flight is flagged, a row alarms, when its score is strictly above the threshold):
 
@@ -44,7 +50,8 @@ __all__ = [
 
 NORMAL_MODE = "normal"
 ATTACK_MODES = ("simulation", "csv")
-ROLES = ("train", "validation", "test_normal", "test_attacked")
+ROLES = ("train", "validation", "test_normal", "test_attacked", "no_effect", "csv_source")
+NORMAL_SPLITS = ("train", "validation", "test", "csv_source")
 
 
 class ProtocolError(ScartBenchError):
@@ -59,6 +66,8 @@ class Splits:
     validation: tuple[str, ...]
     test_normal: tuple[str, ...]
     test_attacked: tuple[str, ...]
+    no_effect: tuple[str, ...] = ()
+    csv_source: tuple[str, ...] = ()
 
     @classmethod
     def from_manifest(cls, manifest: pd.DataFrame) -> Splits:
@@ -99,7 +108,7 @@ def assign_roles(manifest: pd.DataFrame) -> pd.Series:
         raise ProtocolError(f"manifest mode {mode[bad_mode].iloc[0]!r}: expected one of "
                             f"{(NORMAL_MODE, *ATTACK_MODES)}")
     normal = mode == NORMAL_MODE
-    bad_split = normal & ~split.isin(("train", "validation", "test", "csv_source"))
+    bad_split = normal & ~split.isin(NORMAL_SPLITS)
     if bad_split.any():
         raise ProtocolError(f"normal flight {manifest['flight_id'][bad_split].iloc[0]!r} has split "
                             f"{split[bad_split].iloc[0]!r}; expected train, validation, test or csv_source")
@@ -107,9 +116,29 @@ def assign_roles(manifest: pd.DataFrame) -> pd.Series:
     if leaked.any():
         raise ProtocolError(f"attacked flight {manifest['flight_id'][leaked].iloc[0]!r} has split "
                             f"{split[leaked].iloc[0]!r}; attacked flights must all be 'test'")
+    if "source_flight" in manifest.columns:
+        fitted = set(manifest["flight_id"].astype(str)[normal & split.isin(("train", "validation"))])
+        source = manifest["source_flight"].astype(object).where(manifest["source_flight"].notna(), "").astype(str)
+        reused = ~normal & source.isin(fitted)
+        if reused.any():
+            i = reused[reused].index[0]
+            raise ProtocolError(f"attacked flight {manifest['flight_id'][i]!r} replays {source[i]!r}, a "
+                                f"{split[manifest['flight_id'].astype(str) == source[i]].iloc[0]} flight; csv-mode "
+                                "sources must be normal flights outside train and validation (split csv_source)")
+    no_effect = ~normal & no_effect_mask(manifest)
     roles = np.where(normal, split.map({"train": "train", "validation": "validation", "test": "test_normal",
-                                        "csv_source": "csv_source"}), "test_attacked")
+                                        "csv_source": "csv_source"}),
+                     np.where(no_effect, "no_effect", "test_attacked"))
     return pd.Series(roles, index=manifest.index, name="role")
+
+
+def no_effect_mask(manifest: pd.DataFrame) -> pd.Series:
+    """True where the manifest marks a flight ``no_effect`` (bool, 0/1 or "True"/"False" text)."""
+    if "no_effect" not in manifest.columns:
+        return pd.Series(False, index=manifest.index)
+    v = manifest["no_effect"]
+    text = v.astype(object).where(v.notna(), "false").astype(str).str.strip().str.lower()
+    return text.isin(("true", "1", "1.0", "yes"))
 
 
 @dataclass(frozen=True)

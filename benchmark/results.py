@@ -10,7 +10,9 @@ import pandas as pd
 
 from scart_bench.benchmark.protocol import Protocol
 from scart_bench.benchmark.scoring import (
+    BREAKDOWN_COLUMNS,
     DEFAULT_METRICS,
+    DETECTION_RULE,
     EXTRA_COLUMNS,
     PAPER_COLUMNS,
     ScoreError,
@@ -18,6 +20,7 @@ from scart_bench.benchmark.scoring import (
     build_evaluation,
     compute_metrics,
     markdown_table,
+    rate_summary,
 )
 from scart_bench.benchmark.store import RunStore
 
@@ -87,7 +90,7 @@ def score_run(path: str | Path, write: bool = True) -> pd.DataFrame:
             else:
                 row.update(compute_metrics(ev))
                 breakdowns.append(breakdown(ev))
-                fs = ev.flights[["flight_id", "role", "mode", "score", "flagged"]].copy()
+                fs = ev.flights[list(FLIGHT_SCORE_COLUMNS)].copy()
                 fs.insert(0, "detector", res["detector"])
                 flight_scores.append(fs)
         row.update(fit_s=res["fit_s"], score_s=res["score_s"], rows=res["rows"])
@@ -101,13 +104,17 @@ def score_run(path: str | Path, write: bool = True) -> pd.DataFrame:
         bd = pd.concat(breakdowns, ignore_index=True) if breakdowns else breakdown_columns()
         store.write_table("breakdown.csv", bd)
         fs = pd.concat(flight_scores, ignore_index=True) if flight_scores else pd.DataFrame(
-            columns=["detector", "flight_id", "role", "mode", "score", "flagged"])
+            columns=["detector", *FLIGHT_SCORE_COLUMNS])
         store.write_table("flight_scores.csv", fs)
     return metrics
 
 
+#: Columns of flight_scores.csv after ``detector``.
+FLIGHT_SCORE_COLUMNS = ("flight_id", "role", "mode", "score", "flagged", "outcome", "delay_s", "late_delay_s")
+
+
 def breakdown_columns() -> pd.DataFrame:
-    return pd.DataFrame(columns=["detector", "dimension", "value", "mode", "n", "detected", "tp_rate"])
+    return pd.DataFrame(columns=BREAKDOWN_COLUMNS)
 
 
 def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
@@ -118,7 +125,8 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
              f"Dataset `{ds.get('path')}` (fingerprint {str(ds.get('fingerprint', ''))[:12]}), "
              f"flights per role: {json.dumps(ds.get('flights', {}))}; seed {config.get('seed')}.", "",
              "## The paper's table", "", markdown_table(metrics, PAPER_COLUMNS), "",
-             "## Further metrics", "", markdown_table(metrics, EXTRA_COLUMNS, status=False), ""]
+             "## Further metrics", "", markdown_table(metrics, EXTRA_COLUMNS, status=False), "",
+             *rate_summary(metrics, ds.get("no_effect", []))]
     failed = metrics[metrics["status"] != "OK"] if "status" in metrics else metrics.iloc[:0]
     if len(failed):
         lines += ["## Failed jobs", ""]
@@ -129,8 +137,7 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
               f"- flight threshold: {proto.get('flight_threshold')}",
               f"- row threshold: {proto.get('row_threshold')}",
               f"- decision: {proto.get('decision')}",
-              "- TP rate: attacked test flights of the mode that are flagged; TN rate: held-out normal "
-              "test flights not flagged; delay: first row alarm inside the attack window.", ""]
+              f"- {DETECTION_RULE}", ""]
     return "\n".join(lines)
 
 

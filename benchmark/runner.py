@@ -165,7 +165,7 @@ def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: S
         "seed": int(cfg.seed),
         "random_state": int(cfg.seed),
         "dataset": {"path": str(ds.path.resolve()), "info": ds.info, "fingerprint": identity["dataset_fingerprint"],
-                    "flights": {r: len(getattr(splits, r)) for r in ROLES}},
+                    "flights": {r: len(getattr(splits, r)) for r in ROLES}, "no_effect": list(splits.no_effect)},
         "detectors": list(dict.fromkeys([*previous, *(c.name for c in chosen)])),
         "jobs": {**(old.get("jobs", {}) if old else {}), **settings},
         "plugins": [c.source for c in plugins.values()],

@@ -12,19 +12,35 @@ Every metric class has a ``name``, the ``columns`` it produces and one validated
 
 Metrics:
 
+The detection rule (per attacked flight, :func:`flight_outcomes`): the flight is *detected* when
+at least one row alarms inside an attack window (rows labelled ``Is_Anomaly``, i.e. the windows
+``[start, end)`` of the event log); otherwise it is *late* when a row alarms at or after the end
+of its last window, else *missed*. *Flagged anywhere* (flight score above the flight threshold,
+whatever the row) is the paper's lenient rule, reported as its own column, never instead.
+Attacked flights whose attack changed nothing (``no_effect`` in the manifest) have their own
+role and enter no rate.
+
 - paper table: ``tp_simulation`` / ``tp_csv`` (fraction of attacked test flights of that mode that
-  are flagged), ``tn_no_attack`` (fraction of held-out normal test flights not flagged).
-- ``roc_auc``: flight-level ROC-AUC, held-out normal (0) vs attacked (1) flights, ties counted
-  half (equal to ``sklearn.metrics.roc_auc_score``), and per mode.
+  are detected), ``tn_no_attack`` (fraction of held-out normal test flights not flagged); beside
+  them ``late_*`` (fraction late) and ``flagged_*`` (fraction flagged anywhere). Every rate has
+  its 95 % Wilson interval (``<rate>_lo`` / ``<rate>_hi``) and its count of flights (``n_*``).
+- ``roc_auc`` / ``auc_pr``: flight-level ROC-AUC (ties counted half, equal to
+  ``sklearn.metrics.roc_auc_score``) and average precision, held-out normal (0) vs attacked (1)
+  flights, with seeded bootstrap 95 % intervals; ROC-AUC per mode too.
+- threshold-free row-level metrics in TSB-AD's definitions (:mod:`benchmark.vus`), pooled over
+  the rows of all test flights (flights concatenated) and averaged per attacked flight:
+  ``row_roc_auc``, ``row_auc_pr``, ``vus_roc``, ``vus_pr``.
 - point-wise precision / recall / F1 over the rows of all test flights (label ``Is_Anomaly``).
-- range-based precision / recall / F1 (Tatbul et al., NeurIPS 2018) with alpha = 0, flat
-  positional bias and cardinality factor 1 (``"one"``; ``"reciprocal"`` = 1/number of overlapping
-  ranges is available): the recall of a real range is the fraction of it covered by alarms, the
-  precision of an alarm range is the fraction of it inside real ranges; recall averages over all
-  real ranges, precision over all alarm ranges (ranges never cross flights).
-- detection delay: per attacked flight, seconds from attack onset to the first row alarm at or
-  after the onset and before the attack ends; median and 90th percentile over the flights
-  detected that way (``n_delay`` of them).
+- ``r_precision`` / ``r_recall`` / ``r_f1``: range-based precision / recall / F1 as TSB-AD
+  reports them under "R-based-F1" (alpha 0.2 for recall, reciprocal cardinality), on the row
+  alarms of the test flights concatenated.
+- ``rt0_precision`` / ``rt0_recall`` / ``rt0_f1``: this project's earlier range variant (Tatbul
+  et al. 2018 with alpha = 0, flat bias, cardinality factor 1; ranges never cross flights): the
+  recall of a real range is the fraction of it covered by alarms, the precision of an alarm
+  range the fraction of it inside real ranges.
+- detection delay: per detected flight, seconds from attack onset to the first row alarm inside
+  the window; median and 90th percentile (``n_delay`` flights). Late flights: median seconds from
+  the end of the window to their first alarm (``late_delay_median_s``).
 - false alarms per flight-hour: alarm events (contiguous runs of row alarms) on held-out normal
   test flights divided by their total duration.
 - scoring latency: the job's total ``score`` time divided by the rows it scored (microseconds).
@@ -40,8 +56,11 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 from scipy.stats import rankdata
+from sklearn.metrics import average_precision_score
 
+from scart_bench.benchmark.intervals import bootstrap_auc, wilson
 from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol
+from scart_bench.benchmark.vus import VUS_WINDOW, auc_pr, r_prf, row_roc_auc, vus
 from scart_bench.detectors.base import flight_score
 from scart_bench.errors import ScartBenchError
 
@@ -238,8 +257,51 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
                         checked[fid], checked[fid] > t_row)
         for fid in scored.index
     }
+    outcomes = flight_outcomes(scored, rows)
+    for col in outcomes.columns:
+        scored[col] = outcomes[col]
     return Evaluation(detector, scored, rows, t_flight, t_row, float(fit_seconds), float(score_seconds),
                       int(rows_scored))
+
+
+OUTCOMES = ("detected", "late", "missed")
+
+
+def flight_outcomes(flights: pd.DataFrame, rows: Mapping[str, FlightRows]) -> pd.DataFrame:
+    """Per attacked flight: ``outcome`` (detected / late / missed), ``delay_s`` (onset to the first
+    alarm inside the window) and ``late_delay_s`` (end of the window to the first alarm after it).
+
+    Inside the window = rows labelled ``Is_Anomaly`` (the event log's ``[start, end)`` windows);
+    a flight without labelled rows uses the manifest's ``[attack_start_us, attack_end_us)``.
+    Normal flights get an empty outcome.
+    """
+    out = pd.DataFrame({"outcome": "", "delay_s": np.nan, "late_delay_s": np.nan}, index=flights.index)
+    for fid, row in flights.iterrows():
+        if row.get("role") != "test_attacked":
+            continue
+        fr = rows[fid]
+        window = _attack_window(row, fr)
+        if window is None:
+            out.at[fid, "outcome"] = "missed"
+            continue
+        start, end = window
+        inside = fr.label.astype(bool)
+        if not inside.any():
+            inside = (fr.timestamp >= start) & (fr.timestamp < (end if end is not None else np.iinfo(np.int64).max))
+        hit = np.flatnonzero(fr.alarm & inside)
+        if hit.size:
+            out.at[fid, "outcome"] = "detected"
+            out.at[fid, "delay_s"] = max(float(fr.timestamp[hit[0]] - start), 0.0) / 1e6
+            continue
+        if end is None:
+            end = int(fr.timestamp[np.flatnonzero(inside)[-1]]) + 1 if inside.any() else start
+        after = np.flatnonzero(fr.alarm & (fr.timestamp >= end))
+        if after.size:
+            out.at[fid, "outcome"] = "late"
+            out.at[fid, "late_delay_s"] = float(fr.timestamp[after[0]] - end) / 1e6
+        else:
+            out.at[fid, "outcome"] = "missed"
+    return out
 
 
 # -- metric classes ---------------------------------------------------------------------------
@@ -266,33 +328,93 @@ def _rate(flags: pd.Series) -> float:
     return float(flags.mean()) if len(flags) else float("nan")
 
 
+def _rate_with_interval(name: str, flags: pd.Series) -> dict[str, float]:
+    """``{name, name_lo, name_hi}``: the rate of True and its 95 % Wilson interval."""
+    lo, hi = wilson(int(flags.sum()), len(flags))
+    return {name: _rate(flags), f"{name}_lo": lo, f"{name}_hi": hi}
+
+
+#: The rates of the paper's table and beside it (each with ``_lo`` / ``_hi`` columns).
+RATES = ("tp_simulation", "tp_csv", "tn_no_attack", "late_simulation", "late_csv", "flagged_simulation",
+         "flagged_csv")
+
+
 class PaperTable(Metric):
-    """The paper's table: TP rate per attack mode, TN rate on held-out normal flights."""
+    """The paper's table with the in-window rule (TP = detected inside the attack window), the
+    late and flagged-anywhere rates beside it, every rate with its Wilson interval and count."""
 
     name = "paper"
-    columns = ("tp_simulation", "tp_csv", "tn_no_attack", "n_simulation", "n_csv", "n_no_attack")
+    columns = (*(f"{r}{s}" for r in RATES for s in ("", "_lo", "_hi")), "n_simulation", "n_csv", "n_no_attack")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
-        sim = ev.test("test_attacked", "simulation")["flagged"]
-        csv = ev.test("test_attacked", "csv")["flagged"]
-        normal = ev.test("test_normal")["flagged"]
-        return {"tp_simulation": _rate(sim), "tp_csv": _rate(csv), "tn_no_attack": _rate(~normal),
-                "n_simulation": len(sim), "n_csv": len(csv), "n_no_attack": len(normal)}
+        out: dict[str, float] = {}
+        attacked = {m: ev.test("test_attacked", m) for m in ATTACK_MODES}
+        normal = ev.test("test_normal")["flagged"].astype(bool)
+        parts = {"tp_simulation": attacked["simulation"]["outcome"] == "detected",
+                 "tp_csv": attacked["csv"]["outcome"] == "detected",
+                 "tn_no_attack": ~normal,
+                 "late_simulation": attacked["simulation"]["outcome"] == "late",
+                 "late_csv": attacked["csv"]["outcome"] == "late",
+                 "flagged_simulation": attacked["simulation"]["flagged"].astype(bool),
+                 "flagged_csv": attacked["csv"]["flagged"].astype(bool)}
+        for name in RATES:
+            out.update(_rate_with_interval(name, parts[name]))
+        out.update(n_simulation=len(attacked["simulation"]), n_csv=len(attacked["csv"]), n_no_attack=len(normal))
+        return out
+
+
+def _average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
+    y = np.asarray(labels)
+    return float(average_precision_score(y, scores)) if y.any() else float("nan")
 
 
 class FlightROCAUC(Metric):
-    """Threshold-free flight-level ROC-AUC: held-out normal vs attacked (all, then per mode)."""
+    """Threshold-free flight-level ROC-AUC and AUC-PR (average precision): held-out normal vs
+    attacked flights, with seeded bootstrap 95 % intervals; ROC-AUC per mode too."""
 
     name = "roc_auc"
-    columns = ("roc_auc", *(f"roc_auc_{m}" for m in ATTACK_MODES))
+    columns = ("roc_auc", "roc_auc_lo", "roc_auc_hi", "auc_pr", "auc_pr_lo", "auc_pr_hi",
+               *(f"roc_auc_{m}" for m in ATTACK_MODES))
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
-        normal = ev.test("test_normal")["score"].to_numpy()
-        out = {}
-        for key, attacked in (("roc_auc", ev.test("test_attacked")),
-                              *((f"roc_auc_{m}", ev.test("test_attacked", m)) for m in ATTACK_MODES)):
-            a = attacked["score"].to_numpy()
-            out[key] = roc_auc(np.r_[np.zeros(normal.size), np.ones(a.size)], np.r_[normal, a])
+        normal = ev.test("test_normal")["score"].to_numpy(np.float64)
+        attacked = ev.test("test_attacked")["score"].to_numpy(np.float64)
+        labels = np.r_[np.zeros(normal.size), np.ones(attacked.size)]
+        both = normal.size > 0 and attacked.size > 0
+        out = {"roc_auc": roc_auc(labels, np.r_[normal, attacked])}
+        out["roc_auc_lo"], out["roc_auc_hi"] = bootstrap_auc(roc_auc, normal, attacked)
+        out["auc_pr"] = _average_precision(labels, np.r_[normal, attacked]) if both else float("nan")
+        out["auc_pr_lo"], out["auc_pr_hi"] = bootstrap_auc(_average_precision, normal, attacked)
+        for m in ATTACK_MODES:
+            a = ev.test("test_attacked", m)["score"].to_numpy(np.float64)
+            out[f"roc_auc_{m}"] = roc_auc(np.r_[np.zeros(normal.size), np.ones(a.size)], np.r_[normal, a])
+        return out
+
+
+class ThresholdFree(Metric):
+    """Row-level threshold-free metrics in TSB-AD's definitions (:mod:`benchmark.vus`): pooled over
+    the test flights (concatenated) and averaged over the attacked test flights."""
+
+    name = "threshold_free"
+    columns = ("row_roc_auc", "row_auc_pr", "vus_roc", "vus_pr", "flight_mean_auc_pr", "flight_mean_vus_roc",
+               "flight_mean_vus_pr")
+
+    def __init__(self, window: int = VUS_WINDOW):
+        self.window = window
+
+    def compute(self, ev: Evaluation) -> dict[str, float]:
+        ids = ev.test().index
+        if len(ids) == 0:
+            return dict.fromkeys(self.columns, float("nan"))
+        y = np.concatenate([ev.rows[f].label for f in ids])
+        s = np.concatenate([ev.rows[f].score for f in ids])
+        out = {"row_roc_auc": row_roc_auc(y, s), "row_auc_pr": auc_pr(y, s)}
+        out["vus_roc"], out["vus_pr"] = vus(y, s, self.window)
+        per = [(auc_pr(ev.rows[f].label, ev.rows[f].score), *vus(ev.rows[f].label, ev.rows[f].score, self.window))
+               for f in ev.test("test_attacked").index if ev.rows[f].label.any()]
+        per_a = np.array(per, dtype=np.float64).reshape(-1, 3)
+        means = per_a.mean(axis=0) if len(per_a) else np.full(3, np.nan)
+        out.update(flight_mean_auc_pr=means[0], flight_mean_vus_roc=means[1], flight_mean_vus_pr=means[2])
         return out
 
 
@@ -312,10 +434,27 @@ class PointwisePRF(Metric):
 
 
 class RangePRF(Metric):
-    """Range-based precision / recall / F1 (Tatbul et al. 2018; alpha 0, flat bias)."""
+    """Range-based precision / recall / F1 as TSB-AD reports them ("R-based-F1"), on the row
+    alarms of the test flights concatenated (:func:`benchmark.vus.r_prf`)."""
 
     name = "range"
-    columns = ("range_precision", "range_recall", "range_f1")
+    columns = ("r_precision", "r_recall", "r_f1")
+
+    def compute(self, ev: Evaluation) -> dict[str, float]:
+        ids = ev.test().index
+        if len(ids) == 0:
+            return dict.fromkeys(self.columns, float("nan"))
+        y = np.concatenate([ev.rows[f].label for f in ids]).astype(np.int64)
+        p = np.concatenate([ev.rows[f].alarm for f in ids]).astype(np.int64)
+        return dict(zip(self.columns, r_prf(y, p)))
+
+
+class TatbulZeroPRF(Metric):
+    """This project's earlier range variant: Tatbul et al. 2018 with alpha 0, flat bias and
+    cardinality factor 1 (``"reciprocal"`` available); ranges never cross flights."""
+
+    name = "range_t0"
+    columns = ("rt0_precision", "rt0_recall", "rt0_f1")
 
     def __init__(self, cardinality: str = "one"):
         self.cardinality = cardinality
@@ -341,23 +480,20 @@ def _attack_window(row: pd.Series, fr: FlightRows) -> tuple[int, int | None] | N
 
 
 class DetectionDelay(Metric):
-    """Seconds from attack onset to the first row alarm inside the attack window."""
+    """Seconds from attack onset to the first row alarm inside the attack window (detected
+    flights), and from the end of the window to the first alarm after it (late flights)."""
 
     name = "delay"
-    columns = ("delay_median_s", "delay_p90_s", "n_delay")
+    columns = ("delay_median_s", "delay_p90_s", "n_delay", "late_delay_median_s", "n_late")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
-        delays = []
-        for fid, row in ev.test("test_attacked").iterrows():
-            fr = ev.rows[fid]
-            window = _attack_window(row, fr)
-            if window is not None:
-                delays.append(detection_delay(fr.timestamp, fr.alarm, *window))
-        d = np.array([x for x in delays if not math.isnan(x)])
-        if d.size == 0:
-            return {"delay_median_s": float("nan"), "delay_p90_s": float("nan"), "n_delay": 0}
-        return {"delay_median_s": float(np.median(d)), "delay_p90_s": float(np.quantile(d, 0.9)),
-                "n_delay": d.size}
+        att = ev.test("test_attacked")
+        d = att["delay_s"].dropna().to_numpy(np.float64) if len(att) else np.zeros(0)
+        late = att["late_delay_s"].dropna().to_numpy(np.float64) if len(att) else np.zeros(0)
+        out = {"delay_median_s": float(np.median(d)) if d.size else float("nan"),
+               "delay_p90_s": float(np.quantile(d, 0.9)) if d.size else float("nan"), "n_delay": d.size,
+               "late_delay_median_s": float(np.median(late)) if late.size else float("nan"), "n_late": late.size}
+        return out
 
 
 def _duration_s(row: pd.Series, fr: FlightRows) -> float:
@@ -398,8 +534,8 @@ class ScoringLatency(Metric):
 
 #: The metrics of metrics.csv, in column order.
 DEFAULT_METRICS: tuple[Metric, ...] = (
-    PaperTable(), FlightROCAUC(), PointwisePRF(), RangePRF(), DetectionDelay(), FalseAlarmRate(),
-    ScoringLatency(),
+    PaperTable(), FlightROCAUC(), ThresholdFree(), PointwisePRF(), RangePRF(), TatbulZeroPRF(), DetectionDelay(),
+    FalseAlarmRate(), ScoringLatency(),
 )
 
 
@@ -413,13 +549,31 @@ def compute_metrics(ev: Evaluation, metrics: tuple[Metric, ...] = DEFAULT_METRIC
     return out
 
 
-BREAKDOWN_DIMENSIONS = ("action", "target", "injection_point", "kind")
+BREAKDOWN_DIMENSIONS = ("action", "target", "injection_point", "kind", "detectability_bin")
+BREAKDOWN_COLUMNS = ["detector", "dimension", "value", "mode", "n", "detected", "tp_rate", "tp_rate_lo",
+                     "tp_rate_hi", "late", "flagged"]
+
+
+#: Edges of the detectability bins (injected size in validation standard deviations).
+DETECTABILITY_EDGES = (1.0, 3.0, 10.0)
+
+
+def detectability_bins(values: pd.Series) -> pd.Series:
+    """Bin labels of detectability values: ``<1 sd``, ``1-3 sd``, ``3-10 sd``, ``>=10 sd``, ``n/a``."""
+    v = pd.to_numeric(values, errors="coerce").to_numpy(np.float64)
+    labels = np.array(["<1 sd", "1-3 sd", "3-10 sd", ">=10 sd"], dtype=object)
+    out = labels[np.searchsorted(np.array(DETECTABILITY_EDGES), np.nan_to_num(v, nan=0.0), side="right")]
+    out[~np.isfinite(v)] = "n/a"
+    return pd.Series(out, index=values.index, name="detectability_bin")
 
 
 def breakdown(ev: Evaluation, dimensions: tuple[str, ...] = BREAKDOWN_DIMENSIONS) -> pd.DataFrame:
-    """TP rate and count of attacked test flights per value of each dimension, for all modes
-    together (mode "all") and per mode."""
+    """Detected (in-window) count, TP rate with its Wilson interval, late and flagged-anywhere
+    counts of the attacked test flights per value of each dimension, for all modes together
+    (mode "all") and per mode."""
     attacked = ev.test("test_attacked")
+    if "detectability" in attacked.columns:
+        attacked = attacked.assign(detectability_bin=detectability_bins(attacked["detectability"]))
     rows = []
     for dim in dimensions:
         if dim not in attacked.columns:
@@ -430,31 +584,60 @@ def breakdown(ev: Evaluation, dimensions: tuple[str, ...] = BREAKDOWN_DIMENSIONS
             if sel.empty:
                 continue
             for value, group in sel.groupby(values.loc[sel.index], sort=True):
+                k = int((group["outcome"] == "detected").sum())
+                lo, hi = wilson(k, len(group))
                 rows.append({"detector": ev.detector, "dimension": dim, "value": value, "mode": mode,
-                             "n": len(group), "detected": int(group["flagged"].sum()),
-                             "tp_rate": float(group["flagged"].mean())})
-    return pd.DataFrame(rows, columns=["detector", "dimension", "value", "mode", "n", "detected", "tp_rate"])
+                             "n": len(group), "detected": k, "tp_rate": k / len(group), "tp_rate_lo": lo,
+                             "tp_rate_hi": hi, "late": int((group["outcome"] == "late").sum()),
+                             "flagged": int(group["flagged"].astype(bool).sum())})
+    return pd.DataFrame(rows, columns=BREAKDOWN_COLUMNS)
 
 
 # -- tables -----------------------------------------------------------------------------------
 
-PAPER_COLUMNS = (("TP Simulation", "tp_simulation", "pct"), ("TP CSV", "tp_csv", "pct"),
-                 ("TN No Attack", "tn_no_attack", "pct"), ("ROC-AUC", "roc_auc", "f3"),
+#: (header, metrics column, format) of the printed table. ``pct_ci``: a percentage with its
+#: interval from ``<column>_lo`` / ``<column>_hi``; ``fN_ci``: N decimals with its interval.
+PAPER_COLUMNS = (("TP Simulation (in window)", "tp_simulation", "pct_ci"),
+                 ("TP CSV (in window)", "tp_csv", "pct_ci"),
+                 ("TN No Attack", "tn_no_attack", "pct_ci"),
+                 ("Late Sim", "late_simulation", "pct_ci"), ("Late CSV", "late_csv", "pct_ci"),
+                 ("Flagged anywhere Sim", "flagged_simulation", "pct_ci"),
+                 ("Flagged anywhere CSV", "flagged_csv", "pct_ci"),
+                 ("ROC-AUC", "roc_auc", "f3_ci"), ("AUC-PR", "auc_pr", "f3_ci"),
                  ("Median delay (s)", "delay_median_s", "f2"))
-EXTRA_COLUMNS = (("Point P", "point_precision", "f3"), ("Point R", "point_recall", "f3"),
-                 ("Point F1", "point_f1", "f3"), ("Range P", "range_precision", "f3"),
-                 ("Range R", "range_recall", "f3"), ("Range F1", "range_f1", "f3"),
-                 ("p90 delay (s)", "delay_p90_s", "f2"), ("False alarms / h", "false_alarms_per_hour", "f2"),
+EXTRA_COLUMNS = (("VUS-PR", "vus_pr", "f3"), ("VUS-ROC", "vus_roc", "f3"), ("Row AUC-PR", "row_auc_pr", "f3"),
+                 ("Row ROC-AUC", "row_roc_auc", "f3"),
+                 ("Point P", "point_precision", "f3"), ("Point R", "point_recall", "f3"),
+                 ("Point F1", "point_f1", "f3"), ("R-P (TSB-AD)", "r_precision", "f3"),
+                 ("R-R (TSB-AD)", "r_recall", "f3"), ("R-F1 (TSB-AD)", "r_f1", "f3"),
+                 ("Range F1 (Tatbul a=0)", "rt0_f1", "f3"),
+                 ("p90 delay (s)", "delay_p90_s", "f2"), ("Late delay after end (s)", "late_delay_median_s", "f2"),
+                 ("False alarms / h", "false_alarms_per_hour", "f2"),
                  ("Latency (us/row)", "latency_us_per_row", "f1"), ("Fit (s)", "fit_s", "f1"))
 
 
-def _cell(value, kind: str) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+def _nan(value) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value)) or bool(pd.isna(value))
+
+
+def format_value(value, kind: str, lo=None, hi=None) -> str:
+    """A number as the tables show it: ``pct`` -> ``81.8 %``, ``pct_ci`` -> ``81.8 % [52-95]``,
+    ``fN`` -> N decimals, ``fN_ci`` -> ``0.812 [0.700-0.900]``; ``n/a`` for NaN."""
+    if _nan(value):
         return "n/a"
     v = float(value)
-    if kind == "pct":
-        return f"{100 * v:.1f}%"
-    return f"{v:.{kind[1:]}f}"
+    base, _, ci = kind.partition("_")
+    text = f"{100 * v:.1f} %" if base == "pct" else f"{v:.{base[1:]}f}"
+    if ci and not _nan(lo) and not _nan(hi):
+        if base == "pct":
+            text += f" [{100 * float(lo):.0f}-{100 * float(hi):.0f}]"
+        else:
+            text += f" [{float(lo):.{base[1:]}f}-{float(hi):.{base[1:]}f}]"
+    return text
+
+
+def _cell(row, key: str, kind: str) -> str:
+    return format_value(row.get(key), kind, row.get(f"{key}_lo"), row.get(f"{key}_hi"))
 
 
 def markdown_table(metrics: pd.DataFrame, columns=PAPER_COLUMNS, status: bool = True) -> str:
@@ -464,8 +647,34 @@ def markdown_table(metrics: pd.DataFrame, columns=PAPER_COLUMNS, status: bool = 
     for _, r in metrics.iterrows():
         ok = r.get("status") == "OK"
         cells = [str(r["detector"])]
-        cells += [_cell(r.get(key), kind) if ok else str(r.get("status")) for _, key, kind in columns]
+        cells += [_cell(r, key, kind) if ok else str(r.get("status")) for _, key, kind in columns]
         if status:
             cells.append(str(r.get("status")))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+DETECTION_RULE = (
+    "detection rule: an attacked flight is detected (TP) when at least one row alarms inside an attack window "
+    "[start, end) of its event log; late when its only alarms come at or after the end of the window (delay "
+    "counted from the end); missed otherwise. 'Flagged anywhere' (flight score above the flight threshold, any "
+    "row) is the paper's lenient rule, shown beside it. TN: held-out normal test flights not flagged. Rates show "
+    "their 95 % Wilson interval, ROC-AUC and AUC-PR a seeded bootstrap interval over flights. Attacked flights "
+    "whose attack changed nothing (no_effect) are excluded from every rate.")
+
+
+def rate_summary(metrics: pd.DataFrame, no_effect: list[str] = ()) -> list[str]:
+    """Markdown lines: how many flights each rate rests on, and the attacked flights left out."""
+    ok = metrics[metrics["status"] == "OK"] if "status" in metrics else metrics.iloc[:0]
+    lines = ["## Flights behind each rate", ""]
+    if len(ok):
+        r = ok.iloc[0]
+        lines.append(f"- TP / late / flagged Simulation: {int(r['n_simulation'])} attacked simulation-mode test "
+                     f"flights; TP / late / flagged CSV: {int(r['n_csv'])} csv-mode flights; TN No Attack: "
+                     f"{int(r['n_no_attack'])} held-out normal test flights.")
+    no_effect = list(no_effect)
+    shown = ", ".join(no_effect[:20]) + (" ..." if len(no_effect) > 20 else "")
+    lines.append(f"- attacked flights whose attack changed nothing (no_effect, excluded from every rate): "
+                 f"{len(no_effect)}" + (f": {shown}" if no_effect else ""))
+    lines.append("")
+    return lines

@@ -3,8 +3,8 @@
 ```
 <run>/config.json              full config: identity (dataset fingerprint, seed, protocol),
                                detectors, plugins, executor, versions, git commit, dataset.json
-<run>/flights.csv              the dataset's manifest rows with a ``role`` column
-                               (train / validation / test_normal / test_attacked)
+<run>/flights.csv              the dataset's manifest rows with a ``role`` column (train /
+                               validation / test_normal / test_attacked / no_effect / csv_source)
 <run>/truth.parquet            flight_id, Timestamp, Is_Anomaly for every scored flight
 <run>/jobs/<detector>/params.json   detector name, class, source spec, params, job key
 <run>/jobs/<detector>/scores.npz    one float64 array of per-row scores per flight_id
@@ -14,8 +14,10 @@
 <run>/results.csv              one row per job: status, message, timings, rows
 <run>/metrics.csv              one row per detector: the paper's table and every extra metric
 <run>/metrics.md               the same as Markdown tables
-<run>/breakdown.csv            TP rate per action / target / injection point (and mode)
-<run>/flight_scores.csv        detector, flight_id, role, mode, score, flagged
+<run>/breakdown.csv            TP rate (in window, Wilson interval), late and flagged counts per
+                               action / target / injection point / kind / detectability bin (and mode)
+<run>/flight_scores.csv        detector, flight_id, role, mode, score, flagged (anywhere), outcome
+                               (detected / late / missed), delay_s, late_delay_s
 <run>/.lock                    held (flock) by the run writing the folder; a second writer is refused
 ```
 A job is complete exactly when its status.json says OK: status.json is removed when a job

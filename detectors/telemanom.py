@@ -108,9 +108,9 @@ def ewma(errors: np.ndarray, span: float) -> np.ndarray:
 
 
 # -- nonparametric dynamic thresholding ------------------------------------------------------------
-def _dilate(mask: np.ndarray, error_buffer: int) -> np.ndarray:
-    """Rows within ``error_buffer - 1`` of a True row, along the last axis."""
-    r = max(int(error_buffer) - 1, 0)
+def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Rows within ``radius`` rows of a True row, along the last axis."""
+    r = max(int(radius), 0)
     if r == 0:
         return mask.copy()
     n = mask.shape[-1]
@@ -139,7 +139,9 @@ def find_z(e_s: np.ndarray, error_buffer: int, z_values: np.ndarray = Z_VALUES) 
     ``(delta_mean / mean + delta_std / std) / (n_anomalous_points + n_sequences ** 2)``
 
     where the deltas are the drops of mean and std when the errors above the threshold are removed
-    and the anomalous points are those within ``error_buffer`` of an error above it. Candidates
+    and the anomalous points are those within ``error_buffer - 1`` rows of an error above it (the
+    published ``find_epsilon`` pads by ``np.arange(1, error_buffer)``; its ``compare_to_epsilon``
+    by ``error_buffer`` rows, see :func:`_window_anomalies`). Candidates
     with more than 5 sequences or half the window anomalous are skipped; ``SD_LIM`` if none fits.
     """
     e_s = np.asarray(e_s, dtype=np.float64)
@@ -150,7 +152,7 @@ def find_z(e_s: np.ndarray, error_buffer: int, z_values: np.ndarray = Z_VALUES) 
     eps = mean + sd * np.asarray(z_values)[:, None]  # (Z, 1)
     above = e_s[None, :] > eps
     below = e_s[None, :] < eps
-    anom = _dilate(above, error_buffer)
+    anom = _dilate(above, int(error_buffer) - 1)
     n_anom = anom.sum(axis=1)
     n_seq = _n_sequences(anom)
     n_below = np.maximum(below.sum(axis=1), 1)
@@ -191,15 +193,19 @@ def _window_anomalies(
 
     ``z`` comes from ``find_z``, computed only when some error could be anomalous at all.
 
-    The published ``compare_to_epsilon`` + ``prune_anoms``: only the newest ``error_batch`` rows
-    of a window may become anomalous (every row in the first window, except its first
-    ``n_ignore``); ``flagged`` holds the rows already flagged in earlier windows (global indices).
-    Errors at or below ``floor`` are never anomalous.
+    The published ``compare_to_epsilon`` + ``prune_anoms`` (Hundman et al. 2018, reference code):
+    each error above the threshold is padded by ``error_buffer`` rows on each side; only the
+    newest ``error_batch`` rows of a window may become anomalous (every row in the first window,
+    except its first ``n_ignore``); ``flagged`` holds the rows already flagged in earlier windows
+    (global indices). Errors at or below ``floor`` are never anomalous. Pruning works on the
+    sequences of two rows or more; when the window has none (its anomalous rows are single rows,
+    e.g. a padding cut by the batch boundary), the rows are kept unpruned, as published, and can
+    join the sequences of the neighbouring windows.
     """
     n = e_s.shape[0]
     none = np.zeros(0, dtype=np.int64)
-    # errors that can reach the rows this window may flag (the buffer reaches error_buffer - 1)
-    reach = e_s if window == 0 else e_s[max(n - error_batch - (error_buffer - 1), 0) :]
+    # errors that can reach the rows this window may flag (the buffer reaches error_buffer rows)
+    reach = e_s if window == 0 else e_s[max(n - error_batch - error_buffer, 0) :]
     if not e_s.max() > MIN_ERROR or not (reach > floor).any():
         return none
     mean, std = float(e_s.mean()), float(e_s.std())
@@ -220,7 +226,7 @@ def _window_anomalies(
     idx = np.flatnonzero(anom)
     seqs = _runs(idx)
     if not seqs:
-        return np.zeros(0, dtype=np.int64)
+        return idx  # single rows only: nothing to prune, kept (the published prune_anoms returns early)
     normal = ~anom
     earlier = flagged[(flagged >= offset) & (flagged < offset + n)] - offset
     normal[earlier] = False

@@ -1,8 +1,14 @@
 """Attacked flights for a dataset: every configuration of the profile's grid, in both modes.
 
 - simulation mode: each configuration is flown in the closed loop with a seed of its own;
-- csv mode: each configuration is replayed on a recorded normal flight that is not in the
-  training split (test flights first, then validation), cycling through them.
+- csv mode: each configuration is replayed on a recorded normal flight reserved for it (split
+  ``csv_source``: never trained on, calibrated on or scored as normal), cycling through them.
+  A recording holds the link telemetry only, so a configuration gets a csv copy only when one of
+  its scenarios sits on the ``link`` (and only those act on the copy); sensor, command,
+  environment and vehicle scenarios alone get no csv copy.
+
+Every attacked flight records what the attack changed relative to its clean reference (the
+simulator view, or the csv source) and how large it was (:mod:`generator.effect`).
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
+from scart_bench.generator.effect import attack_effect
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.scenario import Scenario
@@ -45,7 +52,8 @@ def config_id(config: list[Scenario]) -> str:
 
 
 def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], seed: int, cfg: FlightConfig,
-                       config_dict: dict, batch_size: int, say: Callable[[str], None]) -> None:
+                       config_dict: dict, batch_size: int, say: Callable[[str], None],
+                       stds: dict[str, float] | None = None) -> None:
     """Fly every configuration (the scenarios of one flight) in the closed loop and write the flights."""
     seeds = attack_seeds(seed, len(configs))
     order = _order(configs)
@@ -54,17 +62,33 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
         say(f"simulation mode: flying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
         batch, layer = simulation_mode([seeds[i] for i in idx], [configs[i] for i in idx], cfg)
         for j, i in enumerate(idx):
-            writer.write(simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict))
+            record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict)
+            record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds,
+                                                 record.manifest["injection_point"]))
+            writer.write(record)
+
+
+def csv_applicable(config: list[Scenario]) -> bool:
+    """True when a scenario of the configuration acts on link messages (what a recording holds)."""
+    return any(s.injection_point == "link" for s in config)
 
 
 def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: list[tuple[str, dict, int]],
-                config_dict: dict, batch_size: int, say: Callable[[str], None]) -> None:
-    """Replay every configuration on a recorded normal flight (``sources``: id, topic tables, seed).
-
-    Physical (environment, vehicle) scenarios keep their timing but change nothing in csv mode.
-    """
+                config_dict: dict, batch_size: int, say: Callable[[str], None],
+                stds: dict[str, float] | None = None) -> None:
+    """Replay every link configuration on a recorded normal flight (``sources``: id, topic tables,
+    seed); configurations that cannot apply to a recording get no copy."""
+    skipped = [config_id(c) for c in configs if not csv_applicable(c)]
+    if skipped:
+        say(f"csv mode: no copy of {len(skipped)} configuration(s) with no link scenario (sensor, command, "
+            f"environment, vehicle), which a recording cannot replay: {', '.join(skipped[:5])}"
+            + (" ..." if len(skipped) > 5 else ""))
+    configs = [c for c in configs if csv_applicable(c)]
+    if not configs:
+        return
     if not sources:
-        raise ValueError("csv mode needs at least one recorded normal flight outside the training split")
+        say("csv mode: skipped, the dataset has no normal flight reserved as a csv source (split csv_source)")
+        return
     order = _order(configs)
     for start in range(0, len(order), batch_size):
         idx = order[start:start + batch_size]
@@ -74,15 +98,17 @@ def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: l
         results = csv_mode(link, [configs[i] for i in idx], [s[2] for s in src])
         for result, i, (sid, topics, sseed) in zip(results, idx, src):
             writer.write(csv_record(f"csv-{config_id(configs[i])}", topics, result, configs[i], sseed, sid,
-                                    {**config_dict, "source_flight": sid}))
+                                    {**config_dict, "source_flight": sid}, stds))
 
 
 def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[str, dict, int]], seed: int,
-                   cfg: FlightConfig, config_dict: dict, say: Callable[[str], None]) -> None:
-    """Both modes for every configuration of the profile's grid (or sweep, or scenario file)."""
+                   cfg: FlightConfig, config_dict: dict, say: Callable[[str], None],
+                   stds: dict[str, float] | None = None) -> None:
+    """Both modes for every configuration of the profile's grid (or sweep, or scenario file);
+    ``normal_sources``: the csv_source flights; ``stds``: validation std per ``topic.field``."""
     configs = load_configurations(grid_path(profile.scenario_grid))
-    simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say)
-    csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say)
+    simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say, stds)
+    csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds)
 
 
 def strip_labels(topics: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:

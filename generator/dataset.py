@@ -38,6 +38,7 @@ TABLES = ("most_frequent", "all_sensors")
 MANIFEST_COLUMNS = (
     "flight_id", "mode", "scenario_id", "action", "target", "injection_point", "params", "seed",
     "split", "rows", "duration_s", "attack_start_us", "attack_end_us", "source_flight", "kind",
+    "effect_rows", "effect_fields", "no_effect", "detectability",
 )
 
 
@@ -312,6 +313,11 @@ class DatasetWriter:
             manifest = pd.concat([old, manifest], ignore_index=True) if len(manifest) else old
         for col in ("attack_start_us", "attack_end_us"):
             manifest[col] = pd.to_numeric(manifest[col]).astype("Int64")
+        for col in ("effect_rows", "effect_fields"):
+            manifest[col] = pd.to_numeric(manifest[col], errors="coerce").astype("Int64")
+        manifest["no_effect"] = manifest["no_effect"].astype(object).where(manifest["no_effect"].notna(), False)
+        manifest["no_effect"] = manifest["no_effect"].astype(bool)
+        manifest["detectability"] = pd.to_numeric(manifest["detectability"], errors="coerce").astype(np.float64)
         final = self.out / f"manifest.{self.fmt}"
         tmp = self.out / f".manifest.tmp.{self.fmt}"
         if self.fmt == "parquet":

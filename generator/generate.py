@@ -13,6 +13,7 @@ import numpy as np
 
 from scart_bench.generator.attacks import attack_flights, strip_labels
 from scart_bench.generator.dataset import DatasetError, DatasetWriter, check_output_dir
+from scart_bench.generator.effect import field_stds
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.records import normal_record
 from scart_bench.generator.scart.grid import load_configurations
@@ -25,10 +26,12 @@ def normal_seeds(seed: int, count: int) -> list[int]:
     return [int(x) for x in ss.generate_state(count, dtype=np.uint32)]
 
 
-def splits(count: int, n_train: int, n_validation: int) -> list[str]:
-    """Split of the i-th normal flight: train, then validation, then test (by seed order)."""
-    return ["train" if i < n_train else "validation" if i < n_train + n_validation else "test"
-            for i in range(count)]
+def splits(count: int, n_train: int, n_validation: int, n_csv_source: int = 0) -> list[str]:
+    """Split of the i-th normal flight: train, then validation, then test, then csv_source (by seed
+    order; the csv sources come last, so adding them leaves the other flights as they were)."""
+    n_test = count - n_train - n_validation - n_csv_source
+    return ["train" if i < n_train else "validation" if i < n_train + n_validation
+            else "test" if i < n_train + n_validation + n_test else "csv_source" for i in range(count)]
 
 
 def versions() -> dict[str, str]:
@@ -62,10 +65,14 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     count = n_normal if n_normal is not None else prof.n_normal
     frac_train = prof.n_train / prof.n_normal
     frac_val = prof.n_validation / prof.n_normal
+    frac_src = prof.n_csv_source / prof.n_normal
     n_train = max(1, int(round(count * frac_train))) if count > 2 else count
     n_val = int(round(count * frac_val)) if count > 2 else 0
+    reserve = with_attacks and prof.scenario_grid is not None and prof.n_csv_source > 0
+    n_src = max(1, int(round(count * frac_src))) if count > 2 and reserve else 0
+    n_src = min(n_src, count - n_train - n_val)
     seeds = normal_seeds(seed, count)
-    split_of = splits(count, n_train, n_val)
+    split_of = splits(count, n_train, n_val, n_src)
     config_dict = {"flight_config": dataclasses.asdict(cfg), "versions": versions(), "profile": prof.name}
     # write into a hidden sibling folder and move it into place at the end: an interrupted
     # generation leaves nothing at ``out``, and an existing dataset stays until the new one is done
@@ -97,7 +104,7 @@ def _write_all(partial: Path, prof: Profile, cfg: FlightConfig, config_dict: dic
 def _fly_and_write(writer: DatasetWriter, prof: Profile, cfg: FlightConfig, config_dict: dict, seeds: list[int],
                    split_of: list[str], count: int, seed: int, with_attacks: bool, log) -> None:
     say = log or (lambda msg: None)
-    sources: dict[str, list] = {"test": [], "validation": []}
+    sources: dict[str, list] = {"csv_source": [], "validation": []}
     for start in range(0, count, prof.batch_size):
         chunk = seeds[start:start + prof.batch_size]
         say(f"flying normal flights {start + 1}-{start + len(chunk)} of {count}")
@@ -109,4 +116,5 @@ def _fly_and_write(writer: DatasetWriter, prof: Profile, cfg: FlightConfig, conf
             if split_of[i] in sources:
                 sources[split_of[i]].append((record.flight_id, strip_labels(record.navigator), seeds[i]))
     if with_attacks and prof.scenario_grid is not None:
-        attack_flights(writer, prof, sources["test"] + sources["validation"], seed, cfg, config_dict, say)
+        stds = field_stds([topics for _, topics, _ in sources["validation"]])
+        attack_flights(writer, prof, sources["csv_source"], seed, cfg, config_dict, say, stds)

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.generator.dataset import LABEL_COLUMNS, FlightRecord, flight_record, insert_labels
+from scart_bench.generator.effect import attack_effect
 from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
@@ -63,13 +64,17 @@ def simulation_record(batch: BatchResult, layer: AttackLayer, i: int, flight_id:
 
 
 def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, scenarios: list[Scenario],
-               seed: int, source_name: str, config: dict) -> FlightRecord:
+               seed: int, source_name: str, config: dict, stds: dict[str, float] | None = None) -> FlightRecord:
     """An attacked csv-mode flight: ``result`` is one entry of :func:`csv_mode` on ``source``
-    (the unattacked topic tables, which become the simulator view)."""
+    (the unattacked topic tables, which become the simulator view). Its manifest row says what the
+    attack changed relative to the source (:func:`scart_bench.generator.effect.attack_effect`;
+    ``stds``: the validation flights' std per ``topic.field``, for the detectability)."""
     nav, windows, events = result
     cfg = {**config, "mode": "csv", "seed": seed, "scenarios": [s.to_dict() for s in scenarios]}
-    return flight_record(flight_id, nav, with_labels(source, windows),
-                         scenario_manifest(scenarios, "csv", seed, source=source_name), cfg, windows, events)
+    manifest = scenario_manifest(scenarios, "csv", seed, source=source_name)
+    # compared with the source itself: what acts off the link changes nothing on a recording
+    manifest.update(attack_effect(nav, source, windows, stds, "link"))
+    return flight_record(flight_id, nav, with_labels(source, windows), manifest, cfg, windows, events)
 
 
 def _same_schedule(flights: list[dict[str, pd.DataFrame]]) -> bool:

@@ -12,7 +12,11 @@ from dataclasses import dataclass
 @dataclass(frozen=True)
 class Profile:
     """How many flights a dataset holds, which scenario grid attacks them, and how long a benchmark
-    job on it may take by default."""
+    job on it may take by default.
+
+    ``n_csv_source`` normal flights (split ``csv_source``) are reserved as the recordings that csv
+    mode attacks: never trained on, calibrated on or scored as normal test flights.
+    """
 
     name: str
     n_train: int
@@ -21,16 +25,17 @@ class Profile:
     scenario_grid: str | None  # file under data/scenarios/, or None for normal flights only
     job_timeout_s: float = 1800.0
     batch_size: int = 256
+    n_csv_source: int = 0
 
     @property
     def n_normal(self) -> int:
-        return self.n_train + self.n_validation + self.n_test
+        return self.n_train + self.n_validation + self.n_test + self.n_csv_source
 
 
 PROFILES: dict[str, Profile] = {
-    "quick": Profile("quick", 8, 4, 4, "quick.toml", job_timeout_s=1800.0),
-    "standard": Profile("standard", 24, 8, 8, "standard.toml", job_timeout_s=7200.0),
-    "paper": Profile("paper", 60, 20, 20, "paper.toml", job_timeout_s=6 * 3600.0),
+    "quick": Profile("quick", 8, 4, 4, "quick.toml", job_timeout_s=1800.0, n_csv_source=4),
+    "standard": Profile("standard", 24, 8, 8, "standard.toml", job_timeout_s=7200.0, n_csv_source=8),
+    "paper": Profile("paper", 60, 20, 20, "paper.toml", job_timeout_s=6 * 3600.0, n_csv_source=20),
 }
 
 

@@ -402,13 +402,16 @@ def roc_curves(run: RunResults, out_dir: str | Path) -> Path:
 
 
 def tp_rates(run: RunResults) -> pd.DataFrame:
-    """TP rate and count of attacked test flights per detector, action and target."""
+    """TP rate (detected inside the attack window; the paper's lenient rule for runs scored before
+    that rule existed) and count of attacked test flights per detector, action and target."""
     fs = run.table("flight_scores.csv")
     flights = run.table("flights.csv")[["flight_id", "action", "target"]].astype({"flight_id": str})
     att = fs[fs["role"] == "test_attacked"].merge(flights, on="flight_id", how="left")
     for col in ("action", "target"):
         att[col] = att[col].astype(object).where(att[col].notna(), "(none)").astype(str)
-    return (att.groupby(["detector", "action", "target"], sort=True)["flagged"]
+    hit = att["outcome"] == "detected" if "outcome" in att.columns else att["flagged"].astype(bool)
+    att = att.assign(hit=hit.astype(float))
+    return (att.groupby(["detector", "action", "target"], sort=True)["hit"]
             .agg(tp_rate="mean", n="size").reset_index())
 
 

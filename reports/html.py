@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 
 from scart_bench.benchmark.store import to_json
-from scart_bench.reports.leaderboard import HEADLINE_DOC, config_link, display_table, failures
+from scart_bench.reports.leaderboard import HEADLINE_DOC, RULES_DOC, config_link, display_table, failures
 from scart_bench.reports.results import RunResults
 
 CSS = """
@@ -100,7 +100,8 @@ def page(board: pd.DataFrame, runs: list[RunResults], figures: list[tuple[str, P
              '<meta name="viewport" content="width=device-width, initial-scale=1">',
              '<link rel="icon" href="data:,">', "<title>scart-bench leaderboard</title>",
              f"<style>{CSS}</style></head><body>", "<h1>scart-bench leaderboard</h1>",
-             f'<p class="doc">{esc(HEADLINE_DOC)}</p>', leaderboard_table(board, runs),
+             f'<p class="doc">{esc(HEADLINE_DOC)}</p>', f'<p class="doc">{esc(RULES_DOC)}</p>',
+             leaderboard_table(board, runs),
              f"<h2>Runs ({len(runs)})</h2>", runs_table(runs, out)]
     fails = failures(runs)
     if fails:

@@ -12,10 +12,15 @@ the number of those runs. A detector missing from a run, or whose job failed the
 nothing to the mean: it is shown by its status in that run (``missing``, ``ERROR``, ``TIMEOUT``,
 ``UNFINISHED``), never as zero.
 
+Intervals: every rate (TP, late, flagged anywhere, TN) carries the 95 % Wilson interval of the
+flights pooled over the OK runs (``<rate>_lo`` / ``<rate>_hi``, resting on ``<rate>_n`` flights);
+ROC-AUC and AUC-PR carry the run's bootstrap interval when the detector finished OK in one run
+(with several runs their spread is the standard deviation).
+
 Columns of :func:`build_leaderboard`'s table: ``rank``, ``detector``, ``n_runs`` (OK runs),
 ``runs`` (runs given), ``headline_mean``, ``headline_std``, then per run ``status[<run>]`` and
 ``headline[<run>]``, then ``<metric>_mean`` / ``<metric>_std`` for every metric of
-:data:`METRICS`.
+:data:`METRICS`, then ``<metric>_lo`` / ``<metric>_hi`` (and ``<rate>_n``) where it has an interval.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
+from scart_bench.benchmark.intervals import wilson
 from scart_bench.reports.results import RunResults, load_runs
 
 #: The three rates averaged into the headline score.
@@ -38,24 +44,49 @@ MISSING = "missing"
 #: ``fN`` = N decimals.
 METRICS: tuple[tuple[str, str, str], ...] = (
     ("headline", "Headline", "pct"),
-    ("tp_simulation", "TP Simulation", "pct"),
-    ("tp_csv", "TP CSV", "pct"),
+    ("tp_simulation", "TP Simulation (in window)", "pct"),
+    ("tp_csv", "TP CSV (in window)", "pct"),
     ("tn_no_attack", "TN No Attack", "pct"),
+    ("late_simulation", "Late Sim", "pct"),
+    ("late_csv", "Late CSV", "pct"),
+    ("flagged_simulation", "Flagged anywhere Sim", "pct"),
+    ("flagged_csv", "Flagged anywhere CSV", "pct"),
     ("roc_auc", "ROC-AUC", "f3"),
+    ("auc_pr", "AUC-PR", "f3"),
+    ("vus_pr", "VUS-PR", "f3"),
+    ("vus_roc", "VUS-ROC", "f3"),
     ("point_f1", "Point F1", "f3"),
-    ("range_f1", "Range F1", "f3"),
+    ("r_f1", "R-F1 (TSB-AD)", "f3"),
     ("delay_median_s", "Median delay (s)", "f2"),
     ("false_alarms_per_hour", "False alarms / h", "f2"),
     ("latency_us_per_row", "Latency (us/row)", "f1"),
     ("fit_s", "Fit (s)", "f1"),
 )
 #: Metrics shown in the Markdown and HTML tables (all of METRICS are in the CSV).
-SHOWN = ("tp_simulation", "tp_csv", "tn_no_attack", "roc_auc", "point_f1", "range_f1", "delay_median_s",
-         "false_alarms_per_hour")
+SHOWN = ("tp_simulation", "tp_csv", "tn_no_attack", "flagged_simulation", "flagged_csv", "roc_auc", "auc_pr",
+         "vus_pr", "r_f1", "delay_median_s", "false_alarms_per_hour")
+#: Rates and the count of flights each rests on (a Wilson interval over the flights of the OK runs).
+RATE_COUNTS = {"tp_simulation": "n_simulation", "tp_csv": "n_csv", "tn_no_attack": "n_no_attack",
+               "late_simulation": "n_simulation", "late_csv": "n_csv", "flagged_simulation": "n_simulation",
+               "flagged_csv": "n_csv"}
+#: Threshold-free scores with a bootstrap interval in each run's metrics.
+BOOTSTRAPPED = ("roc_auc", "auc_pr")
 HEADLINE_DOC = ("Headline score = mean of TP Simulation, TP CSV and TN No Attack (a rate undefined in a run is "
                 "left out); detectors are ranked by its mean over the runs where they finished OK. "
+                "TP counts an attacked flight only when a row alarms inside its attack window; 'flagged anywhere' "
+                "is the paper's lenient rule. Rates show [95 % Wilson interval] over the flights of the OK runs; "
+                "ROC-AUC and AUC-PR of a single run show their bootstrap interval. "
                 "With several runs a cell shows mean ± sample standard deviation; n = runs where the detector "
                 "finished OK. A detector that is missing or failed in a run shows that status, never 0.")
+
+
+RULES_DOC = ("Scoring rules: an attacked flight is detected (TP) only when one of its rows alarms inside an "
+             "attack window [start, end) of its event log; alarms only after the window make it 'late' "
+             "(reported apart), and 'flagged anywhere' is the paper's lenient rule, shown as its own column. "
+             "Attacked flights whose attack changed nothing relative to their simulator view or csv source "
+             "(no_effect) are left out of every rate; csv-mode copies replay normal flights reserved for them, "
+             "never train or validation flights. Rates rest on few flights: read them with their interval. "
+             "VUS-PR, AUC-PR and R-F1 follow TSB-AD's definitions.")
 
 
 def headline(metrics: pd.DataFrame) -> pd.Series:
@@ -76,11 +107,32 @@ def _per_run(run: RunResults) -> pd.DataFrame:
     """One run's metrics indexed by detector, with the headline score; failed rows hold NaN values."""
     m = run.metrics.drop_duplicates("detector", keep="last").set_index("detector")
     m = m.assign(headline=headline(m.reset_index()).to_numpy())
-    keys = [k for k, _, _ in METRICS]
+    keys = [k for k, _, _ in METRICS] + _extra_keys()
     values = m.reindex(columns=keys).astype(float)
     values[m["status"] != "OK"] = np.nan
     values["status"] = m["status"]
     return values
+
+
+def _extra_keys() -> list[str]:
+    """Per-run columns read besides METRICS: flight counts and bootstrap bounds."""
+    return sorted(set(RATE_COUNTS.values())) + [f"{k}_{b}" for k in BOOTSTRAPPED for b in ("lo", "hi")]
+
+
+def _intervals(ok: pd.DataFrame) -> dict:
+    """Wilson intervals of the rates over the flights of the OK runs; bootstrap intervals of a single run."""
+    out: dict = {}
+    for rate, n_col in RATE_COUNTS.items():
+        pairs = ok[[rate, n_col]].dropna()
+        n = float(pairs[n_col].sum())
+        k = float(np.round(pairs[rate] * pairs[n_col]).sum())
+        out[f"{rate}_lo"], out[f"{rate}_hi"] = wilson(k, n) if n > 0 else (np.nan, np.nan)
+        out[f"{rate}_n"] = int(n)
+    for key in BOOTSTRAPPED:
+        one = len(ok) == 1
+        out[f"{key}_lo"] = float(ok[f"{key}_lo"].iloc[0]) if one else np.nan
+        out[f"{key}_hi"] = float(ok[f"{key}_hi"].iloc[0]) if one else np.nan
+    return out
 
 
 def leaderboard_of(runs: list[RunResults]) -> pd.DataFrame:
@@ -97,16 +149,20 @@ def leaderboard_of(runs: list[RunResults]) -> pd.DataFrame:
             row[status_column(run.label)] = table.at[det, "status"] if present else MISSING
             row[headline_column(run.label)] = table.at[det, "headline"] if present else np.nan
             if present and table.at[det, "status"] == "OK":
-                per_run.append(table.loc[det, keys].astype(float))
-        ok = pd.DataFrame(per_run, columns=keys)
+                per_run.append(table.loc[det, keys + _extra_keys()].astype(float))
+        ok = pd.DataFrame(per_run, columns=keys + _extra_keys())
         row["n_runs"] = len(ok)
         row["runs"] = len(runs)
         for k in keys:
             row[f"{k}_mean"] = ok[k].mean() if len(ok) else np.nan
             row[f"{k}_std"] = ok[k].std(ddof=1) if len(ok) > 1 else np.nan
+        row.update(_intervals(ok))
         rows.append(row)
     per_run_cols = [c for r in runs for c in (status_column(r.label), headline_column(r.label))]
-    columns = ["detector", "n_runs", "runs", *per_run_cols, *(f"{k}_{s}" for k in keys for s in ("mean", "std"))]
+    interval_cols = [c for r in RATE_COUNTS for c in (f"{r}_lo", f"{r}_hi", f"{r}_n")]
+    interval_cols += [f"{k}_{b}" for k in BOOTSTRAPPED for b in ("lo", "hi")]
+    columns = ["detector", "n_runs", "runs", *per_run_cols, *(f"{k}_{s}" for k in keys for s in ("mean", "std")),
+               *interval_cols]
     board = pd.DataFrame(rows, columns=columns)
     board = board.sort_values("headline_mean", ascending=False, na_position="last", kind="stable")
     scored = board["headline_mean"].notna().to_numpy()
@@ -129,7 +185,7 @@ def fmt(value, kind: str) -> str:
     if value is None or pd.isna(value):
         return "n/a"
     v = float(value)
-    return f"{100 * v:.1f}%" if kind == "pct" else f"{v:.{kind[1:]}f}"
+    return f"{100 * v:.1f} %" if kind == "pct" else f"{v:.{kind[1:]}f}"
 
 
 def fmt_spread(mean, std, kind: str) -> str:
@@ -139,6 +195,23 @@ def fmt_spread(mean, std, kind: str) -> str:
     if std is None or pd.isna(std):
         return fmt(mean, kind)
     return f"{fmt(mean, kind)} ± {fmt(std, kind)}"
+
+
+def fmt_interval(lo, hi, kind: str) -> str:
+    """`` [lo-hi]`` (percent without decimals for rates), empty when there is no interval."""
+    if lo is None or hi is None or pd.isna(lo) or pd.isna(hi):
+        return ""
+    if kind == "pct":
+        return f" [{100 * float(lo):.0f}-{100 * float(hi):.0f}]"
+    return f" [{fmt(lo, kind)}-{fmt(hi, kind)}]"
+
+
+def metric_cell(row: pd.Series, key: str, kind: str) -> str:
+    """A metric's cell: mean (± std over runs) and its 95 % interval where it has one."""
+    text = fmt_spread(row[f"{key}_mean"], row[f"{key}_std"], kind)
+    if text == "n/a":
+        return text
+    return text + fmt_interval(row.get(f"{key}_lo"), row.get(f"{key}_hi"), kind)
 
 
 def run_cell(row: pd.Series, label: str) -> str:
@@ -159,7 +232,7 @@ def display_table(board: pd.DataFrame, runs: list[RunResults]) -> tuple[list[str
         cells = ["–" if pd.isna(row["rank"]) else str(int(row["rank"])), str(row["detector"]),
                  fmt_spread(row["headline_mean"], row["headline_std"], "pct"), f"{row['n_runs']}/{row['runs']}"]
         cells += [run_cell(row, r.label) for r in runs]
-        cells += [fmt_spread(row[f"{k}_mean"], row[f"{k}_std"], labels[k][1]) for k in SHOWN]
+        cells += [metric_cell(row, k, labels[k][1]) for k in SHOWN]
         body.append(cells)
     return head, body
 
@@ -174,7 +247,7 @@ def to_markdown(board: pd.DataFrame, runs: list[RunResults], out: Path | None = 
                 notes: list[str] = ()) -> str:
     """leaderboard.md: the ranked table, the runs (with links to their configs), failures and notes."""
     head, body = display_table(board, runs)
-    lines = ["# scart-bench leaderboard", "", HEADLINE_DOC, "",
+    lines = ["# scart-bench leaderboard", "", HEADLINE_DOC, "", RULES_DOC, "",
              "| " + " | ".join(md_text(h) for h in head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     lines += ["| " + " | ".join(md_text(c) for c in cells) + " |" for cells in body]
     lines += ["", "## Runs", "", "| Run | Profile | Seed | Dataset | Detectors | Config |", "|---|---|---|---|---|---|"]

@@ -38,7 +38,8 @@ class ReportFiles:
 
 def example_flight(run: RunResults, board: pd.DataFrame) -> tuple[str | None, str | None]:
     """(detector, flight id) for the example figures: the best-ranked detector that finished OK in the
-    run and an attacked test flight it flagged (simulation mode first), else any attacked flight."""
+    run and an attacked test flight it detected inside the attack window (simulation mode first),
+    else any attacked flight."""
     ok = set(run.metrics.loc[run.metrics["status"] == "OK", "detector"].astype(str))
     ranked = [d for d in board["detector"].astype(str) if d in ok]
     if not ranked or not (run.path / "flight_scores.csv").exists():
@@ -47,7 +48,8 @@ def example_flight(run: RunResults, board: pd.DataFrame) -> tuple[str | None, st
     att = fs[(fs["detector"] == ranked[0]) & (fs["role"] == "test_attacked")]
     if att.empty:
         return ranked[0], None
-    att = att.assign(order=~att["flagged"].astype(bool), sim=att["mode"] != "simulation")
+    hit = att["outcome"] == "detected" if "outcome" in att.columns else att["flagged"].astype(bool)
+    att = att.assign(order=~hit.astype(bool), sim=att["mode"] != "simulation")
     return ranked[0], str(att.sort_values(["order", "sim"], kind="stable")["flight_id"].iloc[0])
 
 

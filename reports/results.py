@@ -16,7 +16,7 @@ from scart_bench.benchmark.store import RunStore, RunStoreError
 from scart_bench.errors import ReportError
 
 #: Columns of the run tables that hold text, not numbers.
-TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value")
+TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value", "outcome")
 
 
 def read_table(path: Path) -> pd.DataFrame:

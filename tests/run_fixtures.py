@@ -199,3 +199,17 @@ class InterruptOnce(ZScore):
             os.kill(os.getppid(), signal.SIGINT)
             time.sleep(600)
         super()._fit(X_list)
+
+
+class FailOnce(ZScore):
+    """Fails in fit while ``SCART_TEST_FAIL_MARKER`` names a file that does not exist yet (and
+    creates it), so a resumed run finishes it; otherwise a z-score."""
+
+    name = "fail_once_test"
+
+    def _fit(self, X_list):
+        marker = os.environ.get("SCART_TEST_FAIL_MARKER")
+        if marker and not Path(marker).exists():
+            Path(marker).write_text("failed once")
+            raise RuntimeError("boom once")
+        super()._fit(X_list)

@@ -27,6 +27,7 @@ import pytest
 from run_fixtures import ATTACK_US, plugin, write_dataset
 
 from scart_bench.benchmark.cli import main
+from scart_bench.benchmark.intervals import wilson
 from scart_bench.generator.dataset import open_dataset
 from scart_bench.reports.figures import ATTACK_WINDOW_COLOUR, axes_extent, column_of, label_windows
 from scart_bench.reports.leaderboard import build_leaderboard, headline
@@ -49,7 +50,7 @@ def runs(tmp_path_factory) -> tuple[Path, Path]:
     assert main(["run", "--profile", "quick", "--detectors", "zscore_test,diff_test", *DETS, "--dataset",
                  str(ds_a), "--out", str(a), "--jobs", "2"]) == 0
     assert main(["run", "--profile", "quick", "--detectors", "zscore_test,fail_fit_test", *DETS, "--dataset",
-                 str(ds_b), "--out", str(b), "--jobs", "2"]) == 0
+                 str(ds_b), "--out", str(b), "--jobs", "2"]) == 3  # a failed job
     return a, b
 
 
@@ -243,7 +244,17 @@ def test_two_runs_mean_and_missing(runs, report):
 
     md = (report / "leaderboard.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| ") and "diff_test" in line)
-    assert "| missing |" in row and "| 0.0% |" not in row
+    assert "| missing |" in row and "| 0.0 % |" not in row
+    # every rate with its Wilson interval over the flights of both runs; one run's bootstrap interval
+    k = sum(round(m.loc["zscore_test", "tp_simulation"] * m.loc["zscore_test", "n_simulation"]) for m in (a, b))
+    n = a.loc["zscore_test", "n_simulation"] + b.loc["zscore_test", "n_simulation"]
+    assert (z["tp_simulation_lo"], z["tp_simulation_hi"]) == pytest.approx(wilson(k, n))
+    assert z["tp_simulation_n"] == n
+    assert (d["roc_auc_lo"], d["roc_auc_hi"]) == pytest.approx((a.loc["diff_test", "roc_auc_lo"],
+                                                                a.loc["diff_test", "roc_auc_hi"]))
+    zrow = next(line for line in md.splitlines() if line.startswith("| ") and "zscore_test" in line)
+    lo, hi = wilson(k, n)
+    assert f" \\[{100 * lo:.0f}-{100 * hi:.0f}\\] |" in zrow  # brackets escaped for Markdown
     links = re.findall(r"\[config\.json\]\(([^)]+)\)", md)
     assert len(links) == 2 and all((report / unquote(link)).resolve() == (run / "config.json").resolve()
                                    for link, run in zip(links, runs))

@@ -67,7 +67,8 @@ def test_run_folder_layout(reference_run, dataset):
     assert config["seed"] == 0 and config["identity"]["seed"] == 0
     assert config["dataset"]["path"] == str(dataset.resolve())
     assert config["dataset"]["info"]["profile"] == "test"
-    assert config["dataset"]["flights"] == {"train": 4, "validation": 3, "test_normal": 3, "test_attacked": 6}
+    assert config["dataset"]["flights"] == {"train": 4, "validation": 3, "test_normal": 3, "test_attacked": 6,
+                                            "no_effect": 0, "csv_source": 0}
     assert config["versions"]["numpy"] == np.__version__
     assert "git" in config and config["detectors"] == ["zscore_test", "diff_test"]
     assert config["jobs"]["zscore_test"]["params"]["random_state"] == 0
@@ -79,10 +80,15 @@ def test_run_folder_layout(reference_run, dataset):
     assert len(scores) == 12 and all(s.dtype == np.float64 and s.shape == (1000,) for s in scores.values())
 
     metrics = pd.read_csv(reference_run / "metrics.csv")
+    rates = [f"{r}{s}" for r in ("tp_simulation", "tp_csv", "tn_no_attack", "late_simulation", "late_csv",
+                                 "flagged_simulation", "flagged_csv") for s in ("", "_lo", "_hi")]
     assert metrics.columns.tolist() == [
-        "detector", "status", "message", "tp_simulation", "tp_csv", "tn_no_attack", "n_simulation", "n_csv",
-        "n_no_attack", "roc_auc", "roc_auc_simulation", "roc_auc_csv", "point_precision", "point_recall",
-        "point_f1", "range_precision", "range_recall", "range_f1", "delay_median_s", "delay_p90_s", "n_delay",
+        "detector", "status", "message", *rates, "n_simulation", "n_csv",
+        "n_no_attack", "roc_auc", "roc_auc_lo", "roc_auc_hi", "auc_pr", "auc_pr_lo", "auc_pr_hi",
+        "roc_auc_simulation", "roc_auc_csv", "row_roc_auc", "row_auc_pr", "vus_roc", "vus_pr", "flight_mean_auc_pr",
+        "flight_mean_vus_roc", "flight_mean_vus_pr", "point_precision", "point_recall",
+        "point_f1", "r_precision", "r_recall", "r_f1", "rt0_precision", "rt0_recall", "rt0_f1", "delay_median_s",
+        "delay_p90_s", "n_delay", "late_delay_median_s", "n_late",
         "false_alarms_per_hour", "normal_test_hours", "latency_us_per_row", "flight_threshold", "row_threshold",
         "fit_s", "score_s", "rows"]
 
@@ -114,7 +120,8 @@ def test_metrics_of_the_reference_run(reference_run):
     assert (row["n"], row["detected"]) == (4, 3)
 
     md = (reference_run / "metrics.md").read_text()
-    assert "| zscore_test | 66.7% | 66.7% | 100.0% |" in md
+    assert "| zscore_test | 66.7 % [21-94] | 66.7 % [21-94] | 100.0 % [44-100] |" in md
+    assert "3 held-out normal test flights" in md and "no_effect, excluded from every rate): 0" in md
 
 
 def test_score_recomputes_from_saved_scores(reference_run, tmp_path, capsys):
@@ -126,7 +133,7 @@ def test_score_recomputes_from_saved_scores(reference_run, tmp_path, capsys):
     pd.testing.assert_frame_equal(pd.read_csv(run / "metrics.csv"), pd.read_csv(reference_run / "metrics.csv"))
     pd.testing.assert_frame_equal(pd.read_csv(run / "breakdown.csv"), pd.read_csv(reference_run / "breakdown.csv"))
     out = capsys.readouterr().out
-    assert out.splitlines()[0].startswith("| Detector | TP Simulation | TP CSV | TN No Attack | ROC-AUC")
+    assert out.splitlines()[0].startswith("| Detector | TP Simulation (in window) | TP CSV (in window) | TN No Attack")
 
 
 def test_saved_nan_scores_make_the_job_an_error(reference_run, tmp_path):
@@ -154,7 +161,7 @@ def test_failing_detectors_become_status_rows(dataset, tmp_path, monkeypatch, ca
     rc = main(["run", "--detectors", "zscore_test,fail_fit_test,nan_score_test,hang_test",
                *(x for c in ("ZScore", "FailFit", "NaNScore", "Hang") for x in ("--plugin", plugin(c))),
                "--dataset", str(dataset), "--out", str(out), "--jobs", "2", "--timeout", "5"])
-    assert rc == 0
+    assert rc == 3  # after writing everything, naming the failed jobs
     assert time.monotonic() - t0 < 60
     res = pd.read_csv(out / "results.csv").set_index("detector")
     assert res["status"].to_dict() == {"zscore_test": "OK", "fail_fit_test": "ERROR",
@@ -169,7 +176,9 @@ def test_failing_detectors_become_status_rows(dataset, tmp_path, monkeypatch, ca
     pid = int((tmp_path / "hang.pid").read_text())
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)
-    table = capsys.readouterr().out
+    captured = capsys.readouterr()
+    table = captured.out
+    assert "3 job(s) did not finish OK: fail_fit_test (ERROR), nan_score_test (ERROR), hang_test (TIMEOUT)" in captured.err
     assert "| hang_test | TIMEOUT | TIMEOUT |" in table
     assert "| nan_score_test | ERROR |" in table
     m = pd.read_csv(out / "metrics.csv").set_index("detector")
@@ -178,6 +187,23 @@ def test_failing_detectors_become_status_rows(dataset, tmp_path, monkeypatch, ca
 
 
 # -- resume -----------------------------------------------------------------------------------
+
+
+def test_failed_job_exits_3_and_resume_finishes_it(dataset, tmp_path, monkeypatch, capsys):
+    fit_log = tmp_path / "fits.txt"
+    monkeypatch.setenv("SCART_TEST_FIT_LOG", str(fit_log))
+    monkeypatch.setenv("SCART_TEST_FAIL_MARKER", str(tmp_path / "failed"))
+    out = tmp_path / "run"
+    args = ["run", "--detectors", "zscore_test,fail_once_test", "--plugin", ZS, "--plugin", plugin("FailOnce"),
+            "--dataset", str(dataset), "--out", str(out)]
+    assert main(args) == 3
+    assert "1 job(s) did not finish OK: fail_once_test (ERROR)" in capsys.readouterr().err
+    assert (out / "metrics.md").exists() and pd.read_csv(out / "results.csv")["status"].tolist() == ["OK", "ERROR"]
+    kept = snapshot(out / "jobs/zscore_test")
+    assert main([*args, "--resume"]) == 0  # only the failed job runs again, and now finishes
+    assert snapshot(out / "jobs/zscore_test") == kept
+    assert fit_log.read_text().split() == ["zscore_test", "fail_once_test"]
+    assert pd.read_csv(out / "results.csv")["status"].tolist() == ["OK", "OK"]
 
 
 def test_interrupted_run_resumes_without_recomputing(dataset, reference_run, tmp_path, monkeypatch):
@@ -340,7 +366,7 @@ def test_console_script(reference_run, tmp_path):
     shutil.copytree(reference_run, run)
     done = subprocess.run([str(exe), "score", str(run)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert "| zscore_test | 66.7% | 66.7% | 100.0% |" in done.stdout
+    assert "| zscore_test | 66.7 % [21-94] | 66.7 % [21-94] | 100.0 % [44-100] |" in done.stdout
     bad = subprocess.run([str(exe), "run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(tmp_path),
                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2

@@ -122,7 +122,7 @@ def test_csv_mode_attacks_non_training_flights(quick_dataset):
     m = ds.manifest.set_index("flight_id")
     csv = m[m["mode"] == "csv"]
     assert len(csv) == len(m[m["mode"] == "simulation"]) == 11
-    assert set(m.loc[csv["source_flight"], "split"]) <= {"test", "validation"}
+    assert set(m.loc[csv["source_flight"], "split"]) == {"csv_source"}  # reserved, never train/validation/test
     for fid, row in csv.head(3).iterrows():
         src = ds.topic(row["source_flight"], "gps_raw_int")
         copy = ds.topic(fid, "gps_raw_int", view="simulator")

@@ -7,11 +7,13 @@ import pandas as pd
 import pytest
 from sklearn.metrics import roc_auc_score
 
+from scart_bench.benchmark.intervals import bootstrap_auc, wilson
 from scart_bench.benchmark.protocol import Protocol, ProtocolError, Splits, ThresholdRule, assign_roles
 from scart_bench.benchmark.scoring import (
     DEFAULT_METRICS,
     PAPER_COLUMNS,
     DetectionDelay,
+    Evaluation,
     FalseAlarmRate,
     FlightROCAUC,
     PaperTable,
@@ -19,11 +21,15 @@ from scart_bench.benchmark.scoring import (
     RangePRF,
     ScoreError,
     ScoringLatency,
+    TatbulZeroPRF,
     alarm_events,
     breakdown,
     build_evaluation,
     compute_metrics,
+    detectability_bins,
     detection_delay,
+    flight_outcomes,
+    format_value,
     markdown_table,
     point_prf,
     range_prf,
@@ -182,8 +188,11 @@ def test_thresholds_come_from_validation_only():
 def test_paper_table_and_roc_auc():
     ev = _case()
     got = PaperTable()(ev)
-    assert got == {"tp_simulation": 0.5, "tp_csv": 1.0, "tn_no_attack": 0.5, "n_simulation": 2.0,
-                   "n_csv": 1.0, "n_no_attack": 2.0}
+    assert {k: got[k] for k in ("tp_simulation", "tp_csv", "tn_no_attack", "n_simulation", "n_csv",
+                                "n_no_attack")} == {"tp_simulation": 0.5, "tp_csv": 1.0, "tn_no_attack": 0.5,
+                                                    "n_simulation": 2.0, "n_csv": 1.0, "n_no_attack": 2.0}
+    assert (got["tp_simulation_lo"], got["tp_simulation_hi"]) == pytest.approx(wilson(1, 2))
+    assert (got["late_simulation"], got["flagged_simulation"], got["flagged_csv"]) == (0.0, 0.5, 1.0)
     auc = FlightROCAUC()(ev)
     assert auc["roc_auc"] == pytest.approx(4 / 6)
     assert auc["roc_auc"] == pytest.approx(roc_auc_score([0, 0, 1, 1, 1], [1.0, 0.3, 2.0, 0.1, 5.0]))
@@ -197,10 +206,15 @@ def test_row_metrics():
     assert PointwisePRF()(ev) == pytest.approx(
         {"point_precision": 2 / 3, "point_recall": 2 / 7, "point_f1": 2 * (2 / 3) * (2 / 7) / (2 / 3 + 2 / 7)})
     r = (1 / 2 + 0 + 1 / 3) / 3
-    assert RangePRF()(ev) == pytest.approx(
-        {"range_precision": 2 / 3, "range_recall": r, "range_f1": 2 * (2 / 3) * r / (2 / 3 + r)})
+    assert TatbulZeroPRF()(ev) == pytest.approx(
+        {"rt0_precision": 2 / 3, "rt0_recall": r, "rt0_f1": 2 * (2 / 3) * r / (2 / 3 + r)})
+    # TSB-AD's R-based P/R on the concatenated rows: 3 alarm ranges (one on n1, outside every
+    # attack), 3 real ranges; recall = 0.2 * existence + 0.8 * coverage
+    rp, rr = 2 / 3, (0.2 * 2 + 0.8 * (1 / 2 + 1 / 3)) / 3
+    assert RangePRF()(ev) == pytest.approx({"r_precision": rp, "r_recall": rr, "r_f1": 2 * rp * rr / (rp + rr)})
     # a1: onset 1 s, first alarm 2 s -> 1 s; c1: onset 1 s, no end, alarm 3 s -> 2 s; a2 undetected
-    assert DetectionDelay()(ev) == pytest.approx({"delay_median_s": 1.5, "delay_p90_s": 1.9, "n_delay": 2})
+    assert DetectionDelay()(ev) == pytest.approx({"delay_median_s": 1.5, "delay_p90_s": 1.9, "n_delay": 2,
+                                                  "late_delay_median_s": float("nan"), "n_late": 0}, nan_ok=True)
     # one alarm event on two half-hour normal flights
     assert FalseAlarmRate()(ev) == pytest.approx({"false_alarms_per_hour": 1.0, "normal_test_hours": 1.0})
     assert ScoringLatency()(ev) == pytest.approx({"latency_us_per_row": 2.0})
@@ -226,6 +240,70 @@ def test_breakdown():
     sim = bd[(bd["dimension"] == "injection_point") & (bd["mode"] == "simulation")].set_index("value")
     assert sim.loc["link", ["n", "detected"]].tolist() == [2, 1]
     assert set(bd["dimension"]) == {"action", "target", "injection_point"}
+
+
+def test_breakdown_by_detectability_bin():
+    ev = _case()
+    flights = ev.flights.assign(detectability=pd.Series({"a1": 12.0, "a2": 0.4, "c1": np.nan}))
+    ev = Evaluation(ev.detector, flights, ev.rows, ev.flight_threshold, ev.row_threshold)
+    bd = breakdown(ev)
+    det = bd[(bd["dimension"] == "detectability_bin") & (bd["mode"] == "all")].set_index("value")
+    assert det[["n", "detected"]].to_dict("index") == {">=10 sd": {"n": 1, "detected": 1},
+                                                         "<1 sd": {"n": 1, "detected": 0},
+                                                         "n/a": {"n": 1, "detected": 1}}
+    assert detectability_bins(pd.Series([0.5, 1.0, 2.9, 3.0, 10.0, np.nan])).tolist() == [
+        "<1 sd", "1-3 sd", "1-3 sd", "3-10 sd", ">=10 sd", "n/a"]
+
+
+def test_alarm_after_the_window_is_late_not_detected():
+    """Acceptance 1: an alarm only after the window is late (with its delay after the end); an
+    alarm inside the window is a detection (with its delay after the onset)."""
+    labels = [0, 1, 1, 0, 0, 0]  # window [1 s, 3 s)
+    ts = np.arange(6) * US
+    flights = pd.DataFrame([
+        ("v1", "validation", "normal", pd.NA, pd.NA),
+        ("late", "test_attacked", "simulation", 1 * US, 3 * US),
+        ("inside", "test_attacked", "simulation", 1 * US, 3 * US),
+        ("never", "test_attacked", "csv", 1 * US, 3 * US),
+    ], columns=["flight_id", "role", "mode", "attack_start_us", "attack_end_us"])
+    truth = {f: (ts, np.array(labels if f != "v1" else [0] * 6, dtype=np.int8)) for f in flights["flight_id"]}
+    scores = {"v1": np.full(6, 1.0),
+              "late": np.array([0, 0, 0, 0, 5.0, 0]),      # alarm at 4 s: 1 s after the end
+              "inside": np.array([0, 0, 5.0, 0, 0, 5.0]),  # alarm at 2 s: 1 s after the onset
+              "never": np.zeros(6)}
+    ev = build_evaluation("toy", flights, truth, scores, Protocol())
+    f = ev.flights
+    assert f.loc["late", "outcome"] == "late" and f.loc["late", "late_delay_s"] == pytest.approx(1.0)
+    assert np.isnan(f.loc["late", "delay_s"])
+    assert f.loc["inside", "outcome"] == "detected" and f.loc["inside", "delay_s"] == pytest.approx(1.0)
+    assert f.loc["never", "outcome"] == "missed"
+    assert f.loc["late", "flagged"]  # the paper's lenient rule would have counted it
+    got = PaperTable()(ev)
+    assert (got["tp_simulation"], got["late_simulation"], got["flagged_simulation"]) == (0.5, 0.5, 1.0)
+    assert (got["tp_csv"], got["late_csv"]) == (0.0, 0.0)
+    assert flight_outcomes(f, ev.rows).loc["late", "outcome"] == "late"
+
+
+def test_wilson_interval_by_hand():
+    """Acceptance 3: 9 of 11 -> 81.8 % [52-95]; 0 of 4 -> [0-49]; as the closed form gives."""
+    z = 1.959963984540054
+    for k, n in ((9, 11), (0, 4), (4, 4), (1, 2)):
+        p = k / n
+        centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+        half = z / (1 + z * z / n) * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+        assert wilson(k, n) == pytest.approx((max(centre - half, 0), min(centre + half, 1)), abs=1e-12)
+    assert wilson(9, 11) == pytest.approx((0.5230, 0.9486), abs=1e-4)
+    assert wilson(0, 4) == pytest.approx((0.0, 0.4899), abs=1e-4)
+    assert all(np.isnan(wilson(0, 0)))
+    assert format_value(9 / 11, "pct_ci", *wilson(9, 11)) == "81.8 % [52-95]"
+
+
+def test_bootstrap_interval_is_seeded_and_brackets_the_value():
+    normal, attacked = np.array([0.1, 0.4, 0.3, 0.2]), np.array([0.35, 0.8, 0.9, 0.05, 0.6])
+    a = bootstrap_auc(roc_auc, normal, attacked)
+    assert a == bootstrap_auc(roc_auc, normal, attacked)
+    assert a[0] <= roc_auc(np.r_[np.zeros(4), np.ones(5)], np.r_[normal, attacked]) <= a[1]
+    assert all(np.isnan(bootstrap_auc(roc_auc, normal, [])))
 
 
 @pytest.mark.parametrize("bad, words", [
@@ -254,8 +332,11 @@ def test_markdown_table_shows_status_not_zeros():
          "roc_auc": 0.75, "delay_median_s": float("nan")},
         {"detector": "bad", "status": "TIMEOUT", "tp_simulation": float("nan")},
     ])
-    text = markdown_table(metrics, PAPER_COLUMNS)
+    metrics.loc[0, ["tp_simulation_lo", "tp_simulation_hi"]] = wilson(1, 2)
+    cols = PAPER_COLUMNS[:3] + PAPER_COLUMNS[7:8] + PAPER_COLUMNS[-1:]
+    text = markdown_table(metrics, cols)
     lines = text.splitlines()
-    assert lines[0] == "| Detector | TP Simulation | TP CSV | TN No Attack | ROC-AUC | Median delay (s) | Status |"
-    assert lines[2] == "| good | 50.0% | 100.0% | 100.0% | 0.750 | n/a | OK |"
+    assert lines[0] == ("| Detector | TP Simulation (in window) | TP CSV (in window) | TN No Attack | ROC-AUC | "
+                        "Median delay (s) | Status |")
+    assert lines[2] == "| good | 50.0 % [9-91] | 100.0 % | 100.0 % | 0.750 | n/a | OK |"
     assert lines[3] == "| bad | TIMEOUT | TIMEOUT | TIMEOUT | TIMEOUT | TIMEOUT | TIMEOUT |"

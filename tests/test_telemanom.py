@@ -215,3 +215,28 @@ def test_dynamic_threshold_on_known_errors():
     # pure noise: nothing survives the pruning
     quiet = ewma(np.abs(rng.normal(0.0, 0.1, 1500)) + 0.1, 10)
     assert dynamic_threshold(quiet, y).sum() == 0
+
+
+def _spike_errors(n: int, spike_at: int) -> tuple[np.ndarray, np.ndarray]:
+    """Hand-made smoothed errors: a flat 0.1 with a little noise and one error of 5.0."""
+    rng = np.random.default_rng(7)
+    e_s = 0.1 + rng.uniform(0.0, 0.01, n)
+    e_s[spike_at] = 5.0
+    return e_s, rng.normal(0.0, 0.01, n)
+
+
+def test_dynamic_threshold_pads_error_buffer_rows_each_side():
+    """One window: the anomalous sequence is the error above the threshold +- error_buffer rows
+    (the published compare_to_epsilon pads by np.arange(1, error_buffer + 1))."""
+    e_s, y = _spike_errors(100, 50)
+    mask = dynamic_threshold(e_s, y, error_batch=100, window_size=1, error_buffer=3, p=0.13, inverse=False)
+    assert np.flatnonzero(mask).tolist() == list(range(47, 54))
+
+
+def test_dynamic_threshold_keeps_a_single_row_cut_by_the_batch_boundary():
+    """Batches of 10, windows of 3 batches. The error at 37 is flagged by window 1 (newest rows
+    30-39) as 34-39; window 2 may only flag its newest rows 40-49, where the padding leaves the
+    single row 40: the published code keeps it (no sequence to prune), so the sequence is 34-40."""
+    e_s, y = _spike_errors(60, 37)
+    mask = dynamic_threshold(e_s, y, error_batch=10, window_size=3, error_buffer=3, p=0.13, inverse=False)
+    assert np.flatnonzero(mask).tolist() == list(range(34, 41))
