@@ -29,3 +29,42 @@ class NoiseStream:
         out = self._buf[:, self._pos, :]
         self._pos += 1
         return out
+
+
+# -- the per-step noise vector of the flight simulator: named fields ------------------------------
+#: Offsets of the standard normals each flight draws per step (NOISE_DIM in all).
+NZ_ACC = 0  # 3: accelerometer white noise
+NZ_GYRO = 3  # 3: gyro white noise
+NZ_ACC_BIAS = 6  # 3: accelerometer bias random walk
+NZ_GYRO_BIAS = 9  # 3: gyro bias random walk
+NZ_MAG = 12  # 3: magnetometer noise
+NZ_BARO = 15  # 2: pressure, temperature
+NZ_GPS_BIAS = 17  # 3: GPS Gauss-Markov error
+NZ_GPS_POS = 20  # 3: GPS white position noise
+NZ_GPS_VEL = 23  # 3: GPS velocity noise
+NZ_WIND = 26  # 3: gusts
+NZ_BATTERY = 29  # 1: battery voltage noise
+NOISE_DIM = 30
+
+#: The same fields as slices, for the numpy reference step.
+NOISE_FIELDS: dict[str, slice] = {
+    "imu": slice(NZ_ACC, NZ_GYRO_BIAS + 3), "mag": slice(NZ_MAG, NZ_MAG + 3), "baro": slice(NZ_BARO, NZ_BARO + 2),
+    "gps": slice(NZ_GPS_BIAS, NZ_GPS_VEL + 3), "wind": slice(NZ_WIND, NZ_WIND + 3),
+    "battery": slice(NZ_BATTERY, NZ_BATTERY + 1),
+}
+
+
+def draw_block(rngs: list[np.random.Generator], rows: np.ndarray, steps: int, dim: int = NOISE_DIM) -> np.ndarray:
+    """(len(rows), steps, dim) standard normals, flight ``rows[j]`` from its own generator.
+
+    Draws the same stream as NoiseStream (a flight's draws do not depend on the block size).
+    """
+    out = np.empty((len(rows), steps, dim))
+    fill_block(rngs, rows, out)
+    return out
+
+
+def fill_block(rngs: list[np.random.Generator], rows: np.ndarray, out: np.ndarray) -> None:
+    """Fill ``out[j]`` (steps, dim) with flight ``rows[j]``'s next normals (numpy releases the GIL)."""
+    for j, i in enumerate(rows):
+        rngs[i].standard_normal(out=out[j])  # out[j] is C-contiguous: a (steps, dim) block

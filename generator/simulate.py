@@ -18,7 +18,7 @@ from scart_bench.generator.disturbances import Disturbances
 from scart_bench.generator.geo import HOME_ALT, altitude_at, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.link import SENSOR_TOPICS, FCSnapshot, compose, due_steps
 from scart_bench.generator.navigator import Navigator, mission_waypoints
-from scart_bench.generator.noise import NoiseStream
+from scart_bench.generator.noise import NOISE_DIM, NOISE_FIELDS, NoiseStream
 from scart_bench.generator.params import (
     GRAVITY,
     ControllerParams,
@@ -133,18 +133,47 @@ def _battery_init(n: int) -> np.ndarray:
     return b
 
 
+ENGINES = ("auto", "kernel", "numpy")
+
+
 def simulate(seeds: list[int], config: FlightConfig | None = None, layer: AttackHooks | None = None,
-             progress=None) -> BatchResult:
-    """Fly one flight per seed in a batch; same seeds and config give bit-identical results."""
-    cfg = config or FlightConfig()
+             progress=None, engine: str = "auto") -> BatchResult:
+    """Fly one flight per seed in a batch; same seeds and config give bit-identical results.
+
+    ``engine``: "kernel" (the compiled flight kernel, generator.kernel and generator.batch; what
+    "auto" picks) or "numpy" (the reference step below, which the kernel is tested against).
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    if engine in ("auto", "kernel"):
+        from scart_bench.generator.batch import simulate_kernel
+
+        return simulate_kernel(seeds, config or FlightConfig(), layer, progress)
+    return simulate_reference(seeds, config, layer, progress)
+
+
+@dataclass
+class Initial:
+    """Per-flight initial conditions, drawn from the flights' own generators (shared by both engines)."""
+
+    rngs: list[np.random.Generator]
+    wind: Wind
+    yaw0: np.ndarray
+    waypoints: np.ndarray
+    cruise: np.ndarray
+    sensors: Sensors
+    vehicle_state: VehicleState
+    sensor_state: object
+    max_steps: int
+
+
+def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
+    """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
     n = len(seeds)
     if n < 1:
         raise ValueError("simulate needs at least one seed")
     rngs = [np.random.default_rng(np.random.SeedSequence([int(s), 0x5CA7])) for s in seeds]
     m = cfg.mission
-    max_steps = int(m.max_duration_s * SIM_RATE_HZ)
-
-    # per-flight variation: wind, heading at start, mission jitter
     u = np.array([g.uniform(size=6) for g in rngs])
     wind_speed = m.wind_max * u[:, 0]
     wind_dir = 2 * np.pi * u[:, 1]
@@ -152,18 +181,34 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
     wind = Wind(mean=wind_mean, gust=np.zeros((n, 3)), sigma=m.gust_sigma_max * u[:, 2], tau=m.gust_tau)
     yaw0 = (u[:, 3] - 0.5) * 0.5
     waypoints, cruise = mission_waypoints(m, rngs)
-
-    vehicle = Vehicle(cfg.vehicle)
     sensors = Sensors(cfg.sensors, DT)
-    est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
-    ctrl = Controller(cfg.controller, cfg.vehicle, DT)
-    nav = Navigator(m, waypoints, cruise)
     vs = VehicleState.zeros(n, yaw0)
     ss = sensors.init_state(n, rngs)
+    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ))
+
+
+def simulate_reference(seeds: list[int], config: FlightConfig | None = None, layer: AttackHooks | None = None,
+                       progress=None) -> BatchResult:
+    """The numpy reference step: the whole batch advanced one step at a time (all flights to the end)."""
+    cfg = config or FlightConfig()
+    init = initial_conditions(seeds, cfg)
+    n = len(seeds)
+    rngs, wind, yaw0, waypoints = init.rngs, init.wind, init.yaw0, init.waypoints
+    wind_mean = wind.mean
+    m = cfg.mission
+    max_steps = init.max_steps
+    vehicle = Vehicle(cfg.vehicle)
+    sensors = init.sensors
+    est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
+    ctrl = Controller(cfg.controller, cfg.vehicle, DT)
+    nav = Navigator(m, waypoints, init.cruise)
+    vs = init.vehicle_state
+    ss = init.sensor_state
     es = est.init_state(n, yaw0)
     cs = ctrl.init_state(n)
     ns = nav.init_state(n, yaw0)
-    noise = NoiseStream(rngs, 30)
+    noise = NoiseStream(rngs, NOISE_DIM)
+    nz = NOISE_FIELDS
 
     sim_rec = _Recorder(n, max_steps // 2)
     nav_rec = _Recorder(n, max_steps // 2) if layer is not None else sim_rec
@@ -205,7 +250,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
             phys = layer.on_physics(step, t_us)
             env = phys if isinstance(phys, Disturbances) else None
             efficiency = env.motor_efficiency if env is not None else phys.get("motor_efficiency")
-        wind_now = wind.step(w[:, 26:29], DT)
+        wind_now = wind.step(w[:, nz["wind"]], DT)
         rotor_cmd = ctrl.rate_control(cs, es.rates)
         if env is not None:
             env.resolve(vs.pos)
@@ -216,7 +261,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
 
         # sensors -> estimator
         prev_imu = (accel, gyro)
-        accel, gyro = sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, 0:12])
+        accel, gyro = sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, nz["imu"]])
         if env is not None and env.sensor_lost:
             accel, gyro = _instance_imu(env, accel, gyro, prev_imu)
         sens_msgs: dict[str, np.ndarray] = {}
@@ -225,14 +270,14 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
             sens_msgs["sensor_gyro"] = gyro
         if due_sens["sensor_mag"][step]:
             prev_mag = mag
-            mag = sensors.mag(R_true, w[:, 12:15], env.magnetic_field(vs.pos) if env is not None else None)
+            mag = sensors.mag(R_true, w[:, nz["mag"]], env.magnetic_field(vs.pos) if env is not None else None)
             if env is not None and env.sensor_lost:
                 mag = _instance_value(env, "mag", mag, prev_mag)
             if "sensor" in points:
                 sens_msgs["sensor_mag"] = mag
         if due_sens["sensor_baro"][step]:
             prev_baro = pressure, baro_temp
-            pressure, baro_temp = sensors.baro(ss, vs.pos, w[:, 15:17])
+            pressure, baro_temp = sensors.baro(ss, vs.pos, w[:, nz["baro"]])
             if env is not None and env.sensor_lost:
                 pressure = _instance_value(env, "baro", pressure, prev_baro[0], scale=-11.8)  # Pa per m up
                 baro_temp = _instance_value(env, "baro_temp", baro_temp, prev_baro[1])
@@ -240,7 +285,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
                 sens_msgs["sensor_baro"] = np.column_stack([pressure, baro_temp])
         gps_due = due_sens["sensor_gps"][step]
         if gps_due:
-            gps = sensors.gps(ss, step, w[:, 17:26], gps_dt, env)
+            gps = sensors.gps(ss, step, w[:, nz["gps"]], gps_dt, env)
             if env is not None and env.sensor_lost:
                 gps = _instance_gps(env, gps)
             if "sensor" in points:
@@ -334,7 +379,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
             ocv = 12.8 + 4.0 * battery[:, 2]
             current = power / np.maximum(ocv, 1.0)
             battery[:, 2] = np.clip(battery[:, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
-            battery[:, 0] = ocv - 0.05 * current + 0.01 * w[:, 29]
+            battery[:, 0] = ocv - 0.05 * current + 0.01 * w[:, nz["battery"]][:, 0]
             if env is not None:
                 battery[:, 0] -= env.battery_sag_v
             battery[:, 1] = current
