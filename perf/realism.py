@@ -98,8 +98,8 @@ def _col(d: dict, *names: str) -> np.ndarray | None:
     return None
 
 
-def read_ulog(path: str | Path) -> Flight:
-    """The figures' series from a PX4 ULog (first instance of each topic)."""
+def ulog_topics(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
+    """A ULog's topics (first instance of each) as {topic: {field: array, "t": seconds from the log's start}}."""
     from pyulog import ULog
 
     ulog = ULog(str(path))
@@ -115,7 +115,17 @@ def read_ulog(path: str | Path) -> Flight:
         row = {k: np.asarray(v)[keep] for k, v in d.data.items()}
         row["t"] = (ts[keep] - start) / 1e6
         data[d.name] = row
-    f = Flight(Path(path).name)
+    return data
+
+
+def read_ulog(path: str | Path) -> Flight:
+    """The figures' series from a PX4 ULog."""
+    return from_ulog_topics(Path(path).name, ulog_topics(path))
+
+
+def from_ulog_topics(name: str, data: dict[str, dict[str, np.ndarray]]) -> Flight:
+    """The figures' series from a ULog's topics (see :func:`ulog_topics`), whichever of them it has."""
+    f = Flight(name)
     for logical, (_, names) in TOPICS.items():
         hit = _first(data, names)
         if hit is not None:
@@ -272,7 +282,8 @@ def figures(f: Flight) -> dict[str, tuple[float, str]]:
         t = np.sort(t)
         dt = np.diff(t)
         out[f"{logical} rate Hz"] = ((len(t) - 1) / (t[-1] - t[0]), "")
-        out[f"{logical} jitter CV"] = (float(dt.std() / dt.mean()), "")
+        cv = float(dt.std() / dt.mean())
+        out[f"{logical} jitter CV"] = (cv if cv > 1e-9 else 0.0, "")  # float rounding of a perfect clock: 0
         out[f"{logical} first msg s"] = (float(t[0]), "")
     for name, series in (("gyro z std rad/s", f.gyro_z), ("acc x std m/s2", f.acc_x), ("acc y std m/s2", f.acc_y)):
         out[name] = noise(f, series, IMU_HZ)
@@ -327,7 +338,7 @@ def table(generated: list[Flight], logs: list[Flight], markdown: bool = False) -
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--flights", type=int, default=4, help="generated normal flights (default 4)")
+    p.add_argument("--flights", type=int, default=8, help="generated normal flights (default 8)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gps-accuracy", default=None,
                    help="GPS accuracy level of the generated flights (default: the generator's default)")
