@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -31,12 +32,19 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if args.flights is not None and args.flights < 1:
         raise UsageError(f"--flights must be at least 1, got {args.flights}")
     check_seed(args.seed)
+    from scart_bench.generator.params import GPS_ACCURACY
+
+    profile = PROFILES[args.profile]
+    if args.gps_accuracy is not None:
+        if args.gps_accuracy not in GPS_ACCURACY:
+            raise UsageError(f"--gps-accuracy {args.gps_accuracy!r}: expected one of {', '.join(GPS_ACCURACY)}")
+        profile = dataclasses.replace(profile, gps_accuracy=args.gps_accuracy)
     out = Path(args.out)
     existed = out.exists()
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=_log,
-                         scenarios=args.scenarios)
+                         scenarios=args.scenarios, config=profile.flight_config())
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
@@ -97,6 +105,8 @@ def register(sub) -> None:
     g.add_argument("--normal-only", action="store_true", help="only normal flights, no attacks")
     g.add_argument("--scenarios", default=None, help="a scenario, grid or sweep file (TOML) for the attacked "
                    "flights, instead of the profile's grid")
+    g.add_argument("--gps-accuracy", default=None, help="simulator | real_receiver: the GPS accuracy of the "
+                   "flights (default: the profile's; see docs/realism.md)")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.set_defaults(func=cmd_generate)
 

@@ -61,7 +61,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
         raise DatasetError(f"flight count must be at least 1, got {n_normal}")
     out = Path(out)
     check_output_dir(out, overwrite=overwrite)
-    cfg = config or FlightConfig()
+    cfg = config or prof.flight_config()
     count = n_normal if n_normal is not None else prof.n_normal
     frac_train = prof.n_train / prof.n_normal
     frac_val = prof.n_validation / prof.n_normal

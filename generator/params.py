@@ -7,6 +7,7 @@ Gazebo-classic plugin defaults PX4 ships; controller gains follow PX4 multicopte
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,10 +48,17 @@ class VehicleParams:
 
 @dataclass(frozen=True)
 class SensorParams:
-    """PX4 Gazebo-classic sensor plugin defaults (noise densities turned into per-sample sigmas)."""
+    """PX4 Gazebo-classic sensor plugin defaults (noise densities turned into per-sample sigmas),
+    with the accelerometer's white noise calibrated against real PX4 logs (docs/realism.md).
+
+    The accelerometer density stands for the output of PX4's accelerometer low-pass filter
+    (IMU_ACCEL_CUTOFF), which the generator does not model: Gazebo's raw 0.004 m/s^2/sqrt(Hz) gave
+    hover noise 2.1-2.2x (x/y) the RflyMAD SIL log's; 0.00126 gives 1.0-1.4x, the rest being wind
+    gusts (``python -m perf.realism``). The gyro's Gazebo density already gives 1.1x at hover.
+    """
 
     imu_rate_hz: float = 250.0
-    accel_noise_density: float = 0.004  # m/s^2/sqrt(Hz)
+    accel_noise_density: float = 0.00126  # m/s^2/sqrt(Hz): 0.020 m/s^2 per 250 Hz sample (Gazebo: 0.004)
     accel_bias_random_walk: float = 0.006  # m/s^3/sqrt(Hz)
     accel_bias_tau: float = 300.0  # s
     gyro_noise_density: float = 0.00018665  # rad/s/sqrt(Hz)
@@ -65,6 +73,8 @@ class SensorParams:
     baro_drift_pa: float = 0.6  # Pa, 1 sigma of the slowly varying offset
     gps_rate_hz: float = 10.0
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)
+    # GPS position errors: the "simulator" level of GPS_ACCURACY (see there for "real_receiver");
+    # the receiver reports eph = hypot(noise_h, bias_h) and epv = hypot(noise_v, bias_v) at 12 satellites
     gps_noise_h: float = 0.15  # m, white, per axis
     gps_noise_v: float = 0.25  # m, white
     gps_bias_h: float = 0.25  # m, 1 sigma of the correlated (Gauss-Markov) error
@@ -132,3 +142,33 @@ class MissionParams:
     wind_max: float = 5.0  # m/s, mean wind drawn uniformly in [0, wind_max]
     gust_sigma_max: float = 0.8  # m/s, gust standard deviation drawn in [0, gust_sigma_max]
     gust_tau: float = 2.0  # s
+
+
+#: GPS accuracy levels, a profile's ``gps_accuracy``: the receiver's position errors (SensorParams)
+#: and what the flight controller accepts (EstimatorParams). The receiver reports
+#: eph = hypot(gps_noise_h, gps_bias_h) and epv = hypot(gps_noise_v, gps_bias_v) at 12 satellites
+#: (scaled by 12 / satellites, 8-16 in view).
+#:
+#: - ``simulator``: PX4 SITL's GPS (eph/epv ~0.3/0.5 m, as the RflyMAD and Gazebo SITL logs report).
+#: - ``real_receiver``: what real receivers report (eph/epv ~2.8/5.9 m, the CubeOrange log), with
+#:   errors to match: a correlated horizontal error of 2.75 m (1 sigma, 60 s time constant), so the
+#:   estimate, and the path flown, wander by metres as with a real GPS. GPS height is not fused, so
+#:   the vertical error only shows in the reported altitude. EKF2_REQ_EPH (3 m) is checked by PX4
+#:   before the first fix is used; the generator checks it on every message, so this level raises
+#:   it to 5 m, or a receiver with fewer than 12 satellites would never be fused.
+GPS_ACCURACY: dict[str, dict[str, dict[str, float]]] = {
+    "simulator": {"sensors": {}, "estimator": {}},
+    "real_receiver": {
+        "sensors": {"gps_noise_h": 0.5, "gps_bias_h": 2.75, "gps_noise_v": 1.0, "gps_bias_v": 5.8},
+        "estimator": {"gps_max_eph": 5.0},
+    },
+}
+
+
+def with_gps_accuracy(config, level: str):
+    """``config`` (a FlightConfig, or anything with ``sensors`` and ``estimator``) at GPS accuracy ``level``."""
+    if level not in GPS_ACCURACY:
+        raise ValueError(f"GPS accuracy {level!r}: expected one of {', '.join(GPS_ACCURACY)}")
+    spec = GPS_ACCURACY[level]
+    return dataclasses.replace(config, sensors=dataclasses.replace(config.sensors, **spec["sensors"]),
+                               estimator=dataclasses.replace(config.estimator, **spec["estimator"]))

@@ -1,4 +1,4 @@
-"""Dataset profiles: the one table of flight counts, attack grid and job time limit per profile.
+"""Dataset profiles: the one table of flight counts, attack grid, GPS accuracy and job time limit per profile.
 
 Kept free of heavy imports so that the command line can list the profiles without loading the
 generator.
@@ -26,6 +26,16 @@ class Profile:
     job_timeout_s: float = 1800.0
     batch_size: int = 256
     n_csv_source: int = 0
+    #: GPS accuracy of the flights: "simulator" (PX4 SITL-like eph/epv ~0.3/0.5 m) or
+    #: "real_receiver" (~2.8/5.9 m, as real receivers report); see generator/params.py GPS_ACCURACY
+    gps_accuracy: str = "simulator"
+
+    def flight_config(self):
+        """The FlightConfig for this profile's flights (the defaults at its GPS accuracy)."""
+        from scart_bench.generator.params import with_gps_accuracy
+        from scart_bench.generator.simulate import FlightConfig
+
+        return with_gps_accuracy(FlightConfig(), self.gps_accuracy)
 
     @property
     def n_normal(self) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +14,11 @@ from scart_bench.benchmark.cli import main
 from scart_bench.generator.dataset import LABEL_COLUMNS, open_dataset
 from scart_bench.generator.modes import csv_mode
 from scart_bench.generator.records import flight_views
-from scart_bench.generator.scart.grid import load_grid
-from scart_bench.generator.scart.scenario import load_scenarios, scenario_from_dict
+from scart_bench.generator.scart.grid import load_configurations, load_grid
+from scart_bench.generator.scart.scenario import ScenarioError, load_scenarios, scenario_from_dict
 from scart_bench.generator.scart.units import M_PER_DEG_LAT, M_PER_DEG_LON
 from scart_bench.generator.topics import TRUTH_FIELDS
+from scart_bench.names import check_id
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "ulog"
 RFLYMAD = SHARED / "rflymad_TestCase_1_1000000000.ulg"
@@ -230,14 +232,120 @@ def test_gps_spoof_rotates_about_the_start_point():
 
 
 # --- grids --------------------------------------------------------------------------------------------
-def test_paper_grid_expands_to_2048_distinct_configurations():
-    grid = load_grid("data/scenarios/paper.toml")
-    assert len(grid) == 2048
-    assert len({s.id for s in grid}) == 2048
-    assert len({s.params_json() for s in grid}) == 2048
-    assert {s.primary_action() for s in grid} >= {"add_white_noise", "random_change", "duplicate",
-                                                  "disconnect_sensor", "avg_sensors"}
-    assert [s.id for s in grid] == [s.id for s in load_grid("data/scenarios/paper.toml")], "stable ids"
+def test_paper_grid_expands_to_2048_distinct_configurations_with_combinations_and_gps_spoofing():
+    configs = load_configurations("data/scenarios/paper.toml")  # every scenario validated on loading
+    assert len(configs) == 2048
+    names = ["+".join(s.id for s in c) for c in configs]
+    assert len(set(names)) == 2048
+    assert len({tuple(s.params_json() for s in c) for c in configs}) == 2048
+    combos = [c for c in configs if len(c) > 1]
+    assert len(combos) >= 2048 / 4, "at least a quarter are combinations of attacks"
+    assert all(len({(s.primary_action(), tuple(s.to_dict()["actions"][0]["target"])) for s in c}) == len(c)
+               for c in combos), "a combination's parts differ in action or target"
+    actions = {s.primary_action() for c in configs for s in c}
+    assert actions >= {"gps_spoof", "add_white_noise", "random_change", "duplicate", "disconnect_sensor",
+                       "avg_sensors", "bias", "drift", "sinusoid"}
+    assert any(s.primary_action() == "gps_spoof" for c in combos for s in c)
+    starts = {s.start[0][0] for c in combos for s in c[1:]}
+    assert starts == {"scenario_started", "scenario_ended"}, "both concurrent and chained combinations"
+    for name in names:
+        check_id(name, "paper configuration")
+    assert names == ["+".join(s.id for s in c) for c in load_configurations("data/scenarios/paper.toml")]
+
+
+def test_single_action_grid_keeps_the_earlier_ids_and_the_paper_grid_shares_them():
+    single = load_grid("data/scenarios/paper_single.toml")
+    assert len(single) == 2048 and len({s.id for s in single}) == 2048
+    assert single[0].id == "paper-add_white_noise-position-L0-d5-time"
+    assert {s.primary_action() for s in single} >= {"add_white_noise", "random_change", "duplicate",
+                                                    "disconnect_sensor", "avg_sensors"}
+    # a single attack of the combined grid is the same scenario as in the single-action grid
+    by_id = {s.id: s.params_json() for s in single}
+    paper = [c[0] for c in load_configurations("data/scenarios/paper.toml") if len(c) == 1]
+    shared = [s for s in paper if s.id in by_id]
+    assert len(shared) == 1024 and all(by_id[s.id] == s.params_json() for s in shared)
+    with pytest.raises(ScenarioError, match="combinations of attacks"):
+        load_grid("data/scenarios/paper.toml")
+
+
+def test_profile_grids_still_expand():
+    assert len(load_configurations("data/scenarios/quick.toml")) == 11
+    assert all(len(c) == 1 for c in load_configurations("data/scenarios/standard.toml"))
+
+
+GRID = """
+[grid]
+id = "g"
+[grid.axes]
+action = ["bias"]
+target = ["pos"]
+level = [0, 1]
+duration_s = [5.0]
+trigger = ["t"]
+combine = [{combine}]
+[targets.pos]
+fields = ["local_position_ned.x", "local_position_ned.y"]
+magnitudes = [1.0, 2.0]
+[targets.alt]
+fields = ["local_position_ned.z"]
+magnitudes = [1.0, 2.0]
+[actions.bias]
+param = "offset"
+[actions.drift]
+param = "rate"
+[actions.gps_spoof]
+param = "rate_deg_s"
+levels = [1.0, 2.0]
+targets = ["pos"]
+[triggers.t]
+start = [{{ condition = "time_window", start_s = 10.0 }}]
+"""
+
+
+def test_grid_combinations_expand_concurrent_and_chained(tmp_path):
+    path = tmp_path / "g.toml"
+    path.write_text(GRID.format(combine='{ mode = "concurrent", parts = [["bias", "pos"], ["drift", "alt"]] }, '
+                                        '{ mode = "chained", parts = [["gps_spoof", "pos"], ["bias", "alt"], '
+                                        '["drift", "pos"]] }'))
+    configs = load_configurations(path)
+    assert ["+".join(s.id for s in c) for c in configs] == [
+        "g-bias-pos-L0-d5-t", "g-bias-pos-L1-d5-t",
+        "g-bias-pos-L0-d5-t+g-drift-alt-L0-d5-with", "g-bias-pos-L1-d5-t+g-drift-alt-L1-d5-with",
+        "g-gps_spoof-pos-L0-d5-t+g-bias-alt-L0-d5-then+g-drift-pos-L0-d5-then",
+        "g-gps_spoof-pos-L1-d5-t+g-bias-alt-L1-d5-then+g-drift-pos-L1-d5-then"]
+    conc, chain = configs[3], configs[5]
+    assert conc[1].start == [("scenario_started", {"scenario": conc[0].id, "after_s": 0.0})]
+    assert [s.start[0][1]["scenario"] for s in chain[1:]] == [chain[0].id, chain[1].id]
+    assert chain[0].to_dict()["actions"][0]["rate_deg_s"] == 2.0  # the level picks each part's magnitude
+    assert chain[1].to_dict()["actions"][0]["offset"] == 2.0
+
+
+@pytest.mark.parametrize("combine, message", [
+    ('{ mode = "both", parts = [["bias", "pos"], ["drift", "alt"]] }', "mode: expected one of concurrent, chained"),
+    ('{ mode = "chained", parts = [["bias", "pos"]] }', "at least 2 parts"),
+    ('{ mode = "chained", parts = [["bias", "pos"], ["bias", "pos"]] }', "appears twice"),
+    ('{ mode = "chained", parts = [["wobble", "pos"], ["bias", "alt"]] }', "unknown action 'wobble'"),
+    ('{ mode = "chained", parts = [["bias", "pos"], ["bias", "imu"]] }', "'imu' has no [targets.imu]"),
+    ('{ mode = "chained", parts = [["gps_spoof", "alt"], ["bias", "pos"]] }', "applies only to pos"),
+    ('{ mode = "chained", parts = [["bias", "pos"], "drift"] }', "parts[1]: expected [action, target]"),
+    ('{ mode = "concurrent", parts = [["bias", "pos"], ["drift", "alt"]] }, '
+     '{ mode = "concurrent", parts = [["drift", "alt"], ["bias", "pos"]] }', "repeats an earlier combination"),
+])
+def test_bad_grid_combinations_name_the_entry(tmp_path, combine, message):
+    path = tmp_path / "g.toml"
+    path.write_text(GRID.format(combine=combine))
+    with pytest.raises(ScenarioError, match=re.escape(message)) as err:
+        load_configurations(path)
+    assert "grid.axes.combine[" in str(err.value) and str(path) in str(err.value)
+
+
+def test_grid_combination_ids_stay_within_the_id_rule(tmp_path):
+    path = tmp_path / "g.toml"
+    text = GRID.format(combine='{ mode = "chained", parts = [["bias", "pos"], ["drift", "alt"], ["drift", "pos"], '
+                               '["bias", "alt"]] }').replace('id = "g"', f'id = "{"g" * 45}"')
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match="at most 200"):
+        load_configurations(path)
 
 
 # --- csv mode on real PX4 logs -------------------------------------------------------------------------

@@ -28,6 +28,23 @@ start = [{ condition = "time_window", start_s = 20.0 }]
 ```
 Each configuration's id is ``<grid id>-<action>-<target>-L<level>-d<duration>-<trigger>``.
 
+Combinations of attacks (several action/target pairs in one flight) are an optional axis,
+``combine``: each entry lists its parts and how they run, and joins the action x target pairs as
+one more attack (it is not multiplied with them; it is multiplied with level, duration and trigger):
+
+```toml
+combine = [
+  { mode = "concurrent", parts = [["gps_spoof", "position"], ["bias", "altitude"]] },
+  { mode = "chained", parts = [["disconnect_sensor", "position"], ["drift", "position"]] },
+]
+```
+Every part takes the configuration's level (on its own target's magnitudes), lasts the
+configuration's duration, and is a scenario of its own. The first part starts on the trigger;
+``concurrent`` parts start with it (``scenario_started``), ``chained`` parts each when the previous
+part ends (``scenario_ended``). Part ids: the first part's is the single attack's id, later parts
+end in ``-with`` (concurrent) or ``-then`` (chained) instead of the trigger; the configuration's
+id joins its parts' ids with ``+`` (at most 200 characters, the id rule).
+
 Compositions (several scenarios per flight) expand with a *sweep*: a scenario file with
 ``[[scenario]]`` tables and a ``[sweep]`` table whose keys are parameter paths and whose values
 are lists; every combination is one configuration (one flight).
@@ -55,8 +72,12 @@ from scart_bench.generator.scart.scenario import (
     scenario_from_dict,
 )
 from scart_bench.generator.scart.spec import ScenarioError, read_toml
+from scart_bench.names import IdError, check_id
 
 AXES = ("action", "target", "level", "duration_s", "trigger")
+#: optional axis: combinations of attacks (see the module docstring)
+OPTIONAL_AXES = ("combine",)
+COMBINE_MODES = ("concurrent", "chained")
 #: Configurations a grid or sweep may expand to unless its file raises the limit
 #: (``max_configurations = N`` in ``[grid]`` or ``[sweep]``); the paper's grid has 2,048.
 MAX_CONFIGURATIONS = 20_000
@@ -89,7 +110,67 @@ def load_grid(path: str | Path, check_topics: bool = True) -> list[Scenario]:
     """Expand a grid file into validated scenarios (one per configuration), in a stable order.
 
     ``check_topics=False`` leaves topic names to be checked against a recorded flight's topics.
+    A grid with a ``combine`` axis has configurations of several scenarios: read it with
+    :func:`load_grid_configurations` (or :func:`load_configurations`).
     """
+    configs = load_grid_configurations(path, check_topics)
+    if any(len(c) > 1 for c in configs):
+        raise ScenarioError(f"{path}: the grid has combinations of attacks (a 'combine' axis); "
+                            f"its configurations are lists of scenarios: use load_configurations")
+    return [c[0] for c in configs]
+
+
+def _combinations(entries: list, src: str, actions: dict, targets: dict) -> list[tuple[str, list[tuple[str, str]]]]:
+    """The ``combine`` axis checked: (mode, [(action, target), ...]) per entry."""
+    out = []
+    seen: set = set()
+    for i, entry in enumerate(entries):
+        where = f"{src}: grid.axes.combine[{i}]"
+        if not isinstance(entry, dict):
+            raise ScenarioError(f"{where}: expected a table {{ mode = \"concurrent\"|\"chained\", "
+                                f"parts = [[action, target], ...] }}, got {entry!r}")
+        unknown = [k for k in entry if k not in ("mode", "parts")]
+        if unknown:
+            raise ScenarioError(f"{where}: unknown key {unknown[0]!r}; allowed: 'mode', 'parts'")
+        mode = _need(entry, "mode", where, str)
+        if mode not in COMBINE_MODES:
+            raise ScenarioError(f"{where}.mode: expected one of {', '.join(COMBINE_MODES)}, got {mode!r}")
+        parts = _need(entry, "parts", where, list)
+        if len(parts) < 2:
+            raise ScenarioError(f"{where}.parts: a combination needs at least 2 parts, got {len(parts)}")
+        pairs = []
+        for j, part in enumerate(parts):
+            if (not isinstance(part, list) or len(part) != 2 or not all(isinstance(x, str) for x in part)):
+                raise ScenarioError(f"{where}.parts[{j}]: expected [action, target], got {part!r}")
+            action, target = part
+            if action not in ACTIONS:
+                raise ScenarioError(f"{where}.parts[{j}]: unknown action {action!r}; "
+                                    f"allowed: {', '.join(sorted(ACTIONS))}")
+            if action not in actions:
+                raise ScenarioError(f"{where}.parts[{j}]: missing table [actions.{action}] "
+                                    f"(which parameter the level sets)")
+            if target not in targets:
+                raise ScenarioError(f"{where}.parts[{j}]: {target!r} has no [targets.{target}] table; "
+                                    f"defined: {', '.join(targets) or '(none)'}")
+            allowed = actions[action].get("targets")
+            if allowed is not None and target not in allowed:
+                raise ScenarioError(f"{where}.parts[{j}]: [actions.{action}] applies only to "
+                                    f"{', '.join(allowed)}, not {target!r}")
+            pairs.append((action, target))
+        if len(set(pairs)) != len(pairs):
+            raise ScenarioError(f"{where}.parts: the same [action, target] appears twice; parts must differ")
+        key = (mode, tuple(sorted(pairs)) if mode == "concurrent" else tuple(pairs))
+        if key in seen:
+            raise ScenarioError(f"{where}: repeats an earlier combination (concurrent parts in another order "
+                                f"are the same combination)")
+        seen.add(key)
+        out.append((mode, pairs))
+    return out
+
+
+def load_grid_configurations(path: str | Path, check_topics: bool = True) -> list[list[Scenario]]:
+    """Expand a grid file into validated configurations (the scenarios of one flight each), in a
+    stable order: the single action x target attacks first, then the ``combine`` entries."""
     path = Path(path)
     doc = read_toml(path, "grid file")
     src = str(path)
@@ -98,19 +179,19 @@ def load_grid(path: str | Path, check_topics: bool = True) -> list[Scenario]:
     point = grid.get("injection_point", "link")
     limit = _limit(grid, f"{src}: grid")
     axes = _need(grid, "axes", f"{src}: grid", dict)
-    unknown = [k for k in axes if k not in AXES]
+    unknown = [k for k in axes if k not in AXES + OPTIONAL_AXES]
     if unknown:
-        raise ScenarioError(f"{src}: grid.axes: unknown axis {unknown[0]!r}; allowed: {', '.join(AXES)}")
+        raise ScenarioError(f"{src}: grid.axes: unknown axis {unknown[0]!r}; "
+                            f"allowed: {', '.join(AXES + OPTIONAL_AXES)}")
     for k in AXES:
         v = axes.get(k)
         if v is None:
             raise ScenarioError(f"{src}: grid.axes: missing axis {k!r} (a list)")
         if not isinstance(v, list) or not v:
             raise ScenarioError(f"{src}: grid.axes.{k}: expected a non-empty list, got {v!r}")
-    count = 1
-    for k in AXES:
-        count *= len(axes[k])
-    _check_count(count, limit, src, "grid")
+    combine = axes.get("combine", [])
+    if not isinstance(combine, list):
+        raise ScenarioError(f"{src}: grid.axes.combine: expected a list of combinations, got {combine!r}")
     targets = doc.get("targets", {})
     actions = doc.get("actions", {})
     triggers = doc.get("triggers", {})
@@ -130,37 +211,52 @@ def load_grid(path: str | Path, check_topics: bool = True) -> list[Scenario]:
     for d in axes["duration_s"]:
         if isinstance(d, bool) or not isinstance(d, int | float) or d <= 0:
             raise ScenarioError(f"{src}: grid.axes.duration_s: durations must be positive numbers, got {d!r}")
-    out: list[Scenario] = []
-    for action, target, level, duration, trigger in itertools.product(*(axes[k] for k in AXES)):
-        aspec = actions[action]
-        allowed_targets = aspec.get("targets")
-        if allowed_targets is not None and target not in allowed_targets:
-            continue
-        tspec = targets[target]
-        where = f"{src}: [actions.{action}]"
-        param = _need(aspec, "param", where, str)
+    combos = _combinations(combine, src, actions, targets)
+    singles = [(a, t) for a, t in itertools.product(axes["action"], axes["target"])
+               if actions[a].get("targets") is None or t in actions[a]["targets"]]
+    attacks: list[tuple[str, list[tuple[str, str]]]] = [("single", [p]) for p in singles] + combos
+    settings = list(itertools.product(axes["level"], axes["duration_s"], axes["trigger"]))
+    _check_count(len(attacks) * len(settings), limit, src, "grid")
+
+    def part(action: str, target: str, level, dur: float, tag: str, start: list, end: list) -> dict:
+        aspec, tspec = actions[action], targets[target]
+        param = _need(aspec, "param", f"{src}: [actions.{action}]", str)
         if "levels" in aspec:
             levels = aspec["levels"]
         else:
             mags = _need(tspec, "magnitudes", f"{src}: [targets.{target}]", list)
             levels = [m * aspec.get("factor", 1.0) for m in mags]
-        if not isinstance(level, int) or not 0 <= level < len(levels):
+        if isinstance(level, bool) or not isinstance(level, int) or not 0 <= level < len(levels):
             raise ScenarioError(f"{src}: grid.axes.level: level {level!r} out of range for {action} on {target} "
                                 f"(0..{len(levels) - 1})")
         act = {"action": action, "target": list(_need(tspec, "fields", f"{src}: [targets.{target}]", list)),
                param: levels[level], **aspec.get("extra", {})}
+        return {"id": f"{gid}-{action}-{target}-L{level}-d{dur:g}-{tag}",
+                "injection_point": tspec.get("injection_point", point),
+                "start": start, "end": [{"condition": "duration", "seconds": dur}, *end], "actions": [act]}
+
+    out: list[list[Scenario]] = []
+    for (mode, pairs), (level, duration, trigger) in itertools.product(attacks, settings):
         trig = triggers[trigger]
         dur = float(duration)
-        table = {
-            "id": f"{gid}-{action}-{target}-L{level}-d{dur:g}-{trigger}",
-            "injection_point": tspec.get("injection_point", point),
-            "start": trig.get("start", []),
-            "end": [{"condition": "duration", "seconds": dur}, *trig.get("end", [])],
-            "actions": [act],
-        }
-        out.append(scenario_from_dict(table, src, table["id"], f"grid[{table['id']}]", check_topics))
-    ids = [s.id for s in out]
-    if len(set(ids)) != len(ids):
+        tables = [part(*pairs[0], level, dur, trigger, trig.get("start", []), trig.get("end", []))]
+        for action, target in pairs[1:]:
+            if mode == "concurrent":
+                start = [{"condition": "scenario_started", "scenario": tables[0]["id"]}]
+            else:
+                start = [{"condition": "scenario_ended", "scenario": tables[-1]["id"]}]
+            tables.append(part(action, target, level, dur, "with" if mode == "concurrent" else "then", start, []))
+        config = [scenario_from_dict(t, src, t["id"], f"grid[{t['id']}]", check_topics) for t in tables]
+        if len(config) > 1:
+            check_composition(config, src)
+            name = "+".join(sc.id for sc in config)
+            try:
+                check_id(name, f"{src}: grid configuration")
+            except IdError as exc:
+                raise ScenarioError(f"{exc}; shorten the grid id, action or target names, or use fewer parts") from None
+        out.append(config)
+    names = ["+".join(sc.id for sc in c) for c in out]
+    if len(set(names)) != len(names):
         raise ScenarioError(f"{src}: the grid expands to duplicate ids; make the axes' values distinct")
     return out
 
@@ -256,7 +352,7 @@ def load_configurations(path: str | Path, check_topics: bool = True) -> list[lis
     """
     doc = read_toml(path)
     if "grid" in doc:
-        return [[sc] for sc in load_grid(path, check_topics)]
+        return load_grid_configurations(path, check_topics)
     if "sweep" in doc:
         return load_sweep(path, check_topics)
     return [load_scenarios(path, check_topics)]
@@ -265,7 +361,7 @@ def load_configurations(path: str | Path, check_topics: bool = True) -> list[lis
 def load_any(path: str | Path) -> list[Scenario]:
     """A scenario file or a grid file, by its top-level table."""
     if is_grid(path):
-        return load_grid(path)
+        return [sc for config in load_grid_configurations(path) for sc in config]
     from scart_bench.generator.scart.scenario import load_scenarios
 
     return load_scenarios(path)

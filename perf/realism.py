@@ -1,0 +1,366 @@
+"""How close generated flights are to real PX4 logs: rates, timing jitter, sensor noise, GPS accuracy.
+
+    python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--markdown] [--ulog FILE ...]
+
+Flies ``N`` default-mission normal flights (holding 12 s in hover after take-off) and reads the given ULogs (by default every ``*.ulg`` in
+``../shared/data/ulog`` next to the checkout), then prints one row per figure: the generated value
+(median over the flights), each log's value and the ratio generated / log.
+
+Figures, computed the same way on both sides:
+
+- ``rate`` and ``jitter CV`` per topic: messages per second over the topic's span, and the
+  coefficient of variation (std / mean) of the intervals between messages; ``first msg`` the
+  time of the topic's first message after the start of the flight (log). Topics are matched by
+  meaning (``highres_imu`` <-> ``sensor_combined``, ``gps_raw_int`` <-> ``vehicle_gps_position``,
+  ...); a log without a topic falls back on a related one (``vehicle_angular_velocity`` and
+  ``vehicle_acceleration`` for the IMU, ``sensor_gps`` for GPS, ``sensor_baro`` for the baro).
+- Noise at hover: the IMU sampled at 50 Hz (the latest sample every 20 ms, as the MAVLink link
+  streams it), minus its 1 s centred moving average (so manoeuvres do not count), std over the
+  still samples: horizontal speed < 0.5 m/s, vertical < 0.3 m/s and yaw rate (1 s average)
+  < 0.05 rad/s (no turn on the spot), airborne (> 1 m above the
+  first position) when the log has such samples ("hover"), else on the ground ("ground": a bench
+  log). Gyro z (rad/s), accelerometer x and y (m/s^2).
+- Baro altitude noise: the barometric altitude sampled at 10 Hz, minus its 1 s moving average,
+  std over the same still samples (m).
+- GPS accuracy: median reported ``eph`` / ``epv`` (m) over messages with a 3-D fix.
+
+A log's rates are its logger's rates (the SD-card logging profile), not the rates PX4 streams
+on the MAVLink link that the generator's topics follow; ``docs/realism.md`` explains which
+differences are expected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+#: real PX4 logs shipped next to the checkout
+DEFAULT_ULOG_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ulog"
+
+#: logical topic -> (generated topic names, ULog topic names), first found wins
+TOPICS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "imu": (("highres_imu", "sensor_combined"), ("sensor_combined", "vehicle_imu")),
+    "attitude": (("attitude", "vehicle_attitude"), ("vehicle_attitude",)),
+    "local_position": (("local_position_ned", "vehicle_local_position"), ("vehicle_local_position",)),
+    "global_position": (("global_position_int", "vehicle_global_position"), ("vehicle_global_position",)),
+    "gps": (("gps_raw_int", "vehicle_gps_position", "sensor_gps"), ("vehicle_gps_position", "sensor_gps")),
+    "baro": (("scaled_pressure", "vehicle_air_data"), ("vehicle_air_data", "sensor_baro")),
+    "battery": (("battery_status",), ("battery_status",)),
+}
+IMU_HZ = 50.0
+BARO_HZ = 10.0
+HP_WINDOW_S = 1.0
+STILL_H = 0.5  # m/s
+STILL_V = 0.3  # m/s
+STILL_YAW = 0.05  # rad/s, yaw rate averaged over HP_WINDOW_S
+AIRBORNE_M = 1.0
+EDGE_S = 0.5  # still samples this close to a moving one are left out
+HOVER_S = 12.0  # the generated flights hold this long after take-off
+
+
+@dataclass
+class Flight:
+    """The series the figures need, in seconds from the start of the flight (or log)."""
+
+    name: str
+    times: dict[str, np.ndarray] = field(default_factory=dict)  # logical topic -> message times
+    gyro_z: tuple[np.ndarray, np.ndarray] | None = None
+    acc_x: tuple[np.ndarray, np.ndarray] | None = None
+    acc_y: tuple[np.ndarray, np.ndarray] | None = None
+    baro_alt: tuple[np.ndarray, np.ndarray] | None = None
+    velocity: tuple[np.ndarray, np.ndarray] | None = None  # t, (n, 3) NED
+    height: tuple[np.ndarray, np.ndarray] | None = None  # t, metres above the first position
+    eph: np.ndarray | None = None
+    epv: np.ndarray | None = None
+
+
+def pressure_altitude(pa: np.ndarray) -> np.ndarray:
+    """ISA altitude (m) of a static pressure (Pa)."""
+    return 44330.0 * (1.0 - (np.asarray(pa, float) / 101325.0) ** (1.0 / 5.255))
+
+
+# --- reading a ULog -------------------------------------------------------------------------------------
+def _first(data: dict, names: tuple[str, ...]) -> tuple[str, dict] | None:
+    for n in names:
+        if n in data:
+            return n, data[n]
+    return None
+
+
+def _col(d: dict, *names: str) -> np.ndarray | None:
+    for n in names:
+        if n in d:
+            return np.asarray(d[n], dtype=float)
+    return None
+
+
+def ulog_topics(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
+    """A ULog's topics (first instance of each) as {topic: {field: array, "t": seconds from the log's start}}."""
+    from pyulog import ULog
+
+    ulog = ULog(str(path))
+    start = int(ulog.start_timestamp)
+    data: dict[str, dict] = {}
+    for d in sorted(ulog.data_list, key=lambda d: d.multi_id):
+        if d.name in data:
+            continue
+        ts = np.asarray(d.data["timestamp"], dtype=np.uint64).astype(np.int64)
+        keep = ts > 0
+        if not keep.any():
+            continue
+        row = {k: np.asarray(v)[keep] for k, v in d.data.items()}
+        row["t"] = (ts[keep] - start) / 1e6
+        data[d.name] = row
+    return data
+
+
+def read_ulog(path: str | Path) -> Flight:
+    """The figures' series from a PX4 ULog."""
+    return from_ulog_topics(Path(path).name, ulog_topics(path))
+
+
+def from_ulog_topics(name: str, data: dict[str, dict[str, np.ndarray]]) -> Flight:
+    """The figures' series from a ULog's topics (see :func:`ulog_topics`), whichever of them it has."""
+    f = Flight(name)
+    for logical, (_, names) in TOPICS.items():
+        hit = _first(data, names)
+        if hit is not None:
+            f.times[logical] = hit[1]["t"]
+    if "sensor_combined" in data:
+        d = data["sensor_combined"]
+        f.gyro_z = d["t"], _col(d, "gyro_rad[2]")
+        f.acc_x, f.acc_y = (d["t"], _col(d, "accelerometer_m_s2[0]")), (d["t"], _col(d, "accelerometer_m_s2[1]"))
+    else:
+        if "vehicle_angular_velocity" in data:
+            d = data["vehicle_angular_velocity"]
+            f.gyro_z = d["t"], _col(d, "xyz[2]")
+        if "vehicle_acceleration" in data:
+            d = data["vehicle_acceleration"]
+            f.acc_x, f.acc_y = (d["t"], _col(d, "xyz[0]")), (d["t"], _col(d, "xyz[1]"))
+    if "vehicle_air_data" in data:
+        d = data["vehicle_air_data"]
+        f.baro_alt = d["t"], _col(d, "baro_alt_meter")
+    elif "sensor_baro" in data:
+        d = data["sensor_baro"]
+        f.baro_alt = d["t"], pressure_altitude(_col(d, "pressure"))
+    if "vehicle_local_position" in data:
+        d = data["vehicle_local_position"]
+        f.velocity = d["t"], np.column_stack([_col(d, "vx"), _col(d, "vy"), _col(d, "vz")])
+        z = _col(d, "z")
+        f.height = d["t"], z[0] - z
+    hit = _first(data, ("vehicle_gps_position", "sensor_gps"))
+    if hit is not None:
+        d = hit[1]
+        fix = _col(d, "fix_type")
+        ok = fix >= 3 if fix is not None else np.ones(len(d["t"]), bool)
+        f.eph, f.epv = _col(d, "eph")[ok], _col(d, "epv")[ok]
+    return f
+
+
+# --- generated flights ----------------------------------------------------------------------------------
+def from_tables(name: str, tables: dict) -> Flight:
+    """The figures' series from one generated flight's topic tables ({topic: DataFrame}, MAVLink names)."""
+    f = Flight(name)
+    t = {k: df["Timestamp"].to_numpy(np.int64) / 1e6 for k, df in tables.items() if len(df)}
+    for logical, (names, _) in TOPICS.items():
+        hit = _first(t, names)
+        if hit is not None:
+            f.times[logical] = hit[1]
+    if "highres_imu" in tables:
+        d = tables["highres_imu"]
+        ti = t["highres_imu"]
+        f.gyro_z = ti, d["zgyro"].to_numpy(float)
+        f.acc_x, f.acc_y = (ti, d["xacc"].to_numpy(float)), (ti, d["yacc"].to_numpy(float))
+    if "scaled_pressure" in tables:
+        d = tables["scaled_pressure"]
+        f.baro_alt = t["scaled_pressure"], pressure_altitude(d["press_abs"].to_numpy(float) * 100.0)
+    if "local_position_ned" in tables:
+        d = tables["local_position_ned"]
+        f.velocity = t["local_position_ned"], d[["vx", "vy", "vz"]].to_numpy(float)
+        z = d["z"].to_numpy(float)
+        f.height = t["local_position_ned"], z[0] - z
+    if "gps_raw_int" in tables:
+        d = tables["gps_raw_int"]
+        ok = d["fix_type"].to_numpy(float) >= 3
+        f.eph, f.epv = d["eph"].to_numpy(float)[ok], d["epv"].to_numpy(float)[ok]
+    return f
+
+
+def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None) -> list[Flight]:
+    """Fly ``n`` normal default-mission flights (in one batch) and read them like a log.
+
+    The flights hold ``HOVER_S`` s after take-off (instead of 1 s) so that they have a hover.
+    """
+    import dataclasses
+
+    from scart_bench.generator.generate import normal_seeds
+    from scart_bench.generator.records import flight_views
+    from scart_bench.generator.simulate import FlightConfig, simulate
+
+    config = FlightConfig()
+    # the default mission only pauses 1 s after take-off; hold HOVER_S so there is a hover to measure
+    config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, takeoff_hold_s=HOVER_S))
+    if gps_accuracy is not None:
+        from scart_bench.generator.params import with_gps_accuracy
+
+        config = with_gps_accuracy(config, gps_accuracy)
+    batch = simulate(normal_seeds(seed, n), config)
+    flights = []
+    for i in range(n):
+        _, sim = flight_views(batch, i, ())
+        flights.append(from_tables(f"generated-{i}", sim))
+    return flights
+
+
+# --- figures --------------------------------------------------------------------------------------------
+def resample(t: np.ndarray, x: np.ndarray, hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The latest sample at every tick of a ``hz`` clock (as a link streams a topic)."""
+    order = np.argsort(t, kind="stable")
+    t, x = t[order], x[order]
+    grid = np.arange(t[0], t[-1], 1.0 / hz)
+    idx = np.searchsorted(t, grid, side="right") - 1
+    return grid, x[idx]
+
+
+def highpass(x: np.ndarray, hz: float) -> np.ndarray:
+    """``x`` minus its centred moving average over HP_WINDOW_S (edges use the shorter window)."""
+    w = max(3, int(round(HP_WINDOW_S * hz)) | 1)
+    kernel = np.ones(w)
+    num = np.convolve(x, kernel, mode="same")
+    den = np.convolve(np.ones_like(x), kernel, mode="same")
+    return x - num / den
+
+
+def still_mask(f: Flight, grid: np.ndarray) -> tuple[np.ndarray, str]:
+    """Still samples of ``grid`` (airborne ones when there are at least 2 s of them) and the phase."""
+    if f.velocity is None:
+        return np.ones(len(grid), bool), "all"
+    tv, v = f.velocity
+    vi = np.column_stack([np.interp(grid, tv, v[:, k]) for k in range(3)])
+    still = (np.hypot(vi[:, 0], vi[:, 1]) < STILL_H) & (np.abs(vi[:, 2]) < STILL_V)
+    if f.gyro_z is not None and f.gyro_z[1] is not None:  # no yaw turn on the spot either
+        tg, g = resample(*f.gyro_z, IMU_HZ)
+        slow = g - highpass(g, IMU_HZ)
+        still &= np.abs(np.interp(grid, tg, slow)) < STILL_YAW
+    # leave out samples near a moving one
+    dt = np.median(np.diff(grid)) if len(grid) > 1 else 1.0
+    pad = int(round(EDGE_S / dt))
+    if pad:
+        moving = np.convolve((~still).astype(float), np.ones(2 * pad + 1), mode="same") > 0
+        still &= ~moving
+    still &= (grid > grid[0] + HP_WINDOW_S) & (grid < grid[-1] - HP_WINDOW_S)
+    if f.height is not None:
+        air = np.interp(grid, *f.height) > AIRBORNE_M
+        if (still & air).sum() * dt >= 2.0:
+            return still & air, "hover"
+    return still, "ground"
+
+
+def noise(f: Flight, series: tuple[np.ndarray, np.ndarray] | None, hz: float) -> tuple[float, str]:
+    if series is None or series[1] is None or len(series[0]) < 10:
+        return math.nan, ""
+    grid, x = resample(series[0], series[1], hz)
+    mask, phase = still_mask(f, grid)
+    if mask.sum() < 10:
+        return math.nan, phase
+    return float(np.std(highpass(x, hz)[mask])), phase
+
+
+def figures(f: Flight) -> dict[str, tuple[float, str]]:
+    """Every figure of one flight or log: name -> (value, note)."""
+    out: dict[str, tuple[float, str]] = {}
+    for logical in TOPICS:
+        t = f.times.get(logical)
+        if t is None or len(t) < 3:
+            for k in ("rate Hz", "jitter CV", "first msg s"):
+                out[f"{logical} {k}"] = (math.nan, "")
+            continue
+        t = np.sort(t)
+        dt = np.diff(t)
+        out[f"{logical} rate Hz"] = ((len(t) - 1) / (t[-1] - t[0]), "")
+        cv = float(dt.std() / dt.mean())
+        out[f"{logical} jitter CV"] = (cv if cv > 1e-9 else 0.0, "")  # float rounding of a perfect clock: 0
+        out[f"{logical} first msg s"] = (float(t[0]), "")
+    for name, series in (("gyro z std rad/s", f.gyro_z), ("acc x std m/s2", f.acc_x), ("acc y std m/s2", f.acc_y)):
+        out[name] = noise(f, series, IMU_HZ)
+    out["baro alt std m"] = noise(f, f.baro_alt, BARO_HZ)
+    out["gps eph m"] = (float(np.median(f.eph)) if f.eph is not None and len(f.eph) else math.nan, "")
+    out["gps epv m"] = (float(np.median(f.epv)) if f.epv is not None and len(f.epv) else math.nan, "")
+    return out
+
+
+def _fmt(x: float) -> str:
+    if x is None or not np.isfinite(x):
+        return "-"
+    if x == 0:
+        return "0"
+    return f"{x:.3g}" if abs(x) >= 1e-3 else f"{x:.2e}"
+
+
+def _ratio(a: float, b: float) -> str:
+    if not (np.isfinite(a) and np.isfinite(b)) or b == 0:
+        return "-"
+    return f"{a / b:.2f}"
+
+
+def table(generated: list[Flight], logs: list[Flight], markdown: bool = False) -> str:
+    """The side-by-side table: generated (median over flights), then each log and the ratio."""
+    gen = [figures(f) for f in generated]
+    real = [figures(f) for f in logs]
+    names = list(gen[0] if gen else real[0])
+    header = ["figure", f"generated (n={len(generated)})"]
+    for f in logs:
+        short = f.name.removesuffix(".ulg")[:22]
+        header += [short, "gen/log"]
+    rows = []
+    for name in names:
+        vals = [v[name][0] for v in gen]
+        g = float(np.nanmedian(vals)) if vals and not all(np.isnan(vals)) else math.nan
+        phase = next((v[name][1] for v in gen if v[name][1]), "")
+        row = [name, _fmt(g) + (f" ({phase})" if phase else "")]
+        for r in real:
+            value, note = r[name]
+            row += [_fmt(value) + (f" ({note})" if note else ""), _ratio(g, value)]
+        rows.append(row)
+    if markdown:
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        lines += ["| " + " | ".join(r) + " |" for r in rows]
+        return "\n".join(lines)
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    fmt = lambda r: "  ".join(str(x).ljust(w) if i == 0 else str(x).rjust(w)  # noqa: E731
+                              for i, (x, w) in enumerate(zip(r, widths)))
+    return "\n".join([fmt(header), "  ".join("-" * w for w in widths)] + [fmt(r) for r in rows])
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--flights", type=int, default=8, help="generated normal flights (default 8)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--gps-accuracy", default=None,
+                   help="GPS accuracy level of the generated flights (default: the generator's default)")
+    p.add_argument("--ulog", nargs="*", default=None, help=f"PX4 ULog files (default: {DEFAULT_ULOG_DIR}/*.ulg)")
+    p.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    args = p.parse_args(argv)
+    if args.flights < 1:
+        p.error("--flights must be at least 1")
+    paths = [Path(x) for x in args.ulog] if args.ulog is not None else sorted(DEFAULT_ULOG_DIR.glob("*.ulg"))
+    missing = [str(x) for x in paths if not x.is_file()]
+    if missing:
+        p.error(f"no such ULog file: {missing[0]}")
+    logs = []
+    for path in paths:
+        try:
+            logs.append(read_ulog(path))
+        except Exception as exc:  # a damaged log: say which and go on with the others
+            print(f"{path}: cannot read it as a ULog ({type(exc).__name__}: {exc}); left out")
+    generated = generated_flights(args.flights, args.seed, args.gps_accuracy)
+    print(table(generated, logs, markdown=args.markdown))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,117 @@
+"""Realism against real PX4 logs: the realism script's figures, calibrated noise, GPS accuracy levels."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from perf import realism
+from scart_bench.benchmark.cli import main
+from scart_bench.generator.params import GPS_ACCURACY, MissionParams, SensorParams, with_gps_accuracy
+from scart_bench.generator.profiles import PROFILES
+from scart_bench.generator.records import flight_views
+from scart_bench.generator.simulate import FlightConfig, simulate
+
+ULOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ulog"
+RFLYMAD = ULOGS / "rflymad_TestCase_1_1000000000.ulg"
+HOVER = FlightConfig(mission=MissionParams(takeoff_hold_s=8.0, max_duration_s=14.0))
+
+
+@pytest.fixture(scope="module")
+def hover_flights():
+    """Two short flights per GPS accuracy level that take off and hover (one batch per level)."""
+    out = {}
+    for level in GPS_ACCURACY:
+        batch = simulate([11, 12], with_gps_accuracy(HOVER, level))
+        out[level] = [realism.from_tables(f"{level}-{i}", flight_views(batch, i, ())[1]) for i in range(2)]
+    return out
+
+
+def _need_log():
+    if not RFLYMAD.exists():
+        pytest.skip(f"{RFLYMAD} is not here")
+
+
+def test_rflymad_log_figures_are_read_from_its_own_topics():
+    _need_log()
+    f = realism.figures(realism.read_ulog(RFLYMAD))
+    assert 150 < f["imu rate Hz"][0] < 260 and f["imu jitter CV"][0] > 0.1  # sensor_combined, jittery
+    assert 8 < f["gps rate Hz"][0] < 12 and f["gps first msg s"][0] > 2  # GPS starts late
+    assert f["gyro z std rad/s"][1] == "hover" and 0.001 < f["gyro z std rad/s"][0] < 0.01
+    assert 0.2 < f["gps eph m"][0] < 0.5
+
+
+def test_a_log_without_sensor_combined_falls_back_on_related_topics():
+    _need_log()
+    data = realism.ulog_topics(RFLYMAD)
+    for topic in ("sensor_combined", "vehicle_gps_position", "vehicle_air_data"):
+        del data[topic]
+    f = realism.figures(realism.from_ulog_topics("partial", data))
+    assert 0 < f["gyro z std rad/s"][0] < 0.02  # from vehicle_angular_velocity
+    assert 0 < f["acc x std m/s2"][0] < 0.2  # from vehicle_acceleration
+    assert 0 < f["baro alt std m"][0] < 1 and 0.5 < f["baro rate Hz"][0] < 2  # sensor_baro (logged at 1 Hz)
+    assert 0.5 < f["gps rate Hz"][0] < 2 and f["gps eph m"][0] > 0  # sensor_gps
+    f = realism.figures(realism.from_ulog_topics("empty", {}))
+    assert all(math.isnan(v) for v, _ in f.values())
+
+
+def test_generated_hover_noise_is_within_the_real_logs_range(hover_flights):
+    figs = [realism.figures(f) for f in hover_flights["simulator"]]
+    for f in figs:
+        assert f["gyro z std rad/s"][1] == "hover"
+        # the RflyMAD SIL log at hover: gyro z 0.0034 rad/s, accelerometer x/y 0.035/0.032 m/s^2
+        assert 0.002 < f["gyro z std rad/s"][0] < 0.0055
+        assert 0.015 < f["acc y std m/s2"][0] < 0.055
+    assert SensorParams().accel_noise_density < 0.002  # calibrated, not Gazebo's 0.004
+
+
+def test_gps_accuracy_levels_report_what_they_name(hover_flights):
+    sim = np.median([realism.figures(f)["gps eph m"][0] for f in hover_flights["simulator"]])
+    rr = [realism.figures(f) for f in hover_flights["real_receiver"]]
+    assert 0.2 < sim < 0.5
+    for f in rr:  # eph/epv ~2.8/5.9 m at 12 satellites, scaled by 12 / satellites (8-16)
+        assert 2.0 < f["gps eph m"][0] < 4.3 and 4.3 < f["gps epv m"][0] < 9.0
+    spec = GPS_ACCURACY["real_receiver"]["sensors"]
+    assert math.hypot(spec["gps_noise_h"], spec["gps_bias_h"]) == pytest.approx(2.8, abs=0.05)
+    assert math.hypot(spec["gps_noise_v"], spec["gps_bias_v"]) == pytest.approx(5.9, abs=0.05)
+
+
+def test_real_receiver_flights_still_fly_the_mission():
+    cfg = with_gps_accuracy(FlightConfig(mission=MissionParams(max_duration_s=40.0)), "real_receiver")
+    batch = simulate([11, 12, 13], cfg)
+    for i in range(3):
+        nav, _ = flight_views(batch, i, ())
+        assert nav["setpoint"]["seq"].max() >= 2  # it got past the first corner on fused GPS
+
+
+def test_every_profile_names_a_gps_accuracy_level():
+    for p in PROFILES.values():
+        assert p.gps_accuracy in GPS_ACCURACY
+        assert p.flight_config() == with_gps_accuracy(FlightConfig(), p.gps_accuracy)
+    rr = dataclasses.replace(PROFILES["quick"], gps_accuracy="real_receiver").flight_config()
+    assert rr.sensors.gps_bias_h == GPS_ACCURACY["real_receiver"]["sensors"]["gps_bias_h"]
+    with pytest.raises(ValueError, match="expected one of simulator, real_receiver"):
+        with_gps_accuracy(FlightConfig(), "perfect")
+
+
+def test_generate_refuses_an_unknown_gps_accuracy(tmp_path, capsys):
+    out = tmp_path / "ds"
+    assert main(["generate", "--flights", "1", "--normal-only", "--gps-accuracy", "perfect", "--out", str(out)]) == 2
+    assert "--gps-accuracy 'perfect': expected one of simulator, real_receiver" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_table_puts_generated_and_logs_side_by_side_with_ratios(hover_flights):
+    gen = hover_flights["simulator"]
+    log = realism.Flight("some.ulg", times={"imu": np.arange(0, 2, 0.005)})
+    text = realism.table(gen, [log])
+    header, _, *rows = text.splitlines()
+    assert "generated (n=2)" in header and "some" in header and "gen/log" in header
+    imu = next(r for r in rows if r.startswith("imu rate Hz"))
+    assert imu.split()[-1] == "0.25"  # 50 Hz generated vs 200 Hz
+    md = realism.table(gen, [log], markdown=True)
+    assert md.splitlines()[1].startswith("|---")
