@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.locks import FolderLock
 from scart_bench.names import check_id, inside
 
 STATUSES = ("OK", "ERROR", "TIMEOUT")
@@ -130,39 +131,6 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
                             f"{type(exc).__name__}") from None
 
 
-class RunLock:
-    """An exclusive lock on a run folder (``fcntl.flock`` on ``<run>/.lock``): the kernel releases it when
-    the process ends, however it ends, so a killed run leaves no stale lock behind."""
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        self._fh = None
-
-    def acquire(self) -> RunLock:
-        import fcntl
-
-        fh = open(self.path, "a+")  # noqa: SIM115 - held until release()
-        try:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            fh.seek(0)
-            holder = fh.read().strip() or "another process"
-            fh.close()
-            raise RunStoreError(f"{self.path.parent}: another scart-bench run is writing to this folder "
-                                f"({holder}); wait for it to finish or choose another --out") from None
-        fh.seek(0)
-        fh.truncate()
-        fh.write(f"pid {os.getpid()}\n")
-        fh.flush()
-        self._fh = fh
-        return self
-
-    def release(self) -> None:
-        if self._fh is not None:
-            self._fh.close()  # closing the file releases the flock
-            self._fh = None
-
-
 class RunStore:
     """Paths and reads/writes of one run folder."""
 
@@ -192,9 +160,9 @@ class RunStore:
             raise RunStoreError(f"{self.config_path}: expected a JSON object, got {type(config).__name__}")
         return config
 
-    def lock(self) -> RunLock:
-        """Hold the run folder for this process (RunStoreError when another process holds it)."""
-        return RunLock(self.path / ".lock").acquire()
+    def lock(self) -> FolderLock:
+        """Hold the run folder for this process (LockHeld when another process holds it)."""
+        return FolderLock(self.path / ".lock", f"{self.path}").acquire()
 
     def mark_stale(self) -> None:
         """Remove the run-level result tables before jobs start; they are written again at the end, so an

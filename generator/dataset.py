@@ -22,7 +22,8 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.locks import FolderLock
 from scart_bench.names import check_id, inside
 
 FORMATS = ("parquet", "csv")
@@ -219,6 +221,37 @@ def check_output_dir(out: Path, overwrite: bool = False) -> None:
         raise DatasetError(f"{out}: folder {parent} is not writable ({exc.strerror})") from exc
 
 
+def dataset_lock(out: str | Path) -> FolderLock:
+    """The lock every writer of the dataset at ``out`` holds (a hidden file beside it, so that it also
+    covers a dataset being built in a sibling folder): a second writer is refused (LockHeld, exit 2)."""
+    out = Path(out)
+    return FolderLock(out.parent / f".{out.name}.lock", str(out))
+
+
+@contextmanager
+def replacing(out: str | Path) -> Iterator[Path]:
+    """Build a dataset in a hidden sibling folder and move it to ``out`` only once complete.
+
+    Yields the folder to write into. Until the new dataset is complete, the old one at ``out`` (if
+    any) is untouched: an error (a full disk) or an interrupt leaves it as it was and removes the
+    partial folder. Holds :func:`dataset_lock` throughout.
+    """
+    out = Path(out)
+    with dataset_lock(out):
+        partial = out.parent / f".{out.name}.partial"
+        old = out.parent / f".{out.name}.old"
+        shutil.rmtree(partial, ignore_errors=True)
+        try:
+            yield partial
+            if out.exists():
+                shutil.rmtree(old, ignore_errors=True)
+                os.replace(out, old)  # two renames: the new dataset appears whole, the old goes after
+            os.replace(partial, out)
+            shutil.rmtree(old, ignore_errors=True)
+        finally:
+            shutil.rmtree(partial, ignore_errors=True)
+
+
 def is_dataset(path: Path) -> bool:
     path = Path(path)
     return (path / "manifest.parquet").exists() or (path / "manifest.csv").exists()
@@ -243,6 +276,7 @@ class DatasetWriter:
         self.info = dict(info or {})
         self.existing: pd.DataFrame | None = None
         self.written: list[str] = []
+        self._lock = dataset_lock(self.out).acquire() if append else None
         if append and is_dataset(self.out):
             ds = open_dataset(self.out)
             self.existing = ds.manifest
@@ -295,6 +329,12 @@ class DatasetWriter:
         if self.existing is not None:
             for fid in self.written:
                 shutil.rmtree(inside(self.out / "flights", fid), ignore_errors=True)
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     def close(self) -> Path:
         """Write dataset.json and, last, the manifest. Returns the manifest path."""
@@ -320,11 +360,15 @@ class DatasetWriter:
         manifest["detectability"] = pd.to_numeric(manifest["detectability"], errors="coerce").astype(np.float64)
         final = self.out / f"manifest.{self.fmt}"
         tmp = self.out / f".manifest.tmp.{self.fmt}"
-        if self.fmt == "parquet":
-            manifest.to_parquet(tmp, index=False)
-        else:
-            manifest.to_csv(tmp, index=False)
-        os.replace(tmp, final)
+        try:
+            if self.fmt == "parquet":
+                manifest.to_parquet(tmp, index=False)
+            else:
+                manifest.to_csv(tmp, index=False)
+            os.replace(tmp, final)
+        finally:
+            tmp.unlink(missing_ok=True)
+            self._release()
         return final
 
 

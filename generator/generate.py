@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 import platform
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from scart_bench.generator.attacks import attack_flights, strip_labels
-from scart_bench.generator.dataset import DatasetError, DatasetWriter, check_output_dir
+from scart_bench.generator.dataset import DatasetError, DatasetWriter, check_output_dir, replacing
 from scart_bench.generator.effect import field_stds
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.records import normal_record
@@ -76,15 +74,8 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     config_dict = {"flight_config": dataclasses.asdict(cfg), "versions": versions(), "profile": prof.name}
     # write into a hidden sibling folder and move it into place at the end: an interrupted
     # generation leaves nothing at ``out``, and an existing dataset stays until the new one is done
-    partial = out.parent / f".{out.name}.partial"
-    shutil.rmtree(partial, ignore_errors=True)
-    try:
+    with replacing(out) as partial:
         _write_all(partial, prof, cfg, config_dict, seeds, split_of, count, seed, fmt, with_attacks, log)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(partial, out)
-    finally:
-        shutil.rmtree(partial, ignore_errors=True)
     return out
 
 

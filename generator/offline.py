@@ -24,6 +24,7 @@ from scart_bench.generator.dataset import (
     flight_record,
     is_dataset,
     open_dataset,
+    replacing,
 )
 from scart_bench.generator.importers import load_flight_file
 from scart_bench.generator.modes import csv_mode, csv_record, with_labels
@@ -212,11 +213,14 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
     _validate(jobs, tables, str(input_path))
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
-    writer = DatasetWriter(out, fmt=fmt, overwrite=overwrite,
-                           info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_path)})
     origins = {t: df.attrs.get("origin_us") for t, df in tables.items()}
-    for job, result in zip(jobs, results):
-        config = json.loads(json.dumps({"input": str(input_path), "input_origin_us": origins}, default=str))
-        writer.write(csv_record("csv-" + _config_id(job), tables, result, job, seed, str(input_path), config))
-    writer.close()
+    # built beside ``out`` and moved into place when complete: --overwrite never loses the old
+    # dataset to a failure (a full disk) half-way
+    with replacing(out) as partial:
+        writer = DatasetWriter(partial, fmt=fmt,
+                               info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_path)})
+        for job, result in zip(jobs, results):
+            config = json.loads(json.dumps({"input": str(input_path), "input_origin_us": origins}, default=str))
+            writer.write(csv_record("csv-" + _config_id(job), tables, result, job, seed, str(input_path), config))
+        writer.close()
     return out

@@ -105,7 +105,7 @@ def test_a_second_writer_to_a_run_folder_is_refused(tmp_path, dataset, capsys):
     lock = RunStore(out).lock()  # another run holding the folder
     try:
         assert main(args) == 2
-        assert "another scart-bench run is writing to this folder" in capsys.readouterr().err
+        assert "another scart-bench process is writing to this folder" in capsys.readouterr().err
         assert (out / "config.json").read_text() == before and (out / "metrics.csv").exists()
     finally:
         lock.release()
@@ -247,3 +247,69 @@ def test_a_garbage_scores_file_is_named_without_pickle_advice(tmp_path, dataset,
     assert main(["score", str(run)]) == 2
     err = capsys.readouterr().err
     assert "config.json: not valid JSON" in err
+
+
+# -- datasets: one writer at a time, and --overwrite never loses the old dataset ---------------------
+
+def _attack_args(src, out):
+    scenario = src.parent.parent.parent / "roll_noise.toml"
+    if not scenario.exists():
+        scenario.write_text('[scenario]\nid = "roll-noise"\n' + _START.replace("5.0", "2.0") + _NOISE.replace("0.1", "0.5"))
+    return ["attack", "--input", str(src), "--scenario", str(scenario), "--out", str(out)]
+
+
+@pytest.fixture(scope="module")
+def flight_csv(tmp_path_factory) -> Path:
+    """One recorded flight as a dataset flight folder (the single-log form of attack reads it)."""
+    return write_dataset(tmp_path_factory.mktemp("attack-src") / "ds") / "flights" / "normal-007"
+
+
+def test_a_second_dataset_writer_is_refused(tmp_path, flight_csv, capsys):
+    from scart_bench.generator.dataset import dataset_lock
+
+    out = tmp_path / "attacked"
+    with dataset_lock(out):
+        assert main(_attack_args(flight_csv, out)) == 2
+        assert "another scart-bench process is writing to this folder" in capsys.readouterr().err
+        assert main(["generate", "--out", str(out), "--flights", "1", "--normal-only"]) == 2
+        assert not out.exists()
+    assert main(_attack_args(flight_csv, out)) == 0
+
+
+def test_attack_overwrite_that_fails_half_way_keeps_the_old_dataset(tmp_path, flight_csv, monkeypatch, capsys):
+    import errno
+
+    import scart_bench.generator.dataset as dataset_mod
+
+    out = tmp_path / "attacked"
+    assert main(_attack_args(flight_csv, out)) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(out / "flights"))
+
+    monkeypatch.setattr(dataset_mod, "write_flight", full_disk)
+    assert main([*_attack_args(flight_csv, out), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and len(err.strip().splitlines()) == 1
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert not any(p.name.startswith(f".{out.name}.partial") for p in tmp_path.iterdir())
+
+
+def test_generate_overwrite_that_fails_at_the_end_keeps_the_old_dataset(tmp_path, monkeypatch):
+    import errno
+
+    from scart_bench.generator.dataset import DatasetWriter
+
+    out = tmp_path / "ds"
+    assert main(["generate", "--out", str(out), "--flights", "1", "--normal-only"]) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def full_disk(self):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self.out / "manifest.parquet"))
+
+    monkeypatch.setattr(DatasetWriter, "close", full_disk)
+    assert main(["generate", "--out", str(out), "--flights", "1", "--normal-only", "--overwrite", "--seed", "5"]) == 2
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
