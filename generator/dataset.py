@@ -221,6 +221,21 @@ def check_output_dir(out: Path, overwrite: bool = False) -> None:
         raise DatasetError(f"{out}: folder {parent} is not writable ({exc.strerror})") from exc
 
 
+def exit_with_parent(parent: int, period_s: float = 0.5) -> None:
+    """In a worker process: end it as soon as its parent is gone (SIGKILL or SIGTERM of the command
+    leaves no writer behind). Started as the worker pool's initializer."""
+    import threading
+    import time
+
+    def watch() -> None:
+        while True:
+            time.sleep(period_s)
+            if os.getppid() != parent:
+                os._exit(3)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
+
+
 def dataset_lock(out: str | Path) -> FolderLock:
     """The lock every writer of the dataset at ``out`` holds (a hidden file beside it, so that it also
     covers a dataset being built in a sibling folder): a second writer is refused (LockHeld, exit 2)."""
@@ -298,7 +313,8 @@ class DatasetWriter:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
-            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=exit_with_parent, initargs=(os.getpid(),))
 
     def write(self, record: FlightRecord) -> None:
         """Write one flight's raw, sensors and combined folders (in a worker process if any)."""

@@ -313,3 +313,32 @@ def test_generate_overwrite_that_fails_at_the_end_keeps_the_old_dataset(tmp_path
     assert main(["generate", "--out", str(out), "--flights", "1", "--normal-only", "--overwrite", "--seed", "5"]) == 2
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
+
+
+def test_killing_generate_leaves_no_writer_process_behind(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "scart_bench", "generate", "--out", str(tmp_path / "ds"),
+                             "--flights", "12", "--normal-only"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    workers: list[int] = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not workers:
+        out = subprocess.run(["pgrep", "-P", str(proc.pid), "-f", "spawn_main"], capture_output=True, text=True)
+        workers = [int(x) for x in out.stdout.split()]
+        time.sleep(0.2)
+    if not workers:
+        proc.kill()
+        pytest.skip("generate finished before its writer process could be seen")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(Path(f"/proc/{w}").exists() for w in workers):
+        time.sleep(0.2)
+    alive = [w for w in workers if Path(f"/proc/{w}").exists()
+             and "zombie" not in Path(f"/proc/{w}/status").read_text().lower()]
+    assert not alive, f"writer process(es) {alive} outlived the killed generate"
+    assert not (tmp_path / "ds").exists()
