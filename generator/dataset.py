@@ -436,7 +436,9 @@ class Dataset:
         if (self.path / "manifest.parquet").exists():
             self.manifest = pd.read_parquet(self.path / "manifest.parquet")
         elif (self.path / "manifest.csv").exists():
-            self.manifest = pd.read_csv(self.path / "manifest.csv", dtype={"scenario_id": "string"})
+            # ids are text: "007" stays "007"
+            self.manifest = pd.read_csv(self.path / "manifest.csv", dtype={"scenario_id": "string", "flight_id": str,
+                                                                           "source_flight": "string"})
         else:
             raise DatasetError(f"{self.path}: no manifest.parquet or manifest.csv; the dataset is missing or "
                                "incomplete (the manifest is written last)")

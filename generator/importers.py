@@ -92,8 +92,12 @@ def _unique(names: list[str]) -> list[str]:
 # common table assembly
 
 
-def _make_table(ts: np.ndarray, fields: dict[str, np.ndarray]) -> tuple[pd.DataFrame, int]:
-    """Sort by time (stable), drop exact duplicate timestamps keeping the last; count them."""
+def _make_table(ts: np.ndarray, fields: dict[str, np.ndarray]) -> tuple[pd.DataFrame, int, str | None]:
+    """Sort by time (stable), drop duplicate timestamps keeping the last; count them.
+
+    Also returns the first field whose value differs between rows of one timestamp (None when the
+    dropped rows only repeated the kept one): such rows are two different readings at one time.
+    """
     ts = np.asarray(ts, dtype=np.int64)
     order = np.argsort(ts, kind="stable")
     ts = ts[order]
@@ -102,9 +106,15 @@ def _make_table(ts: np.ndarray, fields: dict[str, np.ndarray]) -> tuple[pd.DataF
         keep[:-1] = ts[1:] != ts[:-1]
     n_dup = int(ts.shape[0] - keep.sum())
     cols: dict[str, np.ndarray] = {"Timestamp": ts[keep]}
+    conflict = None
     for name, values in fields.items():
-        cols[name] = np.asarray(values, dtype=np.float64)[order][keep]
-    return pd.DataFrame(cols), n_dup
+        v = np.asarray(values, dtype=np.float64)[order]
+        if n_dup and conflict is None:
+            same = (v[:-1] == v[1:]) | (np.isnan(v[:-1]) & np.isnan(v[1:]))
+            if (~same & ~keep[:-1]).any():
+                conflict = name
+        cols[name] = v[keep]
+    return pd.DataFrame(cols), n_dup, conflict
 
 
 def _finish(raw: dict[str, tuple[np.ndarray, dict[str, np.ndarray], dict]], source: Path,
@@ -126,7 +136,12 @@ def _finish(raw: dict[str, tuple[np.ndarray, dict[str, np.ndarray], dict]], sour
     out: dict[str, pd.DataFrame] = {}
     for topic in raw:  # the loaders' order: sorted for ULogs and folders, column order for tables
         ts, fields, notes = raw[topic]
-        table, n_dup = _make_table(np.maximum(np.asarray(ts, dtype=np.int64) - origin, 0), fields)
+        table, n_dup, conflict = _make_table(np.maximum(np.asarray(ts, dtype=np.int64) - origin, 0), fields)
+        if conflict is not None and "ulog_message" not in notes:
+            # a table of one's own: two different readings at one time is an error in the file, not
+            # something to resolve silently (a ULog's latched messages at time zero are kept: last wins)
+            raise DatasetError(f"{source}: topic {topic!r}: rows with the same timestamp hold different "
+                               f"values (field {conflict!r}); expected one row per timestamp")
         if n_dup:
             logger.debug("%s: topic %s: dropped %d row(s) with a duplicate timestamp (kept the last)",
                          source, topic, n_dup)

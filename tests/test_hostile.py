@@ -8,6 +8,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from run_fixtures import plugin, write_dataset
@@ -342,3 +343,32 @@ def test_killing_generate_leaves_no_writer_process_behind(tmp_path):
              and "zombie" not in Path(f"/proc/{w}/status").read_text().lower()]
     assert not alive, f"writer process(es) {alive} outlived the killed generate"
     assert not (tmp_path / "ds").exists()
+
+
+def test_a_csv_with_two_readings_at_one_time_is_refused(tmp_path, capsys):
+    from scart_bench.errors import ScartBenchError
+    from scart_bench.generator.importers import load_flight_file
+    from scart_bench.generator.scart.spec import ScenarioError  # noqa: F401 (same error family)
+
+    f = tmp_path / "imu.csv"
+    f.write_text("timestamp,ax,ay\n1000,0.1,0.2\n2000,0.1,0.2\n2000,0.5,0.2\n3000,0.1,0.2\n")
+    with pytest.raises(ScartBenchError, match=r"imu.csv: topic 'imu': rows with the same timestamp .*'ax'"):
+        load_flight_file(f)
+    same = tmp_path / "gps.csv"
+    same.write_text("timestamp,lat\n1000,47.1\n2000,47.2\n2000,47.2\n3000,47.3\n")
+    assert len(load_flight_file(same)["gps"]) == 3  # a repeated identical row is only a repeat
+
+
+def test_csv_dataset_ids_read_back_as_text(tmp_path):
+    from run_fixtures import _topics
+
+    from scart_bench.generator.dataset import DatasetWriter, FlightRecord, open_dataset
+
+    rng = np.random.default_rng(0)
+    w = DatasetWriter(tmp_path / "ds", fmt="csv")
+    topics = _topics(rng)
+    w.write(FlightRecord("007", topics, topics, {"mode": "normal", "split": "train", "seed": 1}, {"seed": 1}))
+    w.close()
+    ds = open_dataset(tmp_path / "ds")
+    assert list(ds.manifest["flight_id"]) == ["007"]
+    assert len(ds.flight("007")) > 0

@@ -231,14 +231,14 @@ def test_single_topic_csv_rules(tmp_path):
     path.write_text("Index,time_s,x,Speed (m/s),flag\n"
                     "0,0.5,1.0,2.0,True\n"
                     "1,0.25,3.0,,False\n"
-                    "2,0.5,5.0,6.0,True\n"
+                    "2,0.5,1.0,2.0,True\n"
                     "3,0.75,,,\n")
     tables = load_flight_file(path)
     assert list(tables) == ["my_flight_3"]
     df = tables["my_flight_3"]
     assert list(df.columns) == ["Timestamp", "x", "Speed_m_s", "flag"]
     assert df["Timestamp"].tolist() == [0, 250_000]  # seconds -> us, sorted, rebased
-    assert df["x"].tolist() == [3.0, 5.0]  # duplicate 0.5 s keeps the last row
+    assert df["x"].tolist() == [3.0, 1.0]  # a repeated 0.5 s row is dropped (a different one is refused)
     assert df.attrs["duplicates_dropped"] == 1 and df.attrs["empty_rows_dropped"] == 1
     assert df.attrs["origin_us"] == 250_000
     assert all(df[c].dtype == np.float64 for c in df.columns[1:])
