@@ -210,6 +210,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     chosen = with_params(resolve_detectors(cfg.detectors, plugins), cfg.params)
     ds = open_dataset(prepare_dataset(cfg))
     splits = Splits.from_manifest(ds.manifest)
+    ds.check_flights(dict.fromkeys(splits.train + splits.scored))  # a damaged table stops the run here
     identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest, ds.path),
                 "seed": int(cfg.seed), "protocol": cfg.protocol.rules()}
     if cfg.features or cfg.exclude:  # absent otherwise: runs made before these options stay comparable

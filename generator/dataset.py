@@ -464,6 +464,30 @@ class Dataset:
             raise DatasetError(f"table {table!r}: expected one of {TABLES}")
         return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}", columns)
 
+    def check_flights(self, flight_ids: Iterable[str], view: str = "navigator", table: str = "most_frequent") -> None:
+        """DatasetError naming the first flight table that is missing or unreadable (its footer or header
+        is read, not its data): a run checks this before it writes anything."""
+        import pyarrow.parquet as pq
+
+        for fid in flight_ids:
+            base = self.flight_dir(fid) / "combined" / f"{view}_{table}"
+            pq_path, csv_path = base.with_suffix(".parquet"), base.with_suffix(".csv")
+            try:
+                if pq_path.exists():
+                    pq.read_metadata(pq_path)
+                elif csv_path.exists():
+                    with csv_path.open("rb") as fh:
+                        if not fh.readline().strip():
+                            raise ValueError("no header line")
+                else:
+                    raise DatasetError(f"{base}.(parquet|csv): missing; flight {fid!r} of the manifest has no table")
+            except DatasetError:
+                raise
+            except Exception as exc:  # pyarrow raises its own types for a damaged file
+                path = pq_path if pq_path.exists() else csv_path
+                raise DatasetError(f"{path}: unreadable ({type(exc).__name__}: {exc}); regenerate or remove "
+                                   f"flight {fid!r}") from None
+
     def topic(self, flight_id: str, topic: str, view: str = "navigator") -> pd.DataFrame:
         """One topic table of one flight."""
         return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)

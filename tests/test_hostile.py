@@ -372,3 +372,15 @@ def test_csv_dataset_ids_read_back_as_text(tmp_path):
     ds = open_dataset(tmp_path / "ds")
     assert list(ds.manifest["flight_id"]) == ["007"]
     assert len(ds.flight("007")) > 0
+
+
+def test_a_damaged_flight_table_stops_the_run_before_anything_is_written(tmp_path, dataset, capsys):
+    ds = tmp_path / "ds"
+    shutil.copytree(dataset, ds)
+    table = ds / "flights" / "sim-001" / "combined" / "navigator_most_frequent.parquet"
+    table.write_bytes(table.read_bytes()[:100])
+    out = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(ds), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "navigator_most_frequent.parquet: unreadable" in err and "sim-001" in err, err
+    assert not out.exists()
