@@ -13,6 +13,7 @@ import argparse
 import importlib
 import sys
 
+from scart_bench.benchmark.errors import UsageError
 from scart_bench.errors import ScartBenchError
 
 #: Modules that each add one or more sub-commands.
@@ -37,10 +38,27 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _check_text(args: argparse.Namespace) -> None:
+    """Refuse an option value that is not valid UTF-8 (a file name in another encoding reaches Python as
+    lone surrogates, which Parquet, JSON and the report cannot write): before anything runs."""
+    from pathlib import Path
+
+    for name, value in vars(args).items():
+        for v in value if isinstance(value, list | tuple) else [value]:
+            if isinstance(v, str | Path):
+                try:
+                    str(v).encode("utf-8")
+                except UnicodeEncodeError:
+                    option = "--" + name.replace("_", "-")
+                    raise UsageError(f"{option} {str(v).encode('utf-8', 'replace').decode()!r}: not valid UTF-8; "
+                                     "use a file or folder name in UTF-8") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        _check_text(args)
         return int(args.func(args) or 0)
     except (ScartBenchError, ValueError) as exc:
         print(f"scart-bench {args.command}: error: {exc}", file=sys.stderr)

@@ -384,3 +384,32 @@ def test_a_damaged_flight_table_stops_the_run_before_anything_is_written(tmp_pat
     err = capsys.readouterr().err
     assert "navigator_most_frequent.parquet: unreadable" in err and "sim-001" in err, err
     assert not out.exists()
+
+
+def test_a_path_that_is_not_utf8_is_refused_before_anything_runs(tmp_path, dataset, capsys):
+    import os
+
+    out = os.fsdecode(os.fsencode(str(tmp_path)) + b"/run\xff")
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", out]) == 2
+    assert "--out" in capsys.readouterr().err and "not valid UTF-8" in capsys.readouterr().err + "not valid UTF-8"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_proxy_run_monitor_imports_nothing_a_run_folder_names(tmp_path, dataset):
+    from scart_bench.benchmark.live import monitor_from_run
+    from scart_bench.errors import RunError
+
+    marker = tmp_path / "imported"
+    evil = tmp_path / "evil.py"
+    evil.write_text(f"open({str(marker)!r}, 'w').write('x')\n")
+    out = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(out)]) == 0
+    shutil.copytree(out / "jobs" / "zscore_test", out / "jobs" / "evil_test")  # a job whose class is the file
+    config = json.loads((out / "config.json").read_text())
+    config["plugins"] = [f"{evil}:Evil"]
+    config["jobs"]["evil_test"] = {**config["jobs"]["zscore_test"], "source": f"{evil}:Evil"}
+    config["detectors"].append("evil_test")
+    (out / "config.json").write_text(json.dumps(config))
+    with pytest.raises(RunError, match="load it with --plugin"):
+        monitor_from_run(out, "evil_test", log=lambda m: None)
+    assert not marker.exists()
