@@ -22,8 +22,21 @@ cd "$work/empty"
 if "$bin/python" -c "import benchmark" 2>/dev/null; then
   echo "wheel check: a top-level 'benchmark' module is importable" >&2; exit 1
 fi
-"$bin/python" - <<'PY'
+"$bin/python" - "$OLDPWD" <<'PY'
+import sys
 from importlib import resources
+from pathlib import Path
+
+# every package of the source tree is in the installed wheel (the packages list is explicit)
+src = Path(sys.argv[1])
+wanted = {"scart_bench"} | {
+    "scart_bench." + ".".join(p.parent.relative_to(src).parts)
+    for top in ("benchmark", "detectors", "generator", "reports", "data") for p in (src / top).rglob("__init__.py")}
+import importlib.util
+missing = sorted(m for m in wanted if importlib.util.find_spec(m) is None)
+assert not missing, f"packages missing from the wheel: {missing} (add them to pyproject's packages list)"
+print(f"wheel check: {len(wanted)} packages installed")
+
 names = sorted(p.name for p in resources.files("scart_bench.data").joinpath("scenarios").iterdir())
 assert "paper.toml" in names and "quick.toml" in names and "gps_spoof.toml" in names, names
 print(f"wheel check: {len(names)} scenario files shipped")
