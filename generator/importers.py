@@ -16,6 +16,7 @@ import csv
 import io
 import logging
 import re
+from collections import Counter
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -484,11 +485,24 @@ def _header(path: Path) -> list[str]:
         return []
 
 
+#: Most columns a CSV or Parquet input may have: a flight log has tens to a few thousand fields;
+#: beyond this the file is not a flight table (and would take minutes to parse).
+MAX_COLUMNS = 5_000
+
+
+def _check_width(path: Path, n: int) -> None:
+    if n > MAX_COLUMNS:
+        raise DatasetError(f"{path}: {n} columns, more than the {MAX_COLUMNS} a flight table may have; keep the "
+                           "fields you need (one CSV per topic, or a Parquet file with those columns)")
+
+
 def _read_csv(path: Path) -> pd.DataFrame:
     compressed = path.suffix.lower() in COMPRESSION_SUFFIXES
     if not compressed:
         names = [n.strip() for n in _header(path)]
-        dup = sorted({n for n in names if names.count(n) > 1})
+        _check_width(path, len(names))
+        counts = Counter(names)
+        dup = sorted(n for n, c in counts.items() if c > 1)
         if dup:
             raise DatasetError(f"{path}: duplicate column name(s) {dup} in the header")
     try:
@@ -501,7 +515,12 @@ def _read_csv(path: Path) -> pd.DataFrame:
 
 def _read_parquet(path: Path) -> pd.DataFrame:
     try:
+        import pyarrow.parquet as pq
+
+        _check_width(path, len(pq.read_schema(path).names))
         return pd.read_parquet(path)
+    except DatasetError:
+        raise
     except Exception as exc:  # pyarrow raises ArrowInvalid, OSError ...
         raise DatasetError(f"{path}: not a readable Parquet file ({type(exc).__name__}: {exc})") from exc
 

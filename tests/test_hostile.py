@@ -413,3 +413,28 @@ def test_proxy_run_monitor_imports_nothing_a_run_folder_names(tmp_path, dataset)
     with pytest.raises(RunError, match="load it with --plugin"):
         monitor_from_run(out, "evil_test", log=lambda m: None)
     assert not marker.exists()
+
+
+def test_a_csv_with_100k_columns_is_refused_quickly(tmp_path):
+    import time
+
+    from scart_bench.errors import ScartBenchError
+    from scart_bench.generator.importers import load_flight_file
+
+    f = tmp_path / "wide.csv"
+    n = 100_000
+    f.write_text("timestamp," + ",".join(f"c{i}" for i in range(n)) + "\n" + "0," + ",".join("1" for _ in range(n)) + "\n")
+    t0 = time.monotonic()
+    with pytest.raises(ScartBenchError, match="100001 columns, more than the 5000"):
+        load_flight_file(f)
+    assert time.monotonic() - t0 < 10
+
+
+def test_a_run_without_its_labels_is_named(tmp_path, dataset, capsys):
+    run = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(run)]) == 0
+    (run / "truth.parquet").unlink()
+    capsys.readouterr()
+    assert main(["score", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert "truth.parquet: missing" in err and len(err.strip().splitlines()) == 1
