@@ -275,6 +275,19 @@ def test_dask_local_cluster_gives_identical_metrics(reference_run, dataset, tmp_
         assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
+def test_dask_refuses_a_dataset_its_workers_cannot_read(dataset, tmp_path):
+    from scart_bench.benchmark.executors import DaskExecutor
+    from scart_bench.errors import RunError
+
+    executor = DaskExecutor(jobs=1)
+    try:
+        executor.check_dataset(str(dataset))  # the workers see it: nothing to say
+        with pytest.raises(RunError, match=r"1 of 1 worker\(s\) cannot read the dataset .*same path"):
+            executor.check_dataset(str(tmp_path / "only-on-the-client"))
+    finally:
+        executor.close()
+
+
 # -- bad input --------------------------------------------------------------------------------
 
 
