@@ -21,11 +21,11 @@ from scart_bench.generator import kernel as K
 from scart_bench.generator import kernel_layout as L
 from scart_bench.generator.autopilot import _AxisKF
 from scart_bench.generator.disturbances import Disturbances, gps_signal_quality
+from scart_bench.generator.flight import _alive, _instance_gps, _instance_imu, _instance_value
 from scart_bench.generator.geo import HOME_ALT, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.link import due_steps
 from scart_bench.generator.noise import NOISE_DIM, fill_block
 from scart_bench.generator.params import GRAVITY
-from scart_bench.generator.simulate import _alive, _instance_gps, _instance_imu, _instance_value
 from scart_bench.generator.topics import (
     HOME_LAT,
     HOME_LON,
@@ -37,7 +37,7 @@ from scart_bench.generator.topics import (
 )
 
 if TYPE_CHECKING:
-    from scart_bench.generator.simulate import AttackHooks, BatchResult, FlightConfig
+    from scart_bench.generator.flight import AttackHooks, BatchResult, FlightConfig
 
 #: Steps per block: noise is drawn and finished flights leave the batch between blocks.
 BLOCK_STEPS = 500
@@ -219,7 +219,7 @@ class _Recordings:
 def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | None = None,
                     progress=None) -> BatchResult:
     """simulate() with the compiled kernel; see the module docstring."""
-    from scart_bench.generator.simulate import BatchResult, initial_conditions
+    from scart_bench.generator.flight import BatchResult, initial_conditions
 
     init = initial_conditions(seeds, cfg)
     n = len(seeds)
