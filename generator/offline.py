@@ -213,6 +213,15 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
     _validate(jobs, tables, str(input_path))
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
+    started = [(job, result) for job, result in zip(jobs, results) if result[1]]
+    for job, result in zip(jobs, results):
+        if started and not result[1]:
+            logger.warning("%s: the attack %r never started on %s (its start conditions never held); no copy",
+                           scenario_path, _config_id(job), input_path)
+    if not started:
+        raise DatasetError(f"{scenario_path}: the attack never started on {input_path} (its start conditions "
+                           "never held within the log); nothing was written")
+    jobs, results = [j for j, _ in started], [r for _, r in started]
     origins = {t: df.attrs.get("origin_us") for t, df in tables.items()}
     # built beside ``out`` and moved into place when complete: --overwrite never loses the old
     # dataset to a failure (a full disk) half-way

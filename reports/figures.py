@@ -38,7 +38,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from scart_bench.benchmark.store import RunStore
-from scart_bench.errors import ReportError
+from scart_bench.errors import ReportError, ScartBenchError
 from scart_bench.generator.dataset import Dataset, is_dataset, open_dataset
 from scart_bench.reports.results import RunResults, load_run
 
@@ -319,7 +319,7 @@ def scored_detectors(run: RunResults | str | Path, fid: str) -> list[str]:
         try:
             if fid in run.store.read_scores(det):
                 out.append(det)
-        except OSError:
+        except (OSError, ScartBenchError):  # no readable scores (or a name that cannot be a job folder)
             continue
     return out
 
@@ -336,8 +336,8 @@ def score_trace(run: RunResults | str | Path, detector: str, fid: str, out_dir: 
                          f"({row['status'].iloc[0]}), so it has no scores")
     try:
         scores = run.store.read_scores(detector)
-    except OSError as exc:
-        raise ReportError(f"{run.store.job_dir(detector)}: cannot read scores.npz ({exc})") from exc
+    except (OSError, ScartBenchError) as exc:
+        raise ReportError(f"{run.path}: cannot read the scores of {detector!r} ({exc})") from exc
     truth = RunStore(run.path).read_truth()
     if fid not in scores or fid not in truth:
         raise ReportError(f"flight {fid!r} was not scored in run {run.path} (only validation and test flights are)")

@@ -438,3 +438,35 @@ def test_a_run_without_its_labels_is_named(tmp_path, dataset, capsys):
     assert main(["score", str(run)]) == 2
     err = capsys.readouterr().err
     assert "truth.parquet: missing" in err and len(err.strip().splitlines()) == 1
+
+
+def test_an_attack_that_never_starts_writes_nothing(tmp_path, flight_csv, capsys):
+    scenario = tmp_path / "never.toml"
+    scenario.write_text('[scenario]\nid = "never"\n[[scenario.start]]\ncondition = "time_window"\nstart_s = 5000.0\n'
+                        + _NOISE)
+    out = tmp_path / "att"
+    assert main(["attack", "--input", str(flight_csv), "--scenario", str(scenario), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "never started" in err and "nothing was written" in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_full_disk_during_a_run_is_one_line_and_leaves_no_metrics(tmp_path, dataset, capsys, monkeypatch):
+    import errno
+
+    import scart_bench.benchmark.store as store_mod
+
+    real = store_mod.atomic_write_bytes
+
+    def full_after_config(path, data):
+        if Path(path).name in ("results.csv", "metrics.csv", "scores.npz"):
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(store_mod, "atomic_write_bytes", full_after_config)
+    out = tmp_path / "run"
+    code = main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(out)])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "No space left on device" in err[-1] and err[-1].startswith("scart-bench run: error:")
+    assert not (out / "metrics.csv").exists()
