@@ -7,11 +7,13 @@ import pandas as pd
 import pytest
 
 from scart_bench.generator.attacks import SCENARIO_DIR, simulation_flights
+from scart_bench.generator.dataset import DatasetWriter, open_dataset
 from scart_bench.generator.impact import IMPACT_COLUMNS, TWIN_TOPIC, impact
 from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.scenario import scenario_from_dict
 from scart_bench.generator.simulate import FlightConfig, simulate
+from scart_bench.reports.figures import NORMAL_COLOUR, flight_path
 
 NOISE_ON_ATTITUDE = {
     "id": "attitude-noise-1pc", "injection_point": "link",
@@ -69,3 +71,33 @@ def test_impact_of_made_up_paths():
                    "impact_landing_dist_m": 3.0, "impact_crashed": True}
     assert not impact(away, home, "landed")["impact_mission_completed"]  # landed 12 m off the twin
     assert set(impact(home.iloc[:0], home, "landed")) == set(IMPACT_COLUMNS)
+
+
+def _grey_pixels(png) -> int:
+    """Pixels of the twin's path: NORMAL_COLOUR at alpha 0.5 on white."""
+    import matplotlib.colors
+    import matplotlib.image
+
+    img = matplotlib.image.imread(png)[..., :3]
+    want = 0.5 * np.array(matplotlib.colors.to_rgb(NORMAL_COLOUR)) + 0.5
+    return int((np.abs(img - want).max(axis=2) < 0.03).sum())
+
+
+def test_manifest_and_path_figure_show_before_and_after(paired, tmp_path):
+    writer = DatasetWriter(tmp_path / "ds", fmt="csv")
+    for r in paired:
+        writer.write(r)
+    writer.close()
+    ds = open_dataset(tmp_path / "ds")
+    m = ds.manifest.set_index("flight_id")
+    assert m.loc["sim-gps-spoof-link", "impact_max_dev_m"] >= 5.0
+    assert bool(m.loc["sim-attitude-noise-1pc", "impact_mission_completed"])
+    assert TWIN_TOPIC in ds.topics("sim-gps-spoof-link", "simulator")
+    # the combined tables hold link messages only, not the twin
+    combined = pd.read_csv(tmp_path / "ds/flights/sim-gps-spoof-link/combined/simulator_all_sensors.csv", nrows=1)
+    assert not any(c.startswith(TWIN_TOPIC) for c in combined.columns)
+    spoof = flight_path(ds, "sim-gps-spoof-link", tmp_path / "fig")
+    assert _grey_pixels(spoof) > 2000  # the twin's path, apart from the attacked one
+    for f in (tmp_path / "ds/flights/sim-attitude-noise-1pc/sensors/simulator").glob(f"{TWIN_TOPIC}*"):
+        f.unlink()  # a flight without a twin (and no normal flight of its seed): no "before" path
+    assert _grey_pixels(flight_path(ds, "sim-attitude-noise-1pc", tmp_path / "fig")) < 1000  # text edges only
