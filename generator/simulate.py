@@ -29,6 +29,7 @@ from scart_bench.generator.params import (
 )
 from scart_bench.generator.rotation import euler_from_quat
 from scart_bench.generator.sensors import Sensors
+from scart_bench.generator.timing import check_timing
 from scart_bench.generator.topics import SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_FIELDS, TRUTH_RATE_HZ
 from scart_bench.generator.vehicle import Vehicle, VehicleState, Wind
 
@@ -63,6 +64,8 @@ class FlightConfig:
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     controller: ControllerParams = field(default_factory=ControllerParams)
     mission: MissionParams = field(default_factory=MissionParams)
+    #: how the written messages are stamped: "ideal" or "realistic" (generator.timing; after flying)
+    timing: str = "ideal"
 
 
 class _Recorder:
@@ -121,6 +124,7 @@ class BatchResult:
     wind: np.ndarray  # (N, 3) mean wind
     gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
     n_steps: int
+    timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.records)
 
     def __len__(self) -> int:
         return len(self.seeds)
@@ -145,11 +149,16 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    cfg = config or FlightConfig()
+    check_timing(cfg.timing)
     if engine in ("auto", "kernel"):
         from scart_bench.generator.batch import simulate_kernel
 
-        return simulate_kernel(seeds, config or FlightConfig(), layer, progress)
-    return simulate_reference(seeds, config, layer, progress)
+        result = simulate_kernel(seeds, cfg, layer, progress)
+    else:
+        result = simulate_reference(seeds, cfg, layer, progress)
+    result.timing = cfg.timing
+    return result
 
 
 @dataclass
