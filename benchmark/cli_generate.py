@@ -39,6 +39,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
         if args.gps_accuracy not in GPS_ACCURACY:
             raise UsageError(f"--gps-accuracy {args.gps_accuracy!r}: expected one of {', '.join(GPS_ACCURACY)}")
         profile = dataclasses.replace(profile, gps_accuracy=args.gps_accuracy)
+    if args.timing is not None:
+        from scart_bench.generator.timing import TIMINGS
+
+        if args.timing not in TIMINGS:
+            raise UsageError(f"--timing {args.timing!r}: expected one of {', '.join(TIMINGS)}")
+        profile = dataclasses.replace(profile, timing=args.timing)
     out = Path(args.out)
     existed = out.exists()
     try:
@@ -107,6 +113,8 @@ def register(sub) -> None:
                    "flights, instead of the profile's grid")
     g.add_argument("--gps-accuracy", default=None, help="simulator | real_receiver: the GPS accuracy of the "
                    "flights (default: the profile's; see docs/realism.md)")
+    g.add_argument("--timing", default=None, help="ideal | realistic: message timing of the written flights "
+                   "(realistic: jitter, drops, late messages, GPS after its fix; default: the profile's)")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.set_defaults(func=cmd_generate)
 

@@ -551,7 +551,30 @@ def compute_metrics(ev: Evaluation, metrics: tuple[Metric, ...] = DEFAULT_METRIC
 
 BREAKDOWN_DIMENSIONS = ("action", "target", "injection_point", "kind", "detectability_bin")
 BREAKDOWN_COLUMNS = ["detector", "dimension", "value", "mode", "n", "detected", "tp_rate", "tp_rate_lo",
-                     "tp_rate_hi", "late", "flagged"]
+                     "tp_rate_hi", "late", "flagged", "impact_n", "max_dev_median_m", "final_dev_median_m",
+                     "mission_completed", "crashed"]
+
+
+def impact_summary(flights: pd.DataFrame) -> dict:
+    """The attack's physical impact over a group of attacked flights (those with a twin: the
+    simulation-mode ones; :mod:`scart_bench.generator.impact`): how many, median max and final
+    deviation of the true path from the twin's (m), how many completed the mission, crashed."""
+    if "impact_max_dev_m" not in flights.columns:
+        return {"impact_n": 0, "max_dev_median_m": float("nan"), "final_dev_median_m": float("nan"),
+                "mission_completed": 0, "crashed": 0}
+    dev = pd.to_numeric(flights["impact_max_dev_m"], errors="coerce")
+    has = flights[dev.notna()]
+    flag = {c: has[c].astype(object).where(has[c].notna(), False).astype(str).str.lower().eq("true")
+            if c in has.columns else pd.Series(False, index=has.index)
+            for c in ("impact_mission_completed", "impact_crashed")}
+
+    def med(col: str) -> float:
+        return float(pd.to_numeric(has[col], errors="coerce").median()) if len(has) else float("nan")
+
+    return {"impact_n": len(has), "max_dev_median_m": med("impact_max_dev_m"),
+            "final_dev_median_m": med("impact_final_dev_m"),
+            "mission_completed": int(flag["impact_mission_completed"].sum()),
+            "crashed": int(flag["impact_crashed"].sum())}
 
 
 #: Edges of the detectability bins (injected size in validation standard deviations).
@@ -570,7 +593,7 @@ def detectability_bins(values: pd.Series) -> pd.Series:
 def breakdown(ev: Evaluation, dimensions: tuple[str, ...] = BREAKDOWN_DIMENSIONS) -> pd.DataFrame:
     """Detected (in-window) count, TP rate with its Wilson interval, late and flagged-anywhere
     counts of the attacked test flights per value of each dimension, for all modes together
-    (mode "all") and per mode."""
+    (mode "all") and per mode, with the attack's physical impact (:func:`impact_summary`)."""
     attacked = ev.test("test_attacked")
     if "detectability" in attacked.columns:
         attacked = attacked.assign(detectability_bin=detectability_bins(attacked["detectability"]))
@@ -589,7 +612,7 @@ def breakdown(ev: Evaluation, dimensions: tuple[str, ...] = BREAKDOWN_DIMENSIONS
                 rows.append({"detector": ev.detector, "dimension": dim, "value": value, "mode": mode,
                              "n": len(group), "detected": k, "tp_rate": k / len(group), "tp_rate_lo": lo,
                              "tp_rate_hi": hi, "late": int((group["outcome"] == "late").sum()),
-                             "flagged": int(group["flagged"].astype(bool).sum())})
+                             "flagged": int(group["flagged"].astype(bool).sum()), **impact_summary(group)})
     return pd.DataFrame(rows, columns=BREAKDOWN_COLUMNS)
 
 

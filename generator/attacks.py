@@ -22,10 +22,12 @@ import pandas as pd
 
 from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
 from scart_bench.generator.effect import attack_effect
+from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
+from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.scenario import Scenario
-from scart_bench.generator.simulate import FlightConfig
+from scart_bench.generator.simulate import FlightConfig, simulate
 
 #: the shipped scenario grids and examples (package data of scart_bench.data)
 SCENARIO_DIR = Path(str(resources.files("scart_bench.data").joinpath("scenarios")))
@@ -54,17 +56,25 @@ def config_id(config: list[Scenario]) -> str:
 def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], seed: int, cfg: FlightConfig,
                        config_dict: dict, batch_size: int, say: Callable[[str], None],
                        stds: dict[str, float] | None = None) -> None:
-    """Fly every configuration (the scenarios of one flight) in the closed loop and write the flights."""
+    """Fly every configuration (the scenarios of one flight) in the closed loop and write the flights.
+
+    Each attacked flight's normal twin (its seed flown without the layer) is flown too; its truth
+    goes into the attacked flight's simulator view (``twin_truth``) and the attack's impact into
+    the manifest (:mod:`generator.impact`). Twins are not dataset flights."""
     seeds = attack_seeds(seed, len(configs))
     order = _order(configs)
     for start in range(0, len(order), batch_size):
         idx = order[start:start + batch_size]
         say(f"simulation mode: flying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
         batch, layer = simulation_mode([seeds[i] for i in idx], [configs[i] for i in idx], cfg)
+        twins = simulate([seeds[i] for i in idx], cfg)
         for j, i in enumerate(idx):
             record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict)
             record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds,
                                                  record.manifest["injection_point"]))
+            twin_truth = flight_views(twins, j)[1]["truth"]
+            record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
+            record.simulator[TWIN_TOPIC] = twin_truth
             writer.write(record)
 
 

@@ -41,7 +41,12 @@ MANIFEST_COLUMNS = (
     "flight_id", "mode", "scenario_id", "action", "target", "injection_point", "params", "seed",
     "split", "rows", "duration_s", "attack_start_us", "attack_end_us", "source_flight", "kind",
     "effect_rows", "effect_fields", "no_effect", "detectability",
+    "impact_max_dev_m", "impact_final_dev_m", "impact_mission_completed", "impact_landing_dist_m",
+    "impact_crashed",
 )
+#: Simulator-view topics that are the vehicle's true state, not link messages (kept out of the
+#: combined tables): the flight's own and, for a simulation-mode attacked flight, its twin's.
+TRUTH_TOPICS = ("truth", "twin_truth")
 
 
 class DatasetError(ScartBenchError):
@@ -374,6 +379,10 @@ class DatasetWriter:
         manifest["no_effect"] = manifest["no_effect"].astype(object).where(manifest["no_effect"].notna(), False)
         manifest["no_effect"] = manifest["no_effect"].astype(bool)
         manifest["detectability"] = pd.to_numeric(manifest["detectability"], errors="coerce").astype(np.float64)
+        for col in ("impact_max_dev_m", "impact_final_dev_m", "impact_landing_dist_m"):
+            manifest[col] = pd.to_numeric(manifest[col], errors="coerce").astype(np.float64)
+        for col in ("impact_mission_completed", "impact_crashed"):
+            manifest[col] = manifest[col].astype("boolean")
         final = self.out / f"manifest.{self.fmt}"
         tmp = self.out / f".manifest.tmp.{self.fmt}"
         try:
@@ -401,7 +410,7 @@ def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
     for view, topics in (("navigator", record.navigator), ("simulator", record.simulator)):
         for name, df in topics.items():
             _write_table(df, root / "sensors" / view / name, fmt)
-        link_topics = {k: v for k, v in topics.items() if k != "truth"}
+        link_topics = {k: v for k, v in topics.items() if k not in TRUTH_TOPICS}
         for table, df in combine(link_topics, record.windows).items():
             _write_table(df, root / "combined" / f"{view}_{table}", fmt)
             if view == "navigator" and table == "most_frequent":

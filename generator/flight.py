@@ -51,6 +51,8 @@ class FlightConfig:
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     controller: ControllerParams = field(default_factory=ControllerParams)
     mission: MissionParams = field(default_factory=MissionParams)
+    #: how the written messages are stamped: "ideal" or "realistic" (generator.timing; after flying)
+    timing: str = "ideal"
 @dataclass
 class BatchResult:
     """Recorded messages of a batch of flights.
@@ -69,6 +71,7 @@ class BatchResult:
     wind: np.ndarray  # (N, 3) mean wind
     gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
     n_steps: int
+    timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.records)
 
     def __len__(self) -> int:
         return len(self.seeds)

@@ -8,31 +8,43 @@ import pandas as pd
 from scart_bench.generator.dataset import FlightRecord, flight_record, insert_labels
 from scart_bench.generator.link import field_names
 from scart_bench.generator.simulate import STEP_US, BatchResult
+from scart_bench.generator.timing import message_timing
 
 
 def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | None, fields, windows,
-                last_step: int) -> pd.DataFrame:
-    """One flight's table of one topic: Timestamp, labels, fields (undelivered rows dropped)."""
+                last_step: int, timing: tuple[str, int, str] | None = None) -> pd.DataFrame:
+    """One flight's table of one topic: Timestamp, labels, fields (undelivered rows dropped).
+
+    ``timing``: (timing, flight seed, topic) to stamp the messages as :func:`message_timing`
+    does (jitter, drops, late starts); None or "ideal" keeps the schedule's times."""
+    ts_all = steps.astype(np.int64) * STEP_US
     keep = steps <= last_step
+    if timing is not None:
+        ts_all, kept = message_timing(timing[0], timing[1], timing[2], ts_all)
+        keep = keep & kept
     if delivered is not None:
         keep = keep & delivered
-    ts = steps[keep] * STEP_US
-    df = pd.DataFrame(values[keep], columns=list(fields))
-    df.insert(0, "Timestamp", ts.astype(np.int64))
-    return insert_labels(df, ts, windows)
+    ts = ts_all[keep]
+    order = np.argsort(ts, kind="stable")  # a late message comes after the ones stamped before it
+    df = pd.DataFrame(values[keep][order], columns=list(fields))
+    df.insert(0, "Timestamp", ts[order])
+    return insert_labels(df, ts[order], windows)
 
 
 def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
     """Navigator and simulator views of flight ``i`` as {topic: DataFrame}."""
     last = int(batch.exit_step[i])
+    timing = getattr(batch, "timing", "ideal")
     nav, sim = {}, {}
     for topic, (steps, vals, _) in batch.simulator.items():
         fields = field_names(topic)
-        sim[topic] = topic_table(steps, vals[i], None, fields, windows if topic != "truth" else (), last)
+        sim[topic] = topic_table(steps, vals[i], None, fields, windows if topic != "truth" else (), last,
+                                 (timing, batch.seeds[i], topic))
     for topic, (steps, vals, ok) in batch.navigator.items():
         if topic == "truth":
             continue
-        nav[topic] = topic_table(steps, vals[i], ok[i], field_names(topic), windows, last)
+        nav[topic] = topic_table(steps, vals[i], ok[i], field_names(topic), windows, last,
+                                 (timing, batch.seeds[i], topic))
     return nav, sim
 
 

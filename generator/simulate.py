@@ -36,6 +36,7 @@ from scart_bench.generator.params import (
     GRAVITY,
 )
 from scart_bench.generator.rotation import euler_from_quat
+from scart_bench.generator.timing import check_timing
 from scart_bench.generator.topics import SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_FIELDS, TRUTH_RATE_HZ
 from scart_bench.generator.vehicle import Vehicle
 
@@ -94,11 +95,16 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    cfg = config or FlightConfig()
+    check_timing(cfg.timing)
     if engine in ("auto", "kernel"):
         from scart_bench.generator.batch import simulate_kernel
 
-        return simulate_kernel(seeds, config or FlightConfig(), layer, progress)
-    return simulate_reference(seeds, config, layer, progress)
+        result = simulate_kernel(seeds, cfg, layer, progress)
+    else:
+        result = simulate_reference(seeds, cfg, layer, progress)
+    result.timing = cfg.timing
+    return result
 
 
 

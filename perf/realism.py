@@ -190,7 +190,7 @@ def from_tables(name: str, tables: dict) -> Flight:
     return f
 
 
-def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None) -> list[Flight]:
+def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, timing: str = "ideal") -> list[Flight]:
     """Fly ``n`` normal default-mission flights (in one batch) and read them like a log.
 
     The flights hold ``HOVER_S`` s after take-off (instead of 1 s) so that they have a hover.
@@ -201,7 +201,7 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None) ->
     from scart_bench.generator.records import flight_views
     from scart_bench.generator.simulate import FlightConfig, simulate
 
-    config = FlightConfig()
+    config = FlightConfig(timing=timing)
     # the default mission only pauses 1 s after take-off; hold HOVER_S so there is a hover to measure
     config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, takeoff_hold_s=HOVER_S))
     if gps_accuracy is not None:
@@ -342,6 +342,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gps-accuracy", default=None,
                    help="GPS accuracy level of the generated flights (default: the generator's default)")
+    p.add_argument("--timing", default="ideal", choices=("ideal", "realistic"),
+                   help="message timing of the generated flights (generator.timing; default ideal)")
     p.add_argument("--ulog", nargs="*", default=None, help=f"PX4 ULog files (default: {DEFAULT_ULOG_DIR}/*.ulg)")
     p.add_argument("--markdown", action="store_true", help="print a Markdown table")
     args = p.parse_args(argv)
@@ -357,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
             logs.append(read_ulog(path))
         except Exception as exc:  # a damaged log: say which and go on with the others
             print(f"{path}: cannot read it as a ULog ({type(exc).__name__}: {exc}); left out")
-    generated = generated_flights(args.flights, args.seed, args.gps_accuracy)
+    generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing)
     print(table(generated, logs, markdown=args.markdown))
     return 0
 

@@ -4,8 +4,9 @@ One flight (from the public dataset reader, :func:`scart_bench.generator.dataset
 
 - :func:`flight_path`: path (east, north) of the attacked flight as flown (simulator view: the
   ``truth`` topic when the flight has it, else ``local_position_ned``), as the navigator perceived
-  it, and the normal flight it came from (csv mode: its source flight; simulation mode: the
-  normal flight with the same seed, when there is one). The part flown during the attack window
+  it, and the normal flight it came from, i.e. the path before the attack (simulation mode: its
+  normal twin, the same seed flown without the attack, from the ``twin_truth`` topic; else the
+  normal flight with the same seed, when there is one; csv mode: its source flight). The part flown during the attack window
   is drawn in :data:`ATTACK_COLOUR`.
 - :func:`sensor_trace`: one field in the navigator view (received) and the simulator view
   (truth), with the attack window shaded.
@@ -222,6 +223,20 @@ def reference_flight(ds: Dataset, fid: str) -> str | None:
     return None
 
 
+def _twin_xy(ds: Dataset, fid: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """(north m, east m) of a simulation-mode attacked flight's normal twin (its ``twin_truth``
+    topic, :mod:`scart_bench.generator.impact`); None when the flight has none."""
+    from scart_bench.generator.impact import TWIN_TOPIC
+
+    try:
+        if TWIN_TOPIC not in ds.topics(fid, "simulator"):
+            return None
+    except OSError:
+        return None
+    t = ds.topic(fid, TWIN_TOPIC, "simulator")
+    return t["x"].to_numpy(float), t["y"].to_numpy(float)
+
+
 def _windows(ds: Dataset, fid: str) -> list[tuple[int, int]]:
     nav = _table(ds, fid, "navigator")
     return label_windows(nav["Timestamp"].to_numpy(np.int64), nav["Is_Anomaly"].to_numpy())
@@ -231,12 +246,16 @@ def flight_path(ds: Dataset, fid: str, out_dir: str | Path) -> Path:
     """Path figure of one flight: flown, perceived and the normal reference (see module doc)."""
     fig = Figure(figsize=(6.5, 6.0), dpi=DPI)
     ax = fig.add_subplot()
-    ref = reference_flight(ds, fid)
-    if ref is not None:
+    twin = _twin_xy(ds, fid)
+    ref = reference_flight(ds, fid) if twin is None else None
+    if twin is not None:
+        ax.plot(twin[1], twin[0], color=NORMAL_COLOUR, lw=3.0, alpha=0.5,
+                label="before: its normal twin (same seed, no attack)")
+    elif ref is not None:
         _, n, e = _path_xy(ds, ref, "simulator")
         ax.plot(e, n, color=NORMAL_COLOUR, lw=3.0, alpha=0.5, label=plain(f"normal flight {ref}"))
     ts, n, e = _path_xy(ds, fid, "simulator")
-    ax.plot(e, n, color=SIMULATOR_COLOUR, lw=1.4, label="attacked flight, as flown (simulator view)")
+    ax.plot(e, n, color=SIMULATOR_COLOUR, lw=1.4, label="after: attacked flight, as flown (simulator view)")
     inside = np.zeros(ts.size, bool)
     for start, end in _windows(ds, fid):
         inside |= (ts >= start) & (ts < end)

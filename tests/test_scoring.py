@@ -255,6 +255,20 @@ def test_breakdown_by_detectability_bin():
         "<1 sd", "1-3 sd", "1-3 sd", "3-10 sd", ">=10 sd", "n/a"]
 
 
+def test_breakdown_reports_the_impact_of_simulation_flights():
+    ev = _case()
+    flights = ev.flights.assign(
+        impact_max_dev_m=pd.Series({"a1": 20.0, "a2": 0.0}), impact_final_dev_m=pd.Series({"a1": 2.0, "a2": 0.0}),
+        impact_mission_completed=pd.Series({"a1": False, "a2": True}, dtype="boolean"),
+        impact_crashed=pd.Series({"a1": True, "a2": False}, dtype="boolean"))
+    bd = breakdown(Evaluation(ev.detector, flights, ev.rows, ev.flight_threshold, ev.row_threshold))
+    action = bd[(bd["dimension"] == "action") & (bd["mode"] == "all")].set_index("value")
+    cols = ["impact_n", "max_dev_median_m", "final_dev_median_m", "mission_completed", "crashed"]
+    assert action.loc["bias", cols].tolist() == [1, 20.0, 2.0, 0, 1]  # the csv flight has no twin
+    assert action.loc["noise", cols].tolist() == [1, 0.0, 0.0, 1, 0]
+    assert breakdown(ev)["impact_n"].eq(0).all()  # a dataset made before paired flights
+
+
 def test_alarm_after_the_window_is_late_not_detected():
     """Acceptance 1: an alarm only after the window is late (with its delay after the end); an
     alarm inside the window is a detection (with its delay after the onset)."""
