@@ -175,7 +175,7 @@ def test_check_detector_names_the_failed_check():
         check_detector(_StoresWrongly)
 
 
-@pytest.mark.parametrize("name", ["statistical", "tsbitmaps", "deepsvdd", "goad", "neutral"])
+@pytest.mark.parametrize("name", ["statistical", "tsbitmaps", "deepsvdd", "goad", "neutral", "telemanom"])
 def test_streaming_one_row_at_a_time_gives_the_batch_scores(small_data, name):
     """A live monitor fed one row at a time (``stream().update``) scores as ``score`` on the flight.
 
