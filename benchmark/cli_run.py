@@ -35,7 +35,7 @@ def _patterns(values: list[str] | None) -> list[str] | None:
 _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
             "timeout": "timeout", "seed": "seed", "plugin": "plugins", "features": "features",
-            "exclude": "exclude"}
+            "exclude": "exclude", "device": "device"}
 
 
 def run_config(args: argparse.Namespace):
@@ -121,6 +121,9 @@ def register(sub) -> None:
                         "timestamp, counter, id or reset counter and not constant)")
     r.add_argument("--exclude", action="append", metavar="GLOB,...",
                    help="drop these columns from the features, e.g. 'battery_status.*' (repeatable)")
+    r.add_argument("--device", choices=("auto", "cpu", "cuda"),
+                   help="torch device of the detectors that take one (deepsvdd, rdp, rca, goad, neutral, "
+                        "telemanom): auto (default: cuda when available, else cpu), cpu or cuda")
     r.set_defaults(func=cmd_run)
 
     s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores")

@@ -39,8 +39,10 @@ from scart_bench.errors import RunError
 from scart_bench.generator.profiles import PROFILES
 
 #: The keys a run file may hold.
+#: values of ``--device``
+DEVICES = ("auto", "cpu", "cuda")
 RUN_KEYS = ("detectors", "profile", "dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
-            "plugins", "params", "protocol", "resume", "features", "exclude")
+            "plugins", "params", "protocol", "resume", "features", "exclude", "device")
 
 
 @dataclass
@@ -63,6 +65,9 @@ class RunConfig:
     #: scart_bench.detectors.base.feature_columns)
     features: list[str] | None = None
     exclude: list[str] | None = None
+    #: torch device of the detectors that take one: auto (cuda when available, as the detectors'
+    #: own default), cpu or cuda
+    device: str = "auto"
     protocol: Protocol = field(default_factory=Protocol)
     data_root: Path = Path("data/datasets")
     runs_root: Path = Path("runs")
@@ -86,6 +91,8 @@ class RunConfig:
                 raise RunError(f"--timeout {self.timeout!r}: expected a positive, finite number of seconds")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**32:
             raise RunError(f"--seed {self.seed!r}: expected an integer in 0..{2**32 - 1}")
+        if self.device not in DEVICES:
+            raise RunError(f"--device {self.device!r}: expected one of {', '.join(DEVICES)}")
         if not self.detectors:
             raise RunError("--detectors: expected 'all' or a comma-separated list of names")
 
@@ -111,6 +118,7 @@ class RunConfig:
             out["features"] = list(self.features)
         if self.exclude:
             out["exclude"] = list(self.exclude)
+        out["device"] = self.device
         return out
 
 
@@ -157,7 +165,7 @@ def _checked(p: Path, data: dict) -> dict:
             out["detectors"] = list(d)
         else:
             raise bad("detectors", '"all" or a list of detector names')
-    for key in ("profile", "executor", "scheduler", "dataset", "out"):
+    for key in ("profile", "executor", "scheduler", "dataset", "out", "device"):
         if key in data and not isinstance(data[key], str):
             raise bad(key, "a string")
     for key in ("dataset", "out"):

@@ -66,6 +66,8 @@ class StreamMonitor:
         self._last = np.full(len(self.columns), np.nan)
         self._seen = np.zeros(len(self.columns), dtype=bool)
         self._rows: deque[np.ndarray] = deque(maxlen=self.history)
+        # the detector's own live scorer when it has one (incremental, same scores as batch)
+        self._stream = detector.stream() if callable(getattr(detector, "stream", None)) else None
         self._pending: int | None = None  # timestamp of the base-topic row not yet complete
         self._layer = None
         self.scores: list[tuple[int, float]] = []
@@ -95,10 +97,13 @@ class StreamMonitor:
         t_us = self._pending
         self._pending = None
         row = np.where(self._seen, self._last, np.nan)
-        self._rows.append(row)
         t0 = time.perf_counter()
-        frame = pd.DataFrame(np.vstack(self._rows), columns=self.columns)
-        score = float(self.detector.score(frame)[-1])
+        if self._stream is not None:
+            score = float(self._stream.update(row))
+        else:
+            self._rows.append(row)
+            frame = pd.DataFrame(np.vstack(self._rows), columns=self.columns)
+            score = float(self.detector.score(frame)[-1])
         lat = (time.perf_counter() - t0) * 1e3
         self.latency_ms.append(lat)
         self.scores.append((t_us, score))

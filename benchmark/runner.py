@@ -207,7 +207,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     store = RunStore(cfg.out_path)
     old = _previous_config(store, cfg.seed)
     plugins = load_plugins(cfg.plugins, probe_timeout_s=cfg.timeout_s)
-    chosen = with_params(resolve_detectors(cfg.detectors, plugins), cfg.params)
+    chosen = with_params(resolve_detectors(cfg.detectors, plugins), cfg.params, cfg.device)
     ds = open_dataset(prepare_dataset(cfg))
     splits = Splits.from_manifest(ds.manifest)
     ds.check_flights(dict.fromkeys(splits.train + splits.scored))  # a damaged table stops the run here

@@ -217,11 +217,27 @@ def check_params(name: str, cls: type, params: dict) -> dict:
     return out
 
 
-def with_params(chosen: list[DetectorChoice], params: dict[str, dict]) -> list[DetectorChoice]:
-    """``chosen`` with the given parameters attached; parameters for a detector not in the run are refused."""
+def with_params(chosen: list[DetectorChoice], params: dict[str, dict], device: str = "auto") -> list[DetectorChoice]:
+    """``chosen`` with the given parameters attached; parameters for a detector not in the run are refused.
+
+    ``device`` other than "auto" (``--device cpu|cuda``) becomes the ``device`` parameter of every
+    detector that takes one and was not given one with ``--param``; "auto" leaves the detectors'
+    own default (cuda when available, else cpu). "cuda" without a CUDA device is refused here.
+    """
     names = [c.name for c in chosen]
     for name in params:
         if name not in names:
             raise RunError(f"--param {name}.*: {name!r} is not a detector of this run ({', '.join(names)})")
+    params = {k: dict(v) for k, v in params.items()}
+    if device != "auto":
+        takes = [c.name for c in chosen if "device" in inspect.signature(c.cls.__init__).parameters]
+        if device == "cuda" and takes:
+            import torch
+
+            if not torch.cuda.is_available():
+                raise RunError(f"--device cuda: torch sees no CUDA device here (detectors {', '.join(takes)}); "
+                               "use --device auto or cpu")
+        for name in takes:
+            params.setdefault(name, {}).setdefault("device", device)
     return [DetectorChoice(c.name, c.cls, c.source, check_params(c.name, c.cls, params[c.name]))
             if params.get(c.name) else c for c in chosen]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import fnmatch
 import re
+from collections import deque
 from functools import lru_cache
 
 import numpy as np
@@ -168,6 +169,32 @@ class Detector(BaseEstimator):
                                 "NaN is a failure, not a 0")
         return s
 
+    def score_last(self, history: pd.DataFrame) -> float:
+        """Score of the last row of ``history``, equal to ``score(history)[-1]``.
+
+        For a live monitor that keeps the trailing ``history_rows_`` rows of a stream; detectors
+        may override ``_score_last`` to score only the last row instead of all of them.
+        """
+        X = self._transform(history)
+        if X.shape[0] == 0:
+            raise DetectorError(f"{self.name}: score_last needs at least one row")
+        return self._checked_last(float(self._score_last(X)))
+
+    def stream(self) -> DetectorStream:
+        """A live scorer fed one raw row at a time (``update(row)``, values in ``columns_`` order).
+
+        Gives the same scores as :meth:`score` on the rows seen so far. The default keeps the
+        trailing ``history_rows_`` rows (500 when unset) and calls :meth:`score_last`; detectors
+        with incremental state (TSBitmaps) return their own.
+        """
+        self._check_fitted()
+        return TrailingStream(self)
+
+    def _checked_last(self, score: float) -> float:
+        if not np.isfinite(score):
+            raise DetectorError(f"{self.name}: non-finite score {score} on the last row; NaN is a failure, not a 0")
+        return score
+
     def _feature_names(self) -> list[str]:
         """Names of the prepared matrix's columns (angles become ``col:sin`` and ``col:cos`` at the end)."""
         angles = _angle_columns(tuple(self.columns_))
@@ -191,6 +218,10 @@ class Detector(BaseEstimator):
 
     def _score(self, X: np.ndarray) -> np.ndarray:
         raise NotImplementedError
+
+    def _score_last(self, X: np.ndarray) -> float:
+        """Score of the last row of prepared ``X`` (default: all rows scored, the last kept)."""
+        return float(np.asarray(self._score(X), dtype=np.float64).reshape(-1)[-1])
 
     def _rng(self) -> np.random.Generator:
         return np.random.default_rng(getattr(self, "random_state", 0))
@@ -217,6 +248,24 @@ class Detector(BaseEstimator):
         z = (raw - self.mean_) / self.scale_
         if np.isnan(z).any():
             z = pd.DataFrame(z).ffill().fillna(0.0).to_numpy()
+        return z
+
+    def _prepare_row(self, row: np.ndarray, last: np.ndarray | None) -> np.ndarray:
+        """One raw row (``columns_`` order) prepared like :meth:`_transform` prepares a flight.
+
+        ``last`` is the previous prepared row (None at the start): missing values take its value,
+        else 0, as the causal fill of :meth:`_standardise`.
+        """
+        arr = np.array(row, dtype=np.float64).reshape(-1)
+        arr[np.isinf(arr)] = np.nan
+        angles = _angle_columns(tuple(self.columns_))
+        if angles:
+            a = arr[angles]
+            arr = np.concatenate([np.delete(arr, angles), np.sin(a), np.cos(a)])
+        z = (arr - self.mean_) / self.scale_
+        gap = np.isnan(z)
+        if gap.any():
+            z[gap] = 0.0 if last is None else last[gap]
         return z
 
     @staticmethod
@@ -254,6 +303,52 @@ def _angle_columns(cols: tuple[str, ...]) -> list[int]:
 
 #: Angle fields that wrap around (roll and pitch stay far from +-pi in flight).
 WRAPPING_ANGLES = ("yaw", "hdg", "cog")
+
+
+class DetectorStream:
+    """Scores a live stream one row at a time; ``update(row)`` returns the new row's score.
+
+    ``row`` holds the raw values of the detector's ``columns_`` in order (NaN where missing).
+    """
+
+    def __init__(self, detector: Detector):
+        self.detector = detector
+        self.n_rows = 0
+
+    def update(self, row: np.ndarray) -> float:
+        raise NotImplementedError
+
+
+#: Rows a trailing stream keeps when the detector does not set ``history_rows_`` (10 s at 50 Hz).
+DEFAULT_HISTORY_ROWS = 500
+
+
+class TrailingStream(DetectorStream):
+    """The default stream: the trailing ``history_rows_`` rows, the last one scored.
+
+    Rows are prepared one by one as they arrive (:meth:`Detector._prepare_row`) and the
+    detector's ``_score_last`` scores the prepared window, so no table is built per sample. A
+    detector that overrides ``score`` or ``_transform`` is called through ``score_last`` on a
+    table of the trailing raw rows instead.
+    """
+
+    def __init__(self, detector: Detector):
+        super().__init__(detector)
+        self.history = int(getattr(detector, "history_rows_", 0) or DEFAULT_HISTORY_ROWS)
+        self._rows: deque[np.ndarray] = deque(maxlen=self.history)
+        cls = type(detector)
+        self._prepared = cls.score is Detector.score and cls._transform is Detector._transform
+        self._last: np.ndarray | None = None
+
+    def update(self, row: np.ndarray) -> float:
+        self.n_rows += 1
+        d = self.detector
+        if self._prepared:
+            self._last = d._prepare_row(row, self._last)
+            self._rows.append(self._last)
+            return d._checked_last(float(d._score_last(np.vstack(self._rows))))
+        self._rows.append(np.asarray(row, dtype=np.float64).reshape(-1))
+        return d.score_last(pd.DataFrame(np.vstack(self._rows), columns=d.columns_))
 
 
 def flight_score(row_scores: np.ndarray) -> float:

@@ -43,7 +43,7 @@ import torch
 from scipy.signal import lfilter
 from torch import nn
 
-from scart_bench.detectors.base import Detector, DetectorError
+from scart_bench.detectors.base import Detector, DetectorError, DetectorStream
 
 #: z values tried by the dynamic threshold (published: ``np.arange(2.5, sd_lim, 0.5)``, sd_lim 12).
 Z_VALUES = np.arange(2.5, 12.0, 0.5)
@@ -704,8 +704,64 @@ class Telemanom(Detector):
             pred[:, cols] = agg
         return pred
 
+    def stream(self) -> TelemanomStream:
+        """Incremental live scorer: one forecast window per new row and the EWMA carried over."""
+        self._check_fitted()
+        return TelemanomStream(self)
+
     def _smoothed(self, X: np.ndarray) -> np.ndarray:
         if X.shape[0] == 0:
             return np.zeros((0, len(self.target_idx_)))
         err = np.abs(self._predict(X) - X[:, self.target_idx_])
         return ewma(err, self.span_)
+
+
+class TelemanomStream(DetectorStream):
+    """Telemanom fed one row at a time: the same scores as ``score`` on the rows seen so far.
+
+    Each row is forecast once from the ``l_s`` rows before it (one window through each model,
+    instead of the whole trailing history), the forecasts of the last ``n_predictions`` windows
+    are kept for ``aggregate="mean"``, and the error EWMA is carried from row to row (exact, where
+    a trailing window truncates its memory). Equal to batch scores up to float32 rounding.
+    """
+
+    def __init__(self, detector: Telemanom):
+        super().__init__(detector)
+        d = detector
+        self._hist: np.ndarray | None = None  # (l_s, inputs) prepared rows before the current one
+        self._last: np.ndarray | None = None
+        self._n_steps = 1 if d.aggregate == "first" else int(d.n_predictions)
+        self._outs: list[np.ndarray] = []  # forecasts of the newest windows, newest last
+        self._decay = 1.0 - 2.0 / (max(float(d.span_), 1.0) + 1.0)
+        self._num = np.zeros(len(d.target_idx_))
+        self._den = 0.0
+        self._specs = d._model_specs()
+        self._device = d._torch_device()
+
+    def update(self, row: np.ndarray) -> float:
+        d = self.detector
+        z = d._prepare_row(row, self._last)
+        self._last = z
+        if self._hist is None:
+            self._hist = np.repeat(z[None].astype(np.float32), int(d.l_s), axis=0)
+        window = torch.from_numpy(self._hist)
+        out = np.empty((self._n_steps, len(d.target_idx_)))
+        with torch.inference_mode():
+            for k, ((inputs, _), net) in enumerate(zip(self._specs, d._nets())):
+                cols = [k] if d.per_channel else slice(None)
+                xb = window[:, torch.from_numpy(inputs)][None].to(self._device)
+                out[:, cols] = net(xb)[0, : self._n_steps, :].double().cpu().numpy()
+        self._outs = (self._outs + [out])[-self._n_steps:]
+        acc = np.zeros(len(d.target_idx_))
+        count = 0
+        for step in range(len(self._outs)):  # forecast of this row made `step` windows ago
+            acc += self._outs[-1 - step][step]
+            count += 1
+        err = np.abs(acc / count - z[d.target_idx_])
+        self._num = err + self._decay * self._num
+        self._den = 1.0 + self._decay * self._den
+        self._hist[:-1] = self._hist[1:]
+        self._hist[-1] = z
+        self.n_rows += 1
+        zs = (self._num / self._den) / d.error_scale_
+        return d._checked_last(float(zs.max() if d.combine == "max" else zs.mean()))

@@ -30,10 +30,11 @@ symbol per 5 rows (0.1 s at 50 Hz) and lag/lead windows of 300/100 rows (6 s / 2
 from __future__ import annotations
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy.stats import norm
 
-from scart_bench.detectors.base import Detector, DetectorError
-from scart_bench.detectors.statistical import rolling_mean, rolling_var
+from scart_bench.detectors.base import Detector, DetectorError, DetectorStream
+from scart_bench.detectors.statistical import pad_start
 
 #: Smallest per-channel unit of distance: one bitmap cell entirely different. Keeps channels that
 #: barely move in training (their training percentile is ~0) from turning noise into huge scores.
@@ -134,26 +135,47 @@ class TSBitmaps(Detector):
 
         The word spans ``level_size * feature_window_size`` rows, z-normalised over that span
         (flat spans, std below ``min_std``, are only centred), one PAA symbol per
-        ``feature_window_size`` rows.
+        ``feature_window_size`` rows. Rows before a full span see the first row repeated. Each
+        code is computed from its own span alone (:meth:`_span_codes`), so streaming gives
+        bit-identical codes.
         """
+        if X.shape[0] == 0:
+            return np.zeros(X.shape, dtype=np.int64)
+        span = int(self.feature_window_size) * int(self.level_size)
+        view = sliding_window_view(pad_start(np.asarray(X, dtype=np.float64), span - 1), span, axis=0)
+        return self._span_codes(view)
+
+    def _span_codes(self, view: np.ndarray) -> np.ndarray:
+        """SAX word codes of spans ``view`` (words, channels, span rows), summed in a fixed order."""
         w, a, level = int(self.feature_window_size), int(self.alphabet_size), int(self.level_size)
         span = w * level
-        span_mean = rolling_mean(X, span)
-        span_std = np.sqrt(rolling_var(X, span))
-        span_std = np.where(span_std >= float(self.min_std), span_std, np.inf)
-        paa = rolling_mean(X, w)
-        rows = np.arange(X.shape[0])
-        codes = np.zeros(X.shape, dtype=np.int64)
+        seg_sums = []
+        total = sq = None
         for k in range(level):  # oldest segment first
-            seg = paa[np.maximum(rows - (level - 1 - k) * w, 0)]
-            symbol = np.searchsorted(self.breakpoints_, ((seg - span_mean) / span_std).ravel(), side="right")
-            codes = codes * a + symbol.reshape(X.shape)
+            acc = None
+            for i in range(k * w, (k + 1) * w):
+                col = view[..., i]
+                acc = col.copy() if acc is None else acc + col
+                sq = col * col if sq is None else sq + col * col
+            seg_sums.append(acc)
+            total = acc.copy() if total is None else total + acc
+        span_mean = total / span
+        span_std = np.sqrt(np.maximum(sq / span - span_mean * span_mean, 0.0))
+        span_std = np.where(span_std >= float(self.min_std), span_std, np.inf)
+        codes = np.zeros(span_mean.shape, dtype=np.int64)
+        for acc in seg_sums:
+            symbol = np.searchsorted(self.breakpoints_, ((acc / w - span_mean) / span_std).ravel(), side="right")
+            codes = codes * a + symbol.reshape(span_mean.shape)
         return codes
 
     def _window_bounds(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Start of the lag window, start of the lead window and end (exclusive) per row."""
+        return self._window_bounds_at(np.arange(1, n + 1))
+
+    def _window_bounds_at(self, end: np.ndarray | int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Window bounds of the rows whose windows end (exclusive) at ``end``."""
         lag, lead = int(self.lag_window_size), int(self.lead_window_size)
-        end = np.arange(1, n + 1)
+        end = np.atleast_1d(np.asarray(end, dtype=np.int64))
         lead_len = np.where(end >= lag + lead, lead, np.maximum(1, np.rint(end * lead / (lag + lead))))
         lead_len = lead_len.astype(np.int64)
         lag_len = np.minimum(end - lead_len, lag)
@@ -203,3 +225,66 @@ class TSBitmaps(Detector):
     def _score(self, X: np.ndarray) -> np.ndarray:
         calibrated = self._channel_distances(X) / self.unit_
         return calibrated.max(axis=1) if self.combine == "max" else calibrated.mean(axis=1)
+
+    def stream(self) -> BitmapStream:
+        """Incremental live scorer: one new word per channel and a few bitmap cell updates per row."""
+        self._check_fitted()
+        return BitmapStream(self)
+
+
+class BitmapStream(DetectorStream):
+    """TSBitmaps fed one row at a time: the same scores as ``score`` on the rows seen so far.
+
+    Keeps the last word span of prepared rows, the words of the lag and lead windows and their
+    per-channel cell counts; each row adds one word to the lead window, moves the words that
+    leave it to the lag window and drops those that leave the lag window.
+    """
+
+    def __init__(self, detector: TSBitmaps):
+        super().__init__(detector)
+        d = detector
+        self.span = int(d.feature_window_size) * int(d.level_size)
+        self.full = int(d.lag_window_size) + int(d.lead_window_size)
+        n_ch = d.mean_.shape[0]
+        cells = int(d.alphabet_size) ** int(d.level_size)
+        self._buf: np.ndarray | None = None  # (span, channels) prepared rows, oldest first
+        self._last: np.ndarray | None = None
+        self._codes = np.zeros((self.full + 2, n_ch), dtype=np.int64)  # ring of words by row
+        self._lag = np.zeros((n_ch, cells), dtype=np.int64)
+        self._lead = np.zeros((n_ch, cells), dtype=np.int64)
+        self._ch = np.arange(n_ch)
+        self._lag_start = self._lead_start = 0
+
+    def update(self, row: np.ndarray) -> float:
+        d = self.detector
+        z = d._prepare_row(row, self._last)
+        self._last = z
+        if self._buf is None:
+            self._buf = np.repeat(z[None], self.span, axis=0)
+        else:
+            self._buf[:-1] = self._buf[1:]
+            self._buf[-1] = z
+        code = d._span_codes(self._buf.T[None])[0]
+        ring = self._codes.shape[0]
+        self._codes[self.n_rows % ring] = code
+        self.n_rows += 1
+        end = self.n_rows
+        self._lead[self._ch, code] += 1
+        lag_start, lead_start, _ = (int(b[0]) for b in d._window_bounds_at(end))
+        while self._lead_start < lead_start:
+            moved = self._codes[self._lead_start % ring]
+            self._lead[self._ch, moved] -= 1
+            self._lag[self._ch, moved] += 1
+            self._lead_start += 1
+        while self._lag_start < lag_start:
+            self._lag[self._ch, self._codes[self._lag_start % ring]] -= 1
+            self._lag_start += 1
+        maps = []
+        for counts in (self._lag, self._lead):
+            c = counts.astype(np.float64)
+            peak = c.max(axis=1, keepdims=True)
+            maps.append(np.divide(c, peak, out=np.zeros_like(c), where=peak > 0))
+        dist = np.sum((maps[1] - maps[0]) ** 2, axis=1)
+        weight = min(1.0, (end - lag_start) / self.full) if lead_start > lag_start else 0.0
+        calibrated = dist * weight / d.unit_
+        return d._checked_last(float(calibrated.max() if d.combine == "max" else calibrated.mean()))

@@ -7,9 +7,12 @@ generated normal flights of ``R`` rows at 50 Hz, then measures on a held-out fli
 
 - fit seconds;
 - batch throughput: rows per second when ``score`` gets the whole flight at once;
-- streaming latency: one sample at a time, each call scoring the trailing ``W`` rows of history
-  and keeping the last row's score, as a live 50 Hz monitor would; p50 and p99 in milliseconds,
-  and p99 as a fraction of the 20 ms between two samples of a 50 Hz stream (> 1: it falls behind).
+- streaming latency: the flight's rows fed one at a time to the detector's ``stream()`` (its
+  incremental scorer, or by default its trailing ``W`` rows scored by ``score_last``), as a live
+  50 Hz monitor would; p50 and p99 in milliseconds over the last ``S`` samples, p99 as a
+  fraction of the 20 ms between two samples of a 50 Hz stream (> 1: it falls behind, and the
+  status says "over budget"), and "stream err", the largest relative gap between the streamed
+  and the batch scores.
 
 ``W``, the history a detector needs, comes from the fitted detector's ``history_rows_``
 attribute when it sets one (the rows that reproduce the last row's score: e.g. Telemanom's LSTM
@@ -49,6 +52,7 @@ class SpeedResult:
     history_rows: int = 0
     p50_ms: float = float("nan")
     p99_ms: float = float("nan")
+    stream_rel_err: float = float("nan")
 
     @property
     def budget_ratio(self) -> float:
@@ -111,18 +115,24 @@ def measure(
 
         hist = getattr(det, "history_rows_", None)
         res.history_rows = int(min(hist if hist else DEFAULT_HISTORY_ROWS, len(flight)))
-        ends = np.linspace(res.history_rows, len(flight), num=min(samples, len(flight)), dtype=int)
-        ends = np.unique(np.clip(ends, 1, len(flight)))
-        lat = []
-        for k, end in enumerate(ends):
-            window = flight.iloc[max(end - res.history_rows, 0) : end]
+        n = min(len(flight), res.history_rows + samples)
+        raw = flight[det.columns_].to_numpy(dtype=np.float64)
+        stream = det.stream() if hasattr(det, "stream") else None
+        streamed, lat = np.empty(n), []
+        for i in range(n):
             t0 = time.perf_counter()
-            float(det.score(window)[-1])
+            if stream is not None:
+                streamed[i] = stream.update(raw[i])
+            else:  # a duck-typed plugin: its trailing window, last row kept
+                streamed[i] = float(det.score(flight.iloc[max(i + 1 - res.history_rows, 0) : i + 1])[-1])
             dt = time.perf_counter() - t0
-            if k >= 3:  # the first calls warm caches up
+            if i >= n - samples:
                 lat.append(dt * 1e3)
+        res.stream_rel_err = float(np.max(np.abs(streamed - scores[:n]) / np.maximum(np.abs(scores[:n]), 1e-9)))
         if lat:
             res.p50_ms, res.p99_ms = (float(v) for v in np.percentile(lat, [50, 99]))
+        if res.status == "ok" and res.p99_ms > BUDGET_MS:
+            res.status = "over budget"
     except Exception as exc:
         res.status = f"failed: {type(exc).__name__}: {exc}"
     return res
@@ -132,13 +142,13 @@ def format_table(results: list[SpeedResult]) -> str:
     """The results as an aligned text table."""
     head = (
         f"{'detector':<14} {'fit s':>8} {'score rows/s':>13} {'history':>8} "
-        f"{'p50 ms':>8} {'p99 ms':>8} {'p99/20ms':>9}  status"
+        f"{'p50 ms':>8} {'p99 ms':>8} {'p99/20ms':>9} {'stream err':>10}  status"
     )
     lines = [head, "-" * len(head)]
     for r in results:
         lines.append(
             f"{r.name:<14} {r.fit_s:>8.2f} {r.rows_per_s:>13,.0f} {r.history_rows:>8d} "
-            f"{r.p50_ms:>8.2f} {r.p99_ms:>8.2f} {r.budget_ratio:>9.2f}  {r.status}"
+            f"{r.p50_ms:>8.2f} {r.p99_ms:>8.2f} {r.budget_ratio:>9.2f} {r.stream_rel_err:>10.1e}  {r.status}"
         )
     return "\n".join(lines)
 
@@ -178,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"... {name}", file=sys.stderr, flush=True)
         results.append(measure(name, train, flight, args.samples))
     print(format_table(results))
-    return 0 if all(r.status == "ok" or r.status.startswith("skipped") for r in results) else 1
+    return 0 if all(r.status in ("ok", "over budget") or r.status.startswith("skipped") for r in results) else 1
 
 
 if __name__ == "__main__":
