@@ -58,6 +58,25 @@ def _validate(jobs, tables, where: str) -> None:
 # import
 
 
+def _refuse_physical(jobs, scenario_path) -> None:
+    """A recording cannot be flown again: refuse configurations that only change the physics."""
+    physical = [j for j in jobs if all(sc.physical for sc in j)]
+    if len(physical) == len(jobs):
+        points = sorted({sc.injection_point for j in physical for sc in j})
+        raise DatasetError(f"{scenario_path}: {'/'.join(points)} scenarios change the physics, which a recorded "
+                           "flight cannot replay; use them in simulation mode (scart-bench generate --scenarios)")
+
+
+def _start_conditions(job) -> str:
+    """The start conditions of a configuration, for a message (``id: condition key=value``)."""
+    parts = []
+    for sc in job:
+        for name, p in sc.start:
+            args = " ".join(f"{k}={v}" for k, v in p.items() if v is not None)
+            parts.append(f"{sc.id}: {name} {args}".strip())
+    return "; ".join(parts) or "none"
+
+
 def log_name(path: Path) -> str:
     """A log's name for flight ids: the file name without its extensions, in ``[a-z0-9_-]``."""
     name = path.name if path.is_dir() else re.sub(r"(\.(ulg|csv|parquet|pq|gz|bz2|xz|zip|zst))+$", "",
@@ -170,6 +189,7 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
         raise DatasetError(f"{ds.path}: no normal flight with split {' or '.join(sources)} to attack; import logs with "
                            f"--split {sources[0]} (or --split auto)")
     jobs = load_configurations(Path(scenario_path), check_topics=False)
+    _refuse_physical(jobs, scenario_path)
     flights = []
     for fid in rows["flight_id"].astype(str):
         tables = load_flight_file(ds.flight_dir(fid))
@@ -195,7 +215,7 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
     append_flights(ds.path, records())
     if not added:
         raise DatasetError(f"{scenario_path}: the attack never started on any source flight; nothing was added "
-                           "(check its start conditions against the logs' durations)")
+                           f"(start conditions: {_start_conditions(jobs[0])})")
     return added
 
 
@@ -210,6 +230,7 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     input_path, out = Path(input_path), Path(out)
     check_output_dir(out, overwrite=overwrite)
     jobs = load_configurations(Path(scenario_path), check_topics=False)
+    _refuse_physical(jobs, scenario_path)
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
     _validate(jobs, tables, str(input_path))
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
@@ -219,8 +240,8 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
             logger.warning("%s: the attack %r never started on %s (its start conditions never held); no copy",
                            scenario_path, _config_id(job), input_path)
     if not started:
-        raise DatasetError(f"{scenario_path}: the attack never started on {input_path} (its start conditions "
-                           "never held within the log); nothing was written")
+        raise DatasetError(f"{scenario_path}: the attack never started on {input_path}: its start conditions "
+                           f"({_start_conditions(jobs[0])}) never held within the log; nothing was written")
     jobs, results = [j for j, _ in started], [r for _, r in started]
     origins = {t: df.attrs.get("origin_us") for t, df in tables.items()}
     # built beside ``out`` and moved into place when complete: --overwrite never loses the old
