@@ -11,6 +11,11 @@ from pathlib import Path
 from scart_bench.benchmark.errors import UsageError
 from scart_bench.generator.profiles import PROFILES
 
+#: generator.dataset.LAYOUTS, spelled out here so that the command line starts without pandas
+LAYOUTS = ("compact", "paper")
+LAYOUT_HELP = ("compact (one Parquet file per view per flight; the default for Parquet) | paper (the paper's "
+               "per-topic and combined files; the default for CSV)")
+
 
 def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
@@ -50,7 +55,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=_log,
-                         scenarios=args.scenarios, config=profile.flight_config())
+                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
@@ -80,7 +85,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
     existed = out.exists()
     try:
         attack_file(args.input, args.scenario, out, fmt=args.format, seed=args.seed, overwrite=args.overwrite,
-                    topics=_topics(args.topics), allow_corrupt=args.allow_corrupt)
+                    topics=_topics(args.topics), allow_corrupt=args.allow_corrupt, layout=args.layout)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)
@@ -95,7 +100,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     if (args.start is not None and args.start < 0) or (args.end is not None and args.end <= (args.start or 0.0)):
         raise UsageError(f"--start {args.start} / --end {args.end}: expected 0 <= start < end (seconds)")
     ids = import_logs(args.logs, args.out, split=args.split, topics=_topics(args.topics), start_s=args.start,
-                      end_s=args.end, seed=args.seed, fmt=args.format, allow_corrupt=args.allow_corrupt, say=_log)
+                      end_s=args.end, seed=args.seed, fmt=args.format, allow_corrupt=args.allow_corrupt, say=_log,
+                      layout=args.layout)
     print(f"{len(ids)} flight{'' if len(ids) == 1 else 's'} added to {args.out}: {', '.join(ids)}")
     return 0
 
@@ -107,6 +113,7 @@ def register(sub) -> None:
     g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    g.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP)
     g.add_argument("--flights", type=int, default=None, help="number of normal flights (default: the profile's)")
     g.add_argument("--normal-only", action="store_true", help="only normal flights, no attacks")
     g.add_argument("--scenarios", default=None, help="a scenario, grid or sweep file (TOML) for the attacked "
@@ -132,6 +139,7 @@ def register(sub) -> None:
                    "of logging (e.g. before an injected fault or a crash)")
     i.add_argument("--seed", type=int, default=0, help="seed of --split auto (default 0)")
     i.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
+    i.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP + "; of a new dataset")
     i.add_argument("--allow-corrupt", action="store_true", help="use the readable part of a corrupt or "
                    "truncated ULog (with a warning saying how much was read)")
     i.set_defaults(func=cmd_import)
@@ -147,6 +155,7 @@ def register(sub) -> None:
                    help="with --dataset: the splits whose normal flights are attacked (default test; "
                    "comma-separated for several)")
     a.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    a.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP + " (with --out)")
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--topics", default=None, help="comma-separated topics to load from the input (default: all)")
     a.add_argument("--allow-corrupt", action="store_true", help="use the readable part of a corrupt or "

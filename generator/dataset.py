@@ -1,14 +1,20 @@
-"""Reading and writing datasets in the paper's layout.
+"""Reading and writing datasets: the compact layout (default) and the paper's layout.
 
 ```
 <dataset>/manifest.(parquet|csv)     one row per flight; written last: a dataset is complete
                                      exactly when its manifest exists
-<dataset>/dataset.json               format, profile, seed, versions
+<dataset>/dataset.json               format, layout, profile, seed, versions
 <dataset>/flights/<id>/raw/          config.json (scenario, mission, seed, versions), events.csv
+compact layout (Parquet; generator.compact):
+<dataset>/flights/<id>/<view>.parquet  navigator.parquet, simulator.parquet: every topic of the view
+                                     in one file; the combined tables are made from it on reading
+paper layout (the paper's files; CSV or Parquet):
 <dataset>/flights/<id>/sensors/      navigator/<topic>.<ext> and simulator/<topic>.<ext>
 <dataset>/flights/<id>/combined/     navigator_all_sensors, navigator_most_frequent,
                                      simulator_all_sensors, simulator_most_frequent
 ```
+Readers read both layouts (each flight's own); the tables read back are the same, except that the
+compact layout's float32 fields come back as float64 holding their float32 values.
 Topic tables have columns ``Timestamp`` (integer microseconds from the start of the run), the
 labels and the topic's fields. Combined tables start with ``Index``, ``Timestamp``, the labels and
 then one ``topic.field`` column per field of every topic. The labels: ``Is_Anomaly`` (1 inside
@@ -31,10 +37,14 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.generator import compact
 from scart_bench.locks import FolderLock
 from scart_bench.names import check_id, inside
 
 FORMATS = ("parquet", "csv")
+#: "compact": one Parquet file per view per flight (the default for Parquet); "paper": the paper's
+#: per-topic and combined files (CSV, or Parquet on request)
+LAYOUTS = ("compact", "paper")
 VIEWS = ("navigator", "simulator")
 TABLES = ("most_frequent", "all_sensors")
 MANIFEST_COLUMNS = (
@@ -146,28 +156,61 @@ def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = N
 
     ``all_sensors``: every timestamp of every topic; a topic's columns are NaN where it has no
     message. ``most_frequent``: resampled on the timestamps of the most frequently sampled topic
-    (or ``base_topic``), each topic holding its last value received at or before the row.
+    (or ``base_topic``), each topic holding its last value received at or before the row. A topic's
+    repeated timestamp keeps its last message. (Array code: it runs for every flight read.)
     """
     frames = []
-    for name, df in topics.items():
-        cols = [c for c in df.columns if c != "Timestamp" and c not in LABEL_COLUMNS]
-        part = df[["Timestamp", *cols]].drop_duplicates("Timestamp", keep="last").sort_values("Timestamp")
-        part = part.set_index("Timestamp").rename(columns={c: f"{name}.{c}" for c in cols})
-        frames.append((name, part))
+    for name, df in topics.items():  # a table, or a dict of column arrays
+        cols = [c for c in df.keys() if c != "Timestamp" and c not in LABEL_COLUMNS]
+        ts = np.asarray(df["Timestamp"], dtype=np.int64)
+        order = np.argsort(ts, kind="stable")
+        ts_sorted = ts[order]
+        last = np.ones(len(ts_sorted), dtype=bool)
+        last[:-1] = ts_sorted[1:] != ts_sorted[:-1]
+        rows = order[last]
+        frames.append((name, ts_sorted[last], [(f"{name}.{c}", np.asarray(df[c])[rows]) for c in cols]))
     if not frames:
         raise DatasetError("cannot combine a flight with no topics")
-    all_sensors = pd.concat([p for _, p in frames], axis=1, join="outer").sort_index()
+    union = np.unique(np.concatenate([ts for _, ts, _ in frames]))
     if base_topic is None:
-        base_topic = max(frames, key=lambda item: len(item[1]))[0]
-    base = pd.Index(np.unique(topics[base_topic]["Timestamp"].to_numpy(np.int64)), name="Timestamp")
-    most = pd.concat([p.reindex(base, method="ffill") for _, p in frames], axis=1)
+        base_topic = _base_topic([(name, ts) for name, ts, _ in frames])
+    base = next(ts for name, ts, _ in frames if name == base_topic)
     out = {}
-    for key, table in (("all_sensors", all_sensors), ("most_frequent", most)):
-        ts = table.index.to_numpy(np.int64)
-        lead = pd.DataFrame({"Index": np.arange(len(table), dtype=np.int64), "Timestamp": ts,
-                             **label_columns(ts, windows)})
-        out[key] = pd.concat([lead, table.reset_index(drop=True)], axis=1)
+    for key, index in (("all_sensors", union), ("most_frequent", base)):
+        data: dict[str, np.ndarray] = {"Index": np.arange(len(index), dtype=np.int64), "Timestamp": index,
+                                       **label_columns(index, windows)}
+        for _, ts, columns in frames:
+            if key == "all_sensors":
+                at = np.searchsorted(index, ts)
+                pick, valid = np.full(len(index), -1), np.zeros(len(index), dtype=bool)
+                pick[at], valid[at] = np.arange(len(ts)), True
+            else:
+                pick = np.searchsorted(ts, index, side="right") - 1
+                valid = pick >= 0
+            for name, values in columns:
+                data[name] = _take(values, pick, valid)
+        out[key] = pd.DataFrame(data)
     return out
+
+
+def _take(values: np.ndarray, pick: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``values[pick]`` with NaN where not ``valid`` (ints become float64, as pandas' reindex does)."""
+    if valid.all():
+        return values[pick]
+    if values.dtype.kind in "iub":
+        values = values.astype(np.float64)
+    out = values[np.where(valid, pick, 0)] if len(values) else np.empty(len(pick), dtype=values.dtype)
+    if values.dtype.kind == "f":
+        out[~valid] = np.nan
+    else:
+        out = out.astype(object)
+        out[~valid] = np.nan
+    return out
+
+
+def _base_topic(frames: list[tuple[str, np.ndarray]]) -> str:
+    """The most frequently sampled topic (distinct timestamps; the first on a tie)."""
+    return max(frames, key=lambda item: len(item[1]))[0]
 
 
 def _write_table(df: pd.DataFrame, path: Path, fmt: str) -> None:
@@ -288,11 +331,12 @@ class DatasetWriter:
     """
 
     def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
-                 overwrite: bool = False, workers: int = 0, append: bool = False):
+                 overwrite: bool = False, workers: int = 0, append: bool = False, layout: str | None = None):
         if fmt not in FORMATS:
             raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
         self.out = Path(out)
         self.fmt = fmt
+        self.layout = check_layout(fmt, layout)
         self.info = dict(info or {})
         self.existing: pd.DataFrame | None = None
         self.written: list[str] = []
@@ -301,6 +345,7 @@ class DatasetWriter:
             ds = open_dataset(self.out)
             self.existing = ds.manifest
             self.fmt = ds.info.get("format", "csv" if (self.out / "manifest.csv").exists() else "parquet")
+            self.layout = ds.info.get("layout", "paper")  # datasets from before the compact layout
             self.info = {**ds.info, **{k: v for k, v in self.info.items() if k not in ds.info}}
         else:
             check_output_dir(self.out, overwrite=overwrite)
@@ -332,11 +377,11 @@ class DatasetWriter:
         if self.existing is not None:  # a folder left by an append that never finished
             shutil.rmtree(inside(self.out / "flights", record.flight_id), ignore_errors=True)
         if self._pool is None:
-            self.rows.append(write_flight(self.out, self.fmt, record))
+            self.rows.append(write_flight(self.out, self.fmt, record, self.layout))
             return
         while len(self._pending) >= 2 * self.workers:  # bound the records held in memory
             self.rows.append(self._pending.pop(0).result())
-        self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record))
+        self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record, self.layout))
 
     def abort(self) -> None:
         """Stop without writing a manifest: a new dataset stays incomplete; an appended-to dataset
@@ -366,7 +411,7 @@ class DatasetWriter:
                 self._pending = []
                 self._pool.shutdown()
                 self._pool = None
-        (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt}, indent=2,
+        (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt, "layout": self.layout}, indent=2,
                                                           sort_keys=True, default=json_default))
         manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
         if self.existing is not None:
@@ -397,31 +442,79 @@ class DatasetWriter:
         return final
 
 
-def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
-    """Write one flight's raw, sensors and combined folders; returns its manifest row."""
+def check_layout(fmt: str, layout: str | None) -> str:
+    """The layout to write: ``layout``, or compact for Parquet and the paper's for CSV."""
+    if layout is None:
+        return "compact" if fmt == "parquet" else "paper"
+    if layout not in LAYOUTS:
+        raise DatasetError(f"layout {layout!r}: expected one of {', '.join(LAYOUTS)}")
+    if layout == "compact" and fmt != "parquet":
+        raise DatasetError("layout 'compact' is Parquet only; use --layout paper for CSV files")
+    return layout
+
+
+def _views(record: FlightRecord) -> list[tuple[str, dict[str, pd.DataFrame]]]:
+    views = [("navigator", record.navigator), ("simulator", record.simulator)]
+    extra = getattr(record, "uorb", None)
+    if extra:
+        views.append(("uorb", extra))
+    return views
+
+
+def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper") -> dict:
+    """Write one flight (raw folder plus its views, in ``layout``); returns its manifest row."""
+    if not any(k not in TRUTH_TOPICS for k in record.navigator):
+        raise DatasetError(f"flight {record.flight_id!r}: cannot combine a flight with no topics")
     root = inside(out / "flights", check_id(record.flight_id, "flight id"))
-    for sub in ("raw", "sensors/navigator", "sensors/simulator", "combined"):
-        (root / sub).mkdir(parents=True, exist_ok=True)
+    (root / "raw").mkdir(parents=True, exist_ok=True)
     (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
                                                          default=json_default))
     events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
     events.to_csv(root / "raw" / "events.csv", index=False)
-    n_rows = 0
-    for view, topics in (("navigator", record.navigator), ("simulator", record.simulator)):
-        for name, df in topics.items():
-            _write_table(df, root / "sensors" / view / name, fmt)
-        link_topics = {k: v for k, v in topics.items() if k not in TRUTH_TOPICS}
-        for table, df in combine(link_topics, record.windows).items():
-            _write_table(df, root / "combined" / f"{view}_{table}", fmt)
-            if view == "navigator" and table == "most_frequent":
-                n_rows = len(df)
+    if layout == "compact":
+        _write_compact(root, record)
+    else:
+        _write_paper(root, fmt, record)
     row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
     row["flight_id"] = record.flight_id
-    row["rows"] = n_rows
+    row["rows"] = _most_frequent_rows({k: v for k, v in record.navigator.items() if k not in TRUTH_TOPICS})
     if record.windows:
         row["attack_start_us"] = int(min(w[0] for w in record.windows))
         row["attack_end_us"] = int(max(w[1] for w in record.windows))
     return row
+
+
+def _most_frequent_rows(topics: dict[str, pd.DataFrame]) -> int:
+    """Rows of the view's most_frequent table (distinct timestamps of its most frequent topic)."""
+    if not topics:
+        return 0
+    counts = [(name, pd.Index(df["Timestamp"]).nunique()) for name, df in topics.items()]
+    return max(counts, key=lambda item: item[1])[1]
+
+
+def _write_paper(root: Path, fmt: str, record: FlightRecord) -> None:
+    for view, topics in _views(record):
+        (root / "sensors" / view).mkdir(parents=True, exist_ok=True)
+        for name, df in topics.items():
+            _write_table(df, root / "sensors" / view / name, fmt)
+        if view == "uorb":
+            continue  # the uORB view has no combined tables in the paper's layout
+        (root / "combined").mkdir(exist_ok=True)
+        link_topics = {k: v for k, v in topics.items() if k not in TRUTH_TOPICS}
+        for table, df in combine(link_topics, record.windows).items():
+            _write_table(df, root / "combined" / f"{view}_{table}", fmt)
+
+
+def _write_compact(root: Path, record: FlightRecord) -> None:
+    windows = [list(w) for w in record.windows]
+    for view, topics in _views(record):
+        reuse = {}
+        if view == "simulator":  # a topic the attack did not touch is the navigator's: stored once
+            reuse = {name: "navigator" for name, df in topics.items()
+                     if name in record.navigator and df.equals(record.navigator[name])}
+        tmp = root / f".{view}.parquet.tmp"
+        compact.write_view(tmp, topics, windows, reuse)
+        os.replace(tmp, root / f"{view}.parquet")
 
 
 def json_default(obj):
@@ -463,6 +556,10 @@ class Dataset:
     def flight_dir(self, flight_id: str) -> Path:
         return inside(self.path / "flights", check_id(flight_id, f"{self.path}: flight id"))
 
+    def is_compact(self, flight_id: str) -> bool:
+        """Whether the flight is stored in the compact layout (each flight says so by its files)."""
+        return (self.flight_dir(flight_id) / "navigator.parquet").exists()
+
     def flight(self, flight_id: str, view: str = "navigator", table: str = "most_frequent",
                columns: list[str] | None = None) -> pd.DataFrame:
         """A combined table of one flight (``view`` navigator|simulator, ``table`` most_frequent|all_sensors);
@@ -471,7 +568,21 @@ class Dataset:
             raise DatasetError(f"view {view!r}: expected one of {VIEWS}")
         if table not in TABLES:
             raise DatasetError(f"table {table!r}: expected one of {TABLES}")
-        return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}", columns)
+        if not self.is_compact(flight_id):
+            return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}", columns)
+        topics = read_view(self.flight_dir(flight_id), view, arrays=True)
+        windows = self._windows(flight_id, view)
+        df = combine({k: v for k, v in topics.items() if k not in TRUTH_TOPICS}, windows)[table]
+        if columns is None:
+            return df
+        missing = [c for c in columns if c not in df.columns]
+        if missing:
+            raise DatasetError(f"{self.flight_dir(flight_id) / view}.parquet: no column(s) {missing}")
+        return df[list(columns)]
+
+    def _windows(self, flight_id: str, view: str) -> list[tuple]:
+        meta = compact.read_meta(self.flight_dir(flight_id) / f"{view}.parquet")
+        return [tuple(w) for w in meta.get("windows", [])]
 
     def check_flights(self, flight_ids: Iterable[str], view: str = "navigator", table: str = "most_frequent") -> None:
         """DatasetError naming the first flight table that is missing or unreadable (its footer or header
@@ -479,7 +590,15 @@ class Dataset:
         import pyarrow.parquet as pq
 
         for fid in flight_ids:
-            base = self.flight_dir(fid) / "combined" / f"{view}_{table}"
+            root = self.flight_dir(fid)
+            if self.is_compact(fid):
+                for name in dict.fromkeys(("navigator", view)):
+                    try:
+                        compact.read_meta(root / f"{name}.parquet")
+                    except compact.CompactError as exc:
+                        raise DatasetError(f"{exc}; regenerate or remove flight {fid!r}") from None
+                continue
+            base = root / "combined" / f"{view}_{table}"
             pq_path, csv_path = base.with_suffix(".parquet"), base.with_suffix(".csv")
             try:
                 if pq_path.exists():
@@ -499,9 +618,19 @@ class Dataset:
 
     def topic(self, flight_id: str, topic: str, view: str = "navigator") -> pd.DataFrame:
         """One topic table of one flight."""
-        return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)
+        if not self.is_compact(flight_id):
+            return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)
+        tables = read_view(self.flight_dir(flight_id), view, [topic])
+        if topic not in tables:
+            raise DatasetError(f"{self.flight_dir(flight_id) / view}.parquet: no topic {topic!r}")
+        return tables[topic]
 
     def topics(self, flight_id: str, view: str = "navigator") -> list[str]:
+        if self.is_compact(flight_id):
+            path = self.flight_dir(flight_id) / f"{view}.parquet"
+            if not path.exists():
+                raise DatasetError(f"{path}: missing; flight {flight_id!r} has no {view} view")
+            return sorted(compact.read_meta(path)["topics"])
         folder = self.flight_dir(flight_id) / "sensors" / view
         return sorted(p.stem for p in folder.iterdir())
 
@@ -512,20 +641,43 @@ class Dataset:
         return json.loads((self.flight_dir(flight_id) / "raw" / "config.json").read_text())
 
 
+def read_view(flight_dir: Path, view: str, names: list[str] | None = None,
+              arrays: bool = False) -> dict[str, pd.DataFrame]:
+    """The topic tables of one view of a compact flight folder (all, or those in ``names``), in the
+    order they were written; a topic kept once in the navigator view is read from there.
+    ``arrays``: each topic as a dict of column arrays instead of a table (faster)."""
+    path = Path(flight_dir) / f"{view}.parquet"
+    if not path.exists():
+        raise DatasetError(f"{path}: missing; the flight has no {view} view")
+    try:
+        meta = compact.read_meta(path)
+        order = [n for n in meta["topics"] if names is None or n in names]
+        here = compact.read_topics(path, order, meta, arrays)
+        elsewhere: dict[str, list[str]] = {}
+        for n in order:
+            if n not in here and n in meta.get("reuse", {}):
+                elsewhere.setdefault(meta["reuse"][n], []).append(n)
+        for other, wanted in elsewhere.items():
+            here.update(compact.read_topics(Path(flight_dir) / f"{other}.parquet", wanted, arrays=arrays))
+    except compact.CompactError as exc:
+        raise DatasetError(str(exc)) from None
+    return {n: here[n] for n in order if n in here}
+
+
 def open_dataset(path: str | Path) -> Dataset:
     """Open a complete dataset (raises DatasetError naming the folder when it is not one)."""
     return Dataset(path)
 
 
 def append_flights(out: str | Path, records: Iterable[FlightRecord], fmt: str = "parquet",
-                   info: dict | None = None) -> Path:
+                   info: dict | None = None, layout: str | None = None) -> Path:
     """Add flights to the dataset at ``out`` (created when there is none), atomically.
 
     ``records`` may be a generator (one flight in memory at a time). A repeated flight id, or any
     error while the records are made or written, removes the flights written so far and leaves
     the dataset as it was; the manifest is replaced last, in one rename. Returns the manifest path.
     """
-    writer = DatasetWriter(out, fmt=fmt, info=info, append=True)
+    writer = DatasetWriter(out, fmt=fmt, info=info, append=True, layout=layout)
     try:
         for r in records:
             writer.write(r)

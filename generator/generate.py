@@ -10,7 +10,13 @@ from pathlib import Path
 import numpy as np
 
 from scart_bench.generator.attacks import attack_flights, strip_labels
-from scart_bench.generator.dataset import DatasetError, DatasetWriter, check_output_dir, replacing
+from scart_bench.generator.dataset import (
+    DatasetError,
+    DatasetWriter,
+    check_layout,
+    check_output_dir,
+    replacing,
+)
 from scart_bench.generator.effect import field_stds
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.records import normal_record
@@ -45,13 +51,17 @@ def versions() -> dict[str, str]:
 def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "parquet",
                      n_normal: int | None = None, overwrite: bool = False, with_attacks: bool = True,
                      config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
-                     scenarios: str | Path | None = None) -> Path:
+                     scenarios: str | Path | None = None, layout: str | None = None) -> Path:
     """Generate a complete dataset; returns its folder. The manifest is written last.
+
+    ``layout``: "compact" (default for Parquet) or "paper" (the paper's per-topic files; the
+    default for CSV); see generator.dataset.
 
     ``scenarios``: a scenario, grid or sweep file that replaces the profile's grid for the
     attacked flights (both modes); it is validated before anything is flown.
     """
     prof = get_profile(profile)
+    layout = check_layout(fmt, layout)
     if scenarios is not None:
         load_configurations(scenarios)  # bad files fail here, before any work
         prof = dataclasses.replace(prof, scenario_grid=str(Path(scenarios).resolve()))
@@ -75,14 +85,16 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     # write into a hidden sibling folder and move it into place at the end: an interrupted
     # generation leaves nothing at ``out``, and an existing dataset stays until the new one is done
     with replacing(out) as partial:
-        _write_all(partial, prof, cfg, config_dict, seeds, split_of, count, seed, fmt, with_attacks, log)
+        _write_all(partial, prof, cfg, config_dict, seeds, split_of, count, seed, fmt, with_attacks, log,
+                   layout)
     return out
 
 
 def _write_all(partial: Path, prof: Profile, cfg: FlightConfig, config_dict: dict, seeds: list[int],
-               split_of: list[str], count: int, seed: int, fmt: str, with_attacks: bool, log) -> None:
+               split_of: list[str], count: int, seed: int, fmt: str, with_attacks: bool, log,
+               layout: str | None = None) -> None:
     # one worker process writes flights while this one simulates the next batch
-    writer = DatasetWriter(partial, fmt=fmt, workers=1,
+    writer = DatasetWriter(partial, fmt=fmt, workers=1, layout=layout,
                            info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions()})
     try:
         _fly_and_write(writer, prof, cfg, config_dict, seeds, split_of, count, seed, with_attacks, log)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import DatasetError
+from scart_bench.generator.dataset import DatasetError, read_view
 
 logger = logging.getLogger(__name__)
 
@@ -538,13 +538,18 @@ def _stem(path: Path) -> str:
 
 
 def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.DataFrame]:
+    if (path / "navigator.parquet").exists():  # the compact layout: every topic in one file
+        raw = {}
+        for stem, df in read_view(path, "navigator").items():
+            raw.update(_frame_topics(df, path / "navigator.parquet", stem, False, split=False, unit="us"))
+        return _finish(raw, path, topics, origin=0)
     folder = path / "sensors" / "navigator"
     if not folder.is_dir():
         hint = ""
         if (path / "manifest.parquet").exists() or (path / "manifest.csv").exists():
             hint = f"; this is a dataset: pass one flight folder, e.g. {path / 'flights' / '<flight_id>'}"
         raise DatasetError(f"{path}: a folder must be a scart-bench flight folder containing "
-                           f"sensors/navigator/<topic>.parquet|csv{hint}")
+                           f"navigator.parquet or sensors/navigator/<topic>.parquet|csv{hint}")
     files: dict[str, Path] = {}
     for p in sorted(folder.iterdir()):
         suffix = p.suffix.lower()

@@ -20,6 +20,7 @@ from scart_bench.generator.dataset import (
     DatasetError,
     DatasetWriter,
     append_flights,
+    check_layout,
     check_output_dir,
     flight_record,
     is_dataset,
@@ -125,7 +126,8 @@ def auto_splits(ids: list[str], seed: int) -> list[str]:
 
 def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", topics: list[str] | None = None,
                 start_s: float | None = None, end_s: float | None = None, seed: int = 0, fmt: str = "parquet",
-                allow_corrupt: bool = False, say: Callable[[str], None] | None = None) -> list[str]:
+                allow_corrupt: bool = False, say: Callable[[str], None] | None = None,
+                layout: str | None = None) -> list[str]:
     """Add logs to dataset ``out`` (created if missing) as normal flights; returns their ids.
 
     Each log (trimmed to ``[start_s, end_s)`` if given) becomes one flight whose navigator and
@@ -161,7 +163,7 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
                                 {"mode": "normal", "split": sp, "seed": seed, "source_flight": str(p)},
                                 json.loads(json.dumps(config, default=str)))
 
-    append_flights(out, records(), fmt=fmt, info={"profile": "own-logs", "seed": seed})
+    append_flights(out, records(), fmt=fmt, info={"profile": "own-logs", "seed": seed}, layout=layout)
     return ids
 
 
@@ -221,13 +223,14 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
 
 def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",
                 seed: int = 0, overwrite: bool = False, topics: list[str] | None = None,
-                allow_corrupt: bool = False) -> Path:
+                allow_corrupt: bool = False, layout: str | None = None) -> Path:
     """Replay ``input_path`` (CSV, ULog, Parquet or a dataset flight folder) through the scenario(s).
 
     A scenario file's scenarios are applied together to one attacked copy; a grid or sweep file
     gives one attacked copy per configuration. Everything is validated before anything is written.
     """
     input_path, out = Path(input_path), Path(out)
+    check_layout(fmt, layout)
     check_output_dir(out, overwrite=overwrite)
     jobs = load_configurations(Path(scenario_path), check_topics=False)
     _refuse_physical(jobs, scenario_path)
@@ -247,7 +250,7 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     # built beside ``out`` and moved into place when complete: --overwrite never loses the old
     # dataset to a failure (a full disk) half-way
     with replacing(out) as partial:
-        writer = DatasetWriter(partial, fmt=fmt,
+        writer = DatasetWriter(partial, fmt=fmt, layout=layout,
                                info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_path)})
         for job, result in zip(jobs, results):
             config = json.loads(json.dumps({"input": str(input_path), "input_origin_us": origins}, default=str))

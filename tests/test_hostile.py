@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from run_fixtures import plugin, write_dataset
 
@@ -120,10 +122,12 @@ def test_changed_flight_tables_change_the_run_identity(tmp_path, dataset, capsys
     args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(ds), "--out", str(out), "--resume"]
     assert main(args) == 0
     assert main(args) == 0  # same tables (a copy keeps the fingerprint): resumes
-    table = next((ds / "flights" / "normal-004").rglob("*most_frequent*.parquet"))
-    df = pd.read_parquet(table)
-    df.iloc[5, -1] = df.iloc[5, -1] + 1.0
-    df.to_parquet(table, index=False)
+    view = ds / "flights" / "normal-004" / "navigator.parquet"  # the compact layout: one file per view
+    table = pq.read_table(view)
+    last = table.column(table.num_columns - 1).to_numpy(zero_copy_only=False).copy()
+    last[-1] += 1.0
+    table = table.set_column(table.num_columns - 1, table.schema.field(table.num_columns - 1), pa.array(last))
+    pq.write_table(table, view)  # the schema keeps the flight's metadata: still a readable flight
     assert main(args) == 2
     assert "dataset_fingerprint" in capsys.readouterr().err
 
@@ -377,12 +381,12 @@ def test_csv_dataset_ids_read_back_as_text(tmp_path):
 def test_a_damaged_flight_table_stops_the_run_before_anything_is_written(tmp_path, dataset, capsys):
     ds = tmp_path / "ds"
     shutil.copytree(dataset, ds)
-    table = ds / "flights" / "sim-001" / "combined" / "navigator_most_frequent.parquet"
+    table = ds / "flights" / "sim-001" / "navigator.parquet"
     table.write_bytes(table.read_bytes()[:100])
     out = tmp_path / "run"
     assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(ds), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "navigator_most_frequent.parquet: unreadable" in err and "sim-001" in err, err
+    assert "sim-001/navigator.parquet: unreadable" in err and "regenerate or remove flight 'sim-001'" in err, err
     assert not out.exists()
 
 

@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scart_bench.generator.dataset import DatasetError, DatasetWriter, FlightRecord, combine, label_rows
+from scart_bench.generator.compact import float32_safe
+from scart_bench.generator.dataset import DatasetError, DatasetWriter, FlightRecord, combine, label_rows, open_dataset
 from scart_bench.generator.importers import (
     TIME_COLUMNS,
     load_flight_file,
@@ -202,23 +203,31 @@ def test_combined_table_split(tmp_path, fmt):
         assert loaded[name].attrs["empty_rows_dropped"] == len(table) - len(df)
 
 
-@pytest.mark.parametrize("fmt", ["parquet", "csv"])
-def test_flight_folder_round_trip(tmp_path, fmt):
+@pytest.mark.parametrize("fmt,layout", [("parquet", "paper"), ("csv", "paper"), ("parquet", "compact")])
+def test_flight_folder_round_trip(tmp_path, fmt, layout):
     nav = _synthetic_topics(1)
     windows = [(3_000_000, 5_000_000)]
     for df in nav.values():
         df["Is_Anomaly"] = label_rows(df["Timestamp"].to_numpy(), windows)
     record = FlightRecord("f0001", navigator=nav, simulator=_synthetic_topics(2), manifest={"mode": "csv"},
                           config={}, windows=windows)
-    writer = DatasetWriter(tmp_path / "ds", fmt=fmt)
+    writer = DatasetWriter(tmp_path / "ds", fmt=fmt, layout=layout)
     writer.write(record)
     writer.close()
     flight = tmp_path / "ds" / "flights" / "f0001"
     loaded = load_flight_file(flight)
     for name, df in _expected(nav).items():
-        pd.testing.assert_frame_equal(loaded[name], df, check_exact=True)
+        if layout == "compact":  # fields other than latitude/longitude are kept as float32
+            df = df.astype({c: np.float32 for c in df.columns if float32_safe(name, c)}).astype(
+                {c: np.float64 for c in df.columns if float32_safe(name, c)})
+            assert all(not float32_safe(name, c) for c in ("lat", "lon")) and "Timestamp" in df
+        pd.testing.assert_frame_equal(loaded[name], df, check_exact=True)  # lat/lon bit-exact
     # the combined table of the same flight splits back into the same topics
-    combined = load_flight_file(flight / "combined" / f"navigator_all_sensors.{fmt}")
+    combined_path = flight / "combined" / f"navigator_all_sensors.{fmt}"
+    if layout == "compact":
+        combined_path = tmp_path / "all_sensors.parquet"
+        open_dataset(tmp_path / "ds").flight("f0001", table="all_sensors").to_parquet(combined_path)
+    combined = load_flight_file(combined_path)
     for name in nav:
         pd.testing.assert_frame_equal(combined[name], loaded[name], check_exact=True)
     assert list(load_flight_file(flight, topics=["attitude"])) == ["attitude"]
