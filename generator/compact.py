@@ -31,8 +31,7 @@ META_KEY = b"scart_bench"
 #: Bumped when the compact file's layout changes; a reader refuses newer versions.
 COMPACT_VERSION = 1
 SHARED_COLUMNS = ("Timestamp", "Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
-#: Topics whose fields keep float64 throughout (true state, twins: kept exact for impact figures are
-#: computed before writing, so float32 would do; the truth is small, so it stays exact).
+#: Quantities that keep float64: float32 would round a latitude or longitude to about a metre.
 _WIDE_QUANTITIES = ("latitude", "longitude")
 
 

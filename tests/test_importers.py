@@ -12,7 +12,14 @@ import pandas as pd
 import pytest
 
 from scart_bench.generator.compact import float32_safe
-from scart_bench.generator.dataset import DatasetError, DatasetWriter, FlightRecord, combine, label_rows, open_dataset
+from scart_bench.generator.dataset import (
+    DatasetError,
+    DatasetWriter,
+    FlightRecord,
+    combine,
+    label_rows,
+    open_dataset,
+)
 from scart_bench.generator.importers import (
     TIME_COLUMNS,
     load_flight_file,

@@ -1,0 +1,121 @@
+"""The compact dataset layout: the same flights as the paper's layout, in a tenth of the disk and files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from scart_bench.benchmark.cli import main
+from scart_bench.generator.compact import COMPACT_VERSION, META_KEY, float32_safe
+from scart_bench.generator.dataset import DatasetError, append_flights, open_dataset
+from scart_bench.generator.generate import generate_dataset
+
+
+@pytest.fixture(scope="module")
+def both_layouts(tmp_path_factory):
+    root = tmp_path_factory.mktemp("layouts")
+    out = {}
+    for layout in ("paper", "compact"):
+        out[layout] = generate_dataset("quick", root / layout, seed=11, n_normal=3, with_attacks=False,
+                                       layout=layout)
+    return out
+
+
+def _files(path):
+    return [p for p in path.rglob("*") if p.is_file()]
+
+
+def test_compact_flights_read_back_as_the_papers_within_float32(both_layouts):
+    paper, compact = open_dataset(both_layouts["paper"]), open_dataset(both_layouts["compact"])
+    assert paper.info["layout"] == "paper" and compact.info["layout"] == "compact"
+    pd.testing.assert_frame_equal(paper.manifest, compact.manifest)
+    for fid in paper.manifest["flight_id"]:
+        assert not paper.is_compact(fid) and compact.is_compact(fid)
+        for view in ("navigator", "simulator"):
+            assert paper.topics(fid, view) == compact.topics(fid, view)
+            for topic in paper.topics(fid, view):
+                a, b = paper.topic(fid, topic, view), compact.topic(fid, topic, view)
+                assert list(a.columns) == list(b.columns)
+                for col in a.columns:
+                    if float32_safe(topic, col):  # float32 on disk: exactly its float32 value
+                        assert np.array_equal(a[col].to_numpy(np.float32), b[col].to_numpy(np.float32), equal_nan=True)
+                    else:  # time, labels, latitude and longitude: bit-exact
+                        pd.testing.assert_series_equal(a[col], b[col], check_exact=True)
+            for table in ("most_frequent", "all_sensors"):
+                a, b = paper.flight(fid, view, table), compact.flight(fid, view, table)
+                assert list(a.columns) == list(b.columns) and len(a) == len(b)
+                pd.testing.assert_frame_equal(a, b, check_exact=False, rtol=1e-6, atol=1e-5)
+                for col in ("Timestamp", "Is_Anomaly", "global_position_int.lat", "gps_raw_int.lon"):
+                    pd.testing.assert_series_equal(a[col], b[col], check_exact=True)
+
+
+def test_compact_layout_is_a_fraction_of_the_files_and_bytes(both_layouts):
+    paper, compact = _files(both_layouts["paper"]), _files(both_layouts["compact"])
+    per_flight = {k: len(_files(both_layouts[k] / "flights" / "normal-0000")) for k in both_layouts}
+    assert per_flight == {"paper": 25, "compact": 4}, per_flight  # raw/config.json, raw/events.csv, 2 views
+    size = {k: sum(p.stat().st_size for p in v) for k, v in (("paper", paper), ("compact", compact))}
+    assert size["compact"] * 6 < size["paper"], size
+    # a normal flight's simulator view is the navigator's plus the true state: only the truth is stored
+    meta = json.loads(pq.read_schema(both_layouts["compact"] / "flights" / "normal-0000" / "simulator.parquet")
+                      .metadata[META_KEY])
+    assert [s["name"] for s in meta["stored"]] == ["truth"] and "attitude" in meta["reuse"]
+
+
+def test_attacked_views_are_stored_where_they_differ(quick_dataset):
+    ds = open_dataset(quick_dataset)
+    m = ds.manifest
+    fid = m.loc[(m["mode"] == "simulation") & (m["injection_point"] == "link"), "flight_id"].iloc[0]
+    meta = json.loads(pq.read_schema(ds.flight_dir(fid) / "simulator.parquet").metadata[META_KEY])
+    stored = {s["name"] for s in meta["stored"]}
+    assert {"truth", "twin_truth"} <= stored
+    # the link attack altered what the navigator received, not what the flight controller sent
+    target = str(m.loc[m["flight_id"] == fid, "target"].iloc[0])
+    nav, sim = ds.flight(fid, "navigator"), ds.flight(fid, "simulator")
+    changed = [c for c in nav.columns if "." in c and not np.array_equal(nav[c], sim[c], equal_nan=True)]
+    assert changed and {c.split(".")[0] for c in changed} <= stored, (target, changed, stored)
+
+
+def test_same_seed_same_bytes(both_layouts, tmp_path):
+    again = generate_dataset("quick", tmp_path / "again", seed=11, n_normal=3, with_attacks=False)
+    for p in _files(again / "flights"):
+        assert p.read_bytes() == (both_layouts["compact"] / p.relative_to(again)).read_bytes(), p
+
+
+def test_layout_choices_and_old_datasets(both_layouts, tmp_path, capsys):
+    assert main(["generate", "--profile", "quick", "--flights", "2", "--normal-only", "--format", "csv",
+                 "--layout", "compact", "--out", str(tmp_path / "x")]) == 2
+    assert "layout 'compact' is Parquet only" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+    # flights appended to a paper-layout dataset keep its layout
+    ds = open_dataset(both_layouts["paper"])
+    from scart_bench.generator.dataset import flight_record
+
+    topics = {t: ds.topic("normal-0000", t) for t in ds.topics("normal-0000")}
+    target = tmp_path / "paper_copy"
+    import shutil
+
+    shutil.copytree(both_layouts["paper"], target)
+    append_flights(target, [flight_record("extra-1", topics, topics, {"mode": "normal", "split": "test"}, {})])
+    assert (target / "flights" / "extra-1" / "sensors" / "navigator").is_dir()
+    assert not open_dataset(target).is_compact("extra-1")
+
+
+def test_a_newer_or_foreign_view_file_is_refused_by_name(both_layouts, tmp_path):
+    import shutil
+
+    target = tmp_path / "ds"
+    shutil.copytree(both_layouts["compact"], target)
+    view = target / "flights" / "normal-0001" / "navigator.parquet"
+    table = pq.read_table(view)
+    meta = json.loads(table.schema.metadata[META_KEY])
+    meta["version"] = COMPACT_VERSION + 1
+    pq.write_table(table.replace_schema_metadata({META_KEY: json.dumps(meta).encode()}), view)
+    with pytest.raises(DatasetError, match=r"normal-0001/navigator\.parquet: written by a newer scart-bench"):
+        open_dataset(target).flight("normal-0001")
+    pd.DataFrame({"x": [1.0]}).to_parquet(view)
+    with pytest.raises(DatasetError, match=r"normal-0001/navigator\.parquet: not a scart-bench flight view"):
+        open_dataset(target).flight("normal-0001")
