@@ -36,6 +36,8 @@ from scart_bench.names import check_id, inside
 
 FORMATS = ("parquet", "csv")
 VIEWS = ("navigator", "simulator")
+#: Views with per-topic tables (``sensors/<view>/``); ``uorb`` only for flights generated with it.
+TOPIC_VIEWS = (*VIEWS, "uorb")
 TABLES = ("most_frequent", "all_sensors")
 MANIFEST_COLUMNS = (
     "flight_id", "mode", "scenario_id", "action", "target", "injection_point", "params", "seed",
@@ -59,7 +61,8 @@ class FlightRecord:
 
     ``navigator`` and ``simulator`` map topic name -> table (``Timestamp``, ``Is_Anomaly``,
     fields). ``windows`` are the attack windows ``[start_us, end_us)`` in which an action was
-    active; ``events`` is the attack event log (one dict per event).
+    active; ``events`` is the attack event log (one dict per event). ``uorb``: the flight's uORB
+    view (generator.uorb; topic -> table like the other views), written as ``sensors/uorb/`` when given.
     """
 
     flight_id: str
@@ -69,6 +72,7 @@ class FlightRecord:
     config: dict
     windows: list[tuple] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
+    uorb: dict[str, pd.DataFrame] | None = None
 
 
 #: Manifest values of a flight that does not set them (a normal flight, no attack).
@@ -415,6 +419,10 @@ def write_flight(out: Path, fmt: str, record: FlightRecord) -> dict:
             _write_table(df, root / "combined" / f"{view}_{table}", fmt)
             if view == "navigator" and table == "most_frequent":
                 n_rows = len(df)
+    if record.uorb is not None:  # topic tables only: the combined tables stay the link's
+        (root / "sensors" / "uorb").mkdir(parents=True, exist_ok=True)
+        for name, df in record.uorb.items():
+            _write_table(df, root / "sensors" / "uorb" / name, fmt)
     row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
     row["flight_id"] = record.flight_id
     row["rows"] = n_rows
@@ -498,12 +506,22 @@ class Dataset:
                                    f"flight {fid!r}") from None
 
     def topic(self, flight_id: str, topic: str, view: str = "navigator") -> pd.DataFrame:
-        """One topic table of one flight."""
+        """One topic table of one flight (``view`` navigator, simulator or uorb)."""
+        self._view_folder(flight_id, view)
         return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)
 
     def topics(self, flight_id: str, view: str = "navigator") -> list[str]:
+        """The topic names of one flight's view (navigator, simulator or uorb)."""
+        return sorted(p.stem for p in self._view_folder(flight_id, view).iterdir())
+
+    def _view_folder(self, flight_id: str, view: str) -> Path:
+        if view not in TOPIC_VIEWS:
+            raise DatasetError(f"view {view!r}: expected one of {TOPIC_VIEWS}")
         folder = self.flight_dir(flight_id) / "sensors" / view
-        return sorted(p.stem for p in folder.iterdir())
+        if not folder.is_dir():
+            hint = " (generated without the uORB view: scart-bench generate --uorb)" if view == "uorb" else ""
+            raise DatasetError(f"{folder}: flight {flight_id!r} has no {view} view{hint}")
+        return folder
 
     def events(self, flight_id: str) -> pd.DataFrame:
         return pd.read_csv(self.flight_dir(flight_id) / "raw" / "events.csv")
