@@ -187,6 +187,15 @@ OMITTED: dict[str, dict[str, str]] = {
 }
 
 
+#: Column patterns (``topic.field`` globs, as ``Detector.exclude`` / ``scart-bench run --exclude`` take them)
+#: whose values depend on where and with what vehicle a flight is flown, not on how it behaves: the
+#: absolute position and altitude, the local frame's origin, the barometer's absolute pressure,
+#: temperature and density (site elevation and weather), and the battery (the pack). Excluding them
+#: lets a detector fitted on generated flights (Zurich, a 4S pack) score a log flown elsewhere.
+SITE_DEPENDENT = ("*.lat", "*.lon", "*.alt", "vehicle_local_position.ref_*", "vehicle_air_data.*",
+                  "battery_status.*")
+
+
 def uorb_view(simulator: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
     """The uORB topics of one flight from its simulator-view tables (``Timestamp``, labels, fields).
 
