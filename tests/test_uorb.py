@@ -182,16 +182,25 @@ def test_a_detector_fitted_on_generated_uorb_views_scores_the_real_log(normal_fl
 
 
 def test_generate_uorb_writes_and_reads_the_view(tmp_path, capsys):
-    out = tmp_path / "ds"
-    assert main(["generate", "--out", str(out), "--flights", "2", "--normal-only", "--uorb", "--seed", "4"]) == 0
+    args = ["generate", "--flights", "2", "--normal-only", "--uorb", "--seed", "4", "--timing", "realistic"]
+    out, again = tmp_path / "ds", tmp_path / "again"
+    assert main([*args, "--out", str(out)]) == 0
+    assert main([*args, "--out", str(again)]) == 0
     ds = open_dataset(out)
+    for fid in ds.manifest["flight_id"]:  # same seed and options: the same uORB tables
+        for t in EXPECTED_TOPICS:
+            pd.testing.assert_frame_equal(ds.topic(fid, t, view="uorb"), open_dataset(again).topic(fid, t, view="uorb"))
     fid = ds.manifest["flight_id"].iloc[0]
     assert ds.topics(fid, "uorb") == sorted(EXPECTED_TOPICS)
     att = ds.topic(fid, "vehicle_attitude", view="uorb")
     assert list(att.columns) == ["Timestamp", *LABELS, "q_0", "q_1", "q_2", "q_3"]
     # the same as the view made from the written simulator view
-    sim = {t: ds.topic(fid, t, view="simulator") for t in ("attitude", "highres_imu")}
+    sim = {t: ds.topic(fid, t, view="simulator") for t in ("attitude", "highres_imu", "gps_raw_int")}
     pd.testing.assert_frame_equal(att, uorb_view(sim)["vehicle_attitude"])
+    # realistic timing: the simulator view's message times (GPS from its fix), kept
+    gps = ds.topic(fid, "vehicle_gps_position", view="uorb")
+    assert gps["Timestamp"].iloc[0] >= 3_000_000
+    assert np.array_equal(gps["Timestamp"], sim["gps_raw_int"]["Timestamp"])
     assert ds.config(fid)["flight_config"]["uorb"] is True
     # without the option there is no uORB view, and asking for it says so
     plain = tmp_path / "plain"
