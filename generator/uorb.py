@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import LABEL_COLUMNS, combine
+from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetError, combine
 from scart_bench.generator.rotation import quat_from_euler
 from scart_bench.generator.topics import HOME_ALT, HOME_LAT, HOME_LON, TOPICS
 
@@ -230,15 +230,15 @@ def uorb_table(topics: dict[str, pd.DataFrame], windows=(), base_topic: str = "s
     Only the uORB view's topics and fields are kept (an imported log's other topics and fields are
     dropped), resampled like a ``most_frequent`` combined table on ``base_topic``'s timestamps
     (each topic's last value at or before the row). ``windows``: attack windows for the labels.
-    Raises KeyError naming a uORB topic or field the flight lacks.
+    Raises DatasetError naming a uORB topic or field the flight lacks.
     """
     kept: dict[str, pd.DataFrame] = {}
     for name, topic in UORB_TOPICS.items():
         if name not in topics:
-            raise KeyError(f"uORB topic {name!r} missing; the flight has {sorted(topics)}")
+            raise DatasetError(f"uORB topic {name!r} missing; the flight has {sorted(topics)}")
         df = topics[name]
         missing = [f for f in topic.fields if f not in df.columns]
         if missing:
-            raise KeyError(f"uORB topic {name!r}: field(s) {missing} missing")
+            raise DatasetError(f"uORB topic {name!r}: field(s) {missing} missing")
         kept[name] = df[["Timestamp", *topic.fields]]
     return combine(kept, windows, base_topic=base_topic)["most_frequent"]
