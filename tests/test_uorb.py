@@ -210,3 +210,14 @@ def test_generate_uorb_writes_and_reads_the_view(tmp_path, capsys):
         ds.topics(ds.manifest["flight_id"].iloc[0], "uorb")
     with pytest.raises(DatasetError, match="view 'bogus'"):
         ds.topic(ds.manifest["flight_id"].iloc[0], "attitude", view="bogus")
+
+
+def test_a_flight_without_a_uorb_topic_is_refused_naming_it(attacked_views):
+    view = dict(attacked_views["normal"][2])
+    del view["vehicle_air_data"]
+    with pytest.raises(DatasetError, match="uORB topic 'vehicle_air_data' missing"):
+        uorb_table(view)
+    view = attacked_views["normal"][2] | {"battery_status": attacked_views["normal"][2]["battery_status"].drop(
+        columns=["remaining"])}
+    with pytest.raises(DatasetError, match=r"'battery_status': field\(s\) \['remaining'\] missing"):
+        uorb_table(view)
