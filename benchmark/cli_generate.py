@@ -55,7 +55,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=_log,
-                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout)
+                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
+                         uorb=args.uorb or None)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
@@ -122,6 +123,8 @@ def register(sub) -> None:
                    "flights (default: the profile's; see docs/realism.md)")
     g.add_argument("--timing", default=None, help="ideal | realistic: message timing of the written flights "
                    "(realistic: jitter, drops, late messages, GPS after its fix; default: the profile's)")
+    g.add_argument("--uorb", action="store_true", help="also write each flight's uORB view (sensors/uorb/: PX4 "
+                   "topic names, fields and units, to score real ULogs; see docs/own_logs.md)")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.set_defaults(func=cmd_generate)
 

@@ -46,6 +46,8 @@ FORMATS = ("parquet", "csv")
 #: per-topic and combined files (CSV, or Parquet on request)
 LAYOUTS = ("compact", "paper")
 VIEWS = ("navigator", "simulator")
+#: Views with per-topic tables (``sensors/<view>/``); ``uorb`` only for flights generated with it.
+TOPIC_VIEWS = (*VIEWS, "uorb")
 TABLES = ("most_frequent", "all_sensors")
 MANIFEST_COLUMNS = (
     "flight_id", "mode", "scenario_id", "action", "target", "injection_point", "params", "seed",
@@ -69,7 +71,8 @@ class FlightRecord:
 
     ``navigator`` and ``simulator`` map topic name -> table (``Timestamp``, ``Is_Anomaly``,
     fields). ``windows`` are the attack windows ``[start_us, end_us)`` in which an action was
-    active; ``events`` is the attack event log (one dict per event).
+    active; ``events`` is the attack event log (one dict per event). ``uorb``: the flight's uORB
+    view (generator.uorb; topic -> table like the other views), written as ``sensors/uorb/`` when given.
     """
 
     flight_id: str
@@ -79,6 +82,7 @@ class FlightRecord:
     config: dict
     windows: list[tuple] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
+    uorb: dict[str, pd.DataFrame] | None = None
 
 
 #: Manifest values of a flight that does not set them (a normal flight, no attack).
@@ -455,9 +459,8 @@ def check_layout(fmt: str, layout: str | None) -> str:
 
 def _views(record: FlightRecord) -> list[tuple[str, dict[str, pd.DataFrame]]]:
     views = [("navigator", record.navigator), ("simulator", record.simulator)]
-    extra = getattr(record, "uorb", None)
-    if extra:
-        views.append(("uorb", extra))
+    if record.uorb is not None:
+        views.append(("uorb", record.uorb))
     return views
 
 
@@ -617,8 +620,11 @@ class Dataset:
                                    f"flight {fid!r}") from None
 
     def topic(self, flight_id: str, topic: str, view: str = "navigator") -> pd.DataFrame:
-        """One topic table of one flight."""
+        """One topic table of one flight (``view`` navigator, simulator or uorb)."""
+        if view not in TOPIC_VIEWS:
+            raise DatasetError(f"view {view!r}: expected one of {TOPIC_VIEWS}")
         if not self.is_compact(flight_id):
+            self._view_folder(flight_id, view)
             return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)
         tables = read_view(self.flight_dir(flight_id), view, [topic])
         if topic not in tables:
@@ -626,13 +632,23 @@ class Dataset:
         return tables[topic]
 
     def topics(self, flight_id: str, view: str = "navigator") -> list[str]:
+        """The topic names of one flight's view (navigator, simulator or uorb)."""
+        if view not in TOPIC_VIEWS:
+            raise DatasetError(f"view {view!r}: expected one of {TOPIC_VIEWS}")
         if self.is_compact(flight_id):
             path = self.flight_dir(flight_id) / f"{view}.parquet"
             if not path.exists():
-                raise DatasetError(f"{path}: missing; flight {flight_id!r} has no {view} view")
+                hint = " (generated without the uORB view: scart-bench generate --uorb)" if view == "uorb" else ""
+                raise DatasetError(f"{path}: missing; flight {flight_id!r} has no {view} view{hint}")
             return sorted(compact.read_meta(path)["topics"])
+        return sorted(p.stem for p in self._view_folder(flight_id, view).iterdir())
+
+    def _view_folder(self, flight_id: str, view: str) -> Path:
         folder = self.flight_dir(flight_id) / "sensors" / view
-        return sorted(p.stem for p in folder.iterdir())
+        if not folder.is_dir():
+            hint = " (generated without the uORB view: scart-bench generate --uorb)" if view == "uorb" else ""
+            raise DatasetError(f"{folder}: flight {flight_id!r} has no {view} view{hint}")
+        return folder
 
     def events(self, flight_id: str) -> pd.DataFrame:
         return pd.read_csv(self.flight_dir(flight_id) / "raw" / "events.csv")
@@ -648,7 +664,8 @@ def read_view(flight_dir: Path, view: str, names: list[str] | None = None,
     ``arrays``: each topic as a dict of column arrays instead of a table (faster)."""
     path = Path(flight_dir) / f"{view}.parquet"
     if not path.exists():
-        raise DatasetError(f"{path}: missing; the flight has no {view} view")
+        hint = " (generated without the uORB view: scart-bench generate --uorb)" if view == "uorb" else ""
+        raise DatasetError(f"{path}: missing; the flight has no {view} view{hint}")
     try:
         meta = compact.read_meta(path)
         order = [n for n in meta["topics"] if names is None or n in names]

@@ -53,6 +53,8 @@ class FlightConfig:
     mission: MissionParams = field(default_factory=MissionParams)
     #: how the written messages are stamped: "ideal" or "realistic" (generator.timing; after flying)
     timing: str = "ideal"
+    #: also write the uORB view (PX4 topic names and units, generator.uorb) of each flight; after flying
+    uorb: bool = False
 @dataclass
 class BatchResult:
     """Recorded messages of a batch of flights.
@@ -72,6 +74,7 @@ class BatchResult:
     gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
     n_steps: int
     timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.records)
+    uorb: bool = False  # FlightConfig.uorb: the records carry the uORB view (generator.uorb)
 
     def __len__(self) -> int:
         return len(self.seeds)

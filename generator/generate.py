@@ -51,14 +51,17 @@ def versions() -> dict[str, str]:
 def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "parquet",
                      n_normal: int | None = None, overwrite: bool = False, with_attacks: bool = True,
                      config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
-                     scenarios: str | Path | None = None, layout: str | None = None) -> Path:
+                     scenarios: str | Path | None = None, layout: str | None = None,
+                     uorb: bool | None = None) -> Path:
     """Generate a complete dataset; returns its folder. The manifest is written last.
 
     ``layout``: "compact" (default for Parquet) or "paper" (the paper's per-topic files; the
     default for CSV); see generator.dataset.
 
     ``scenarios``: a scenario, grid or sweep file that replaces the profile's grid for the
-    attacked flights (both modes); it is validated before anything is flown.
+    attacked flights (both modes); it is validated before anything is flown. ``uorb``: also write
+    each flight's uORB view (``sensors/uorb/``, generator.uorb); None keeps ``config``'s
+    ``FlightConfig.uorb`` (False by default), whatever the profile.
     """
     prof = get_profile(profile)
     layout = check_layout(fmt, layout)
@@ -70,6 +73,8 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     out = Path(out)
     check_output_dir(out, overwrite=overwrite)
     cfg = config or prof.flight_config()
+    if uorb is not None:
+        cfg = dataclasses.replace(cfg, uorb=bool(uorb))
     count = n_normal if n_normal is not None else prof.n_normal
     frac_train = prof.n_train / prof.n_normal
     frac_val = prof.n_validation / prof.n_normal

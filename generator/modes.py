@@ -12,7 +12,7 @@ import pandas as pd
 
 from scart_bench.generator.dataset import LABEL_COLUMNS, FlightRecord, flight_record, insert_labels
 from scart_bench.generator.effect import attack_effect
-from scart_bench.generator.records import flight_views
+from scart_bench.generator.records import flight_views, with_uorb
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.simulate import STEP_US, BatchResult, FlightConfig, simulate
@@ -59,8 +59,9 @@ def simulation_record(batch: BatchResult, layer: AttackLayer, i: int, flight_id:
     cfg = {**config, "seed": batch.seeds[i], "status": batch.status[i], "mode": "simulation",
            "scenarios": [s.to_dict() for s in scenarios], "wind_mean_ned": batch.wind[i].tolist(),
            "waypoints_ned": batch.waypoints[i].tolist()}
-    return flight_record(flight_id, nav, sim, scenario_manifest(scenarios, "simulation", batch.seeds[i]), cfg,
-                         windows, layer.event_log(i, end_us), end_us=end_us)
+    record = flight_record(flight_id, nav, sim, scenario_manifest(scenarios, "simulation", batch.seeds[i]), cfg,
+                           windows, layer.event_log(i, end_us), end_us=end_us)
+    return with_uorb(record, getattr(batch, "uorb", False))
 
 
 def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, scenarios: list[Scenario],
@@ -74,7 +75,9 @@ def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, s
     manifest = scenario_manifest(scenarios, "csv", seed, source=source_name)
     # compared with the source itself: what acts off the link changes nothing on a recording
     manifest.update(attack_effect(nav, source, windows, stds, "link"))
-    return flight_record(flight_id, nav, with_labels(source, windows), manifest, cfg, windows, events)
+    record = flight_record(flight_id, nav, with_labels(source, windows), manifest, cfg, windows, events)
+    # the flight controller's own topics are the recording's: a replayed link attack never reaches them
+    return with_uorb(record, bool(config.get("flight_config", {}).get("uorb", False)))
 
 
 def _same_schedule(flights: list[dict[str, pd.DataFrame]]) -> bool:

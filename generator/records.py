@@ -53,5 +53,15 @@ def normal_record(batch: BatchResult, i: int, flight_id: str, split: str, config
     nav, sim = flight_views(batch, i)
     cfg = {**config, "seed": batch.seeds[i], "status": batch.status[i],
            "wind_mean_ned": batch.wind[i].tolist(), "waypoints_ned": batch.waypoints[i].tolist()}
-    return flight_record(flight_id, nav, sim, {"mode": "normal", "seed": batch.seeds[i], "split": split}, cfg,
-                         end_us=(int(batch.exit_step[i]) + 1) * STEP_US)
+    record = flight_record(flight_id, nav, sim, {"mode": "normal", "seed": batch.seeds[i], "split": split}, cfg,
+                           end_us=(int(batch.exit_step[i]) + 1) * STEP_US)
+    return with_uorb(record, getattr(batch, "uorb", False))
+
+
+def with_uorb(record: FlightRecord, wanted: bool) -> FlightRecord:
+    """``record`` with its uORB view (made from its simulator view, generator.uorb) when ``wanted``."""
+    if wanted:
+        from scart_bench.generator.uorb import uorb_view
+
+        record.uorb = uorb_view(record.simulator)
+    return record

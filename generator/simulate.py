@@ -104,6 +104,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
     else:
         result = simulate_reference(seeds, cfg, layer, progress)
     result.timing = cfg.timing
+    result.uorb = cfg.uorb
     return result
 
 
