@@ -146,7 +146,8 @@ def test_monitor_scores_the_stream_like_the_batch_detector(loopback, live_datase
     monitor.flush()
     low.flush()
     stream = np.array([s for _, s in monitor.scores])
-    np.testing.assert_allclose(stream, batch[:len(stream)], rtol=1e-6, atol=1e-6)
+    # the stream holds the link's float64 values, the recorded dataset their float32 (compact layout)
+    np.testing.assert_allclose(stream, batch[:len(stream)], rtol=2e-5, atol=1e-5)
     assert len(stream) == (open_dataset(live_dataset).flight("live-001")["Timestamp"] <= until).sum()
     assert len(low.alarms) == len(stream)
     assert len(lines) == 1 and lines[0].startswith("ALARM statistical: t=0.00 s"), "logged once, at its onset"
