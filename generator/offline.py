@@ -67,6 +67,19 @@ def _refuse_physical(jobs, scenario_path) -> None:
                            "flight cannot replay; use them in simulation mode (scart-bench generate --scenarios)")
 
 
+#: Actions that need the closed loop: a recording has no flight controller to obey a forged command
+#: and no navigator to fly a tampered mission.
+CLOSED_LOOP_ACTIONS = ("inject_command", "mission_tamper")
+
+
+def _refuse_closed_loop(jobs, scenario_path) -> None:
+    names = sorted({n for j in jobs for sc in j for n, _ in sc.actions if n in CLOSED_LOOP_ACTIONS})
+    if names:
+        raise DatasetError(f"{scenario_path}: {', '.join(names)} act(s) on the flight controller or the navigator, "
+                           "which a recorded flight cannot replay; use them in simulation mode (scart-bench "
+                           "generate --scenarios); replay, flood and link_loss apply to recordings")
+
+
 def _start_conditions(job) -> str:
     """The start conditions of a configuration, for a message (``id: condition key=value``)."""
     parts = []
@@ -190,6 +203,7 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                            f"--split {sources[0]} (or --split auto)")
     jobs = load_configurations(Path(scenario_path), check_topics=False)
     _refuse_physical(jobs, scenario_path)
+    _refuse_closed_loop(jobs, scenario_path)
     flights = []
     for fid in rows["flight_id"].astype(str):
         tables = load_flight_file(ds.flight_dir(fid))
@@ -231,6 +245,7 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     check_output_dir(out, overwrite=overwrite)
     jobs = load_configurations(Path(scenario_path), check_topics=False)
     _refuse_physical(jobs, scenario_path)
+    _refuse_closed_loop(jobs, scenario_path)
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
     _validate(jobs, tables, str(input_path))
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))

@@ -37,6 +37,10 @@ class Action:
     random = False
     #: True for actions whose magnitudes are lengths: lat/lon are edited as metres (see module doc)
     metric = False
+    #: True for actions on whole messages in both directions of the link (telemetry and commands)
+    bidirectional = False
+    #: injection points the action can act at (empty: the scenario's own point)
+    points: tuple[str, ...] = ()
 
     def __init__(self, params: dict, fields: dict[str, tuple[int, ...]], field_names: dict[str, tuple[str, ...]]):
         self.params = params
@@ -45,6 +49,11 @@ class Action:
         self.v0: dict[str, np.ndarray] = {}
         self.v0_start: dict[str, np.ndarray] = {}
         self.n_since: dict[str, np.ndarray] = {}
+
+    @classmethod
+    def wildcard(cls, available: dict[str, tuple[str, ...]]) -> list[str]:
+        """The targets of ``target = ["*"]``: every topic that passes."""
+        return sorted(available)
 
     def lookback(self, topic: str, rate_hz: float) -> int:
         """Messages of history this action needs for ``topic``."""
@@ -397,3 +406,12 @@ ACTIONS: dict[str, type[Action]] = {
     a.name: a for a in (AddWhiteNoise, RandomChange, Duplicate, DisconnectSensor, AvgSensors, GpsSpoof, Off, Stuck,
                         Garbage, Wrong, Slow, Delayed, Intermittent, Bias, Scaling, Sinusoid, Drift)
 }
+
+
+def _register_link_actions() -> None:
+    from scart_bench.generator.scart.link_actions import LINK_ACTIONS
+
+    ACTIONS.update(LINK_ACTIONS)
+
+
+_register_link_actions()
