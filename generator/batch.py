@@ -394,8 +394,8 @@ class _Hooks:
                 vals, sp_ok, command, st.waypoints[:] = exchange(layer, h, t_us, sp.copy(), self.mission)
                 self.nav["setpoint"][m] = vals
                 self.nav_ok["setpoint"][m] = sp_ok
-                est_pos = st["est_x"].reshape(n, 3, 3)[:, :, 0]
-                vals, sp_ok, crashed = self.commander.step(h * DT, vals, sp_ok, command, est_pos,
+                est = st["est_x"].reshape(n, 3, 3)
+                vals, sp_ok, crashed = self.commander.step(h * DT, vals, sp_ok, command, est[:, :, 0], est[:, :, 1],
                                                            st["setpoint_in"][:, 3].copy(), st["armed"] > 0.5,
                                                            st["vel"][:, 2].copy(), st["on_ground"] > 0.5, st.done)
                 st["status"][crashed] = 2.0

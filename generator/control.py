@@ -64,6 +64,7 @@ class ControlParams:
     return_speed: float = 5.0  # MPC_XY_CRUISE
     land_speed: float = 0.7  # MPC_LAND_SPEED below 3 m (1.5 m/s above)
     crash_speed: float = 3.0  # m/s, true descent rate at touchdown that counts as a crash
+    brake_speed: float = 0.3  # m/s: a hold or land locks its position once slower than this
 
 
 def empty_command(n: int) -> np.ndarray:
@@ -95,29 +96,35 @@ class Commander:
         self.yaw = np.zeros(n)
         self.last_sp_t = np.zeros(n)  # time of the last setpoint delivered
         self.prev_vd = np.zeros(n)  # true descent rate at the previous call
+        self.vel = np.zeros((n, 3))  # estimated velocity at this call
+        self.braking = np.zeros(n, dtype=bool)  # slowing down before the hold position is locked
         self.home = np.asarray(home, dtype=float)[:, :2]
         self.land_speed = land_speed
         #: (flight, time s, command, accepted, reason) of every command received
         self.log: list[tuple[int, float, int, bool, str]] = []
 
     def _enter(self, rows: np.ndarray, mode: int, pos: np.ndarray, yaw: np.ndarray) -> None:
+        """Switch ``rows`` to ``mode``; a hold or land first brakes, then holds the point where it stopped
+        (PX4 locks the position once the vehicle has slowed down)."""
         self.mode[rows] = mode
         self.target[rows] = pos[rows]
+        self.braking[rows] = True
         self.yaw[rows] = yaw[rows]
 
     def step(self, t: float, sp: np.ndarray, sp_ok: np.ndarray, command: np.ndarray | None, est_pos: np.ndarray,
-             yaw_in: np.ndarray, armed: np.ndarray, true_vd: np.ndarray, on_ground: np.ndarray, done: np.ndarray
+             est_vel: np.ndarray, yaw_in: np.ndarray, armed: np.ndarray, true_vd: np.ndarray, on_ground: np.ndarray, done: np.ndarray
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The setpoint the controllers use and whether it is new: (sp (N, 6), ok (N,), crashed (N,)).
 
         ``sp``/``sp_ok``: the setpoint that reached the flight controller; ``command``: (N, 10)
-        COMMAND_LONG rows (or None); ``est_pos`` (N, 3) its position estimate; ``yaw_in`` (N,) the
+        COMMAND_LONG rows (or None); ``est_pos``/``est_vel`` (N, 3) its position and velocity estimates; ``yaw_in`` (N,) the
         yaw setpoint in use (kept by the commander's own modes); ``armed`` (N,) its
         armed state before this setpoint; ``true_vd``/``on_ground``: the vehicle's true descent rate
         and ground contact (for the impact check only); ``done``: flights that have ended.
         """
         p = self.p
         live = ~done
+        self.vel = np.asarray(est_vel, dtype=float)
         sp_ok = np.asarray(sp_ok, dtype=bool)
         yaw_now = np.asarray(yaw_in, dtype=float)
         self.last_sp_t[sp_ok & live] = t
@@ -138,6 +145,9 @@ class Commander:
         back = regained & ((self.mode == HOLD) | p.resume_after_action)
         self.mode[back] = OFFBOARD
         self.failsafe[back] = False
+        settled = self.braking & (np.hypot(self.vel[:, 0], self.vel[:, 1]) < p.brake_speed)
+        self.target[settled, :2] = est_pos[settled, :2]
+        self.braking &= ~settled
         # the setpoint the controllers use
         out = np.array(sp, dtype=float, copy=True)
         ok = sp_ok.copy()
@@ -157,7 +167,7 @@ class Commander:
         out = sp.copy()
         alt = -pos[:, 2]
         d = self.target[:, :2] - pos[:, :2]
-        hold_v = np.clip(1.0 * d, -p.return_speed, p.return_speed)
+        hold_v = np.where(self.braking[:, None], 0.0, np.clip(1.0 * d, -p.return_speed, p.return_speed))
         vz_hold = np.clip(1.0 * (self.target[:, 2] - pos[:, 2]), -2.5, 1.5)
         descend = np.where(alt > 3.0, 1.5, self.land_speed)
         # return: climb to the return altitude, fly home, then land there
@@ -204,6 +214,7 @@ class Commander:
             elif number == MAV_CMD_DO_REPOSITION:
                 x, y = latlon_to_ned(np.array([c[5]]), np.array([c[6]]))
                 self._enter(rows, GOTO, pos, yaw)
+                self.braking[i] = False
                 self.target[i] = (x[0], y[0], -(c[7] - HOME_ALT))
                 self.failsafe[i] = False
                 self.log.append((int(i), t, number, True, "reposition"))

@@ -289,7 +289,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
                 nav_rec.add("setpoint", step, sp_vals, sp_ok)
             ok = np.ones(n, bool) if sp_ok is None else sp_ok
             if commander is not None:
-                sp_vals, ok, crashed = commander.step(t, sp_vals, ok, command, es.x[:, :, 0], setpoint_in[:, 3],
+                sp_vals, ok, crashed = commander.step(t, sp_vals, ok, command, es.x[:, :, 0], es.x[:, :, 1],
+                                                      setpoint_in[:, 3],
                                                       cs.armed, vs.vel[:, 2], vs.on_ground, done)
                 status[crashed] = "crashed"
                 cs.disarmed_after_flight |= crashed

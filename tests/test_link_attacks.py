@@ -1,0 +1,149 @@
+"""Attacks on the control link: forged commands, mission tampering, link loss, replay and flooding.
+
+The flight controller reacts as PX4 would (generator.control); the navigator sees what reaches it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from scart_bench.generator.control import ControlParams
+from scart_bench.generator.scart.layer import AttackLayer
+from scart_bench.generator.scart.scenario import scenario_from_dict
+from scart_bench.generator.scart.spec import ScenarioError
+from scart_bench.generator.simulate import FlightConfig, simulate
+
+#: The attacks start at 14 s: the vehicle is on the first leg of the square (at 10 m).
+START_S = 14.0
+
+
+def _sc(sid: str, point: str, action: dict, end_s: float | None = None, start_s: float = START_S):
+    table = {"id": sid, "injection_point": point, "start": [{"condition": "time_window", "start_s": start_s}],
+             "actions": [action]}
+    if end_s is not None:
+        table["end"] = [{"condition": "duration", "seconds": end_s}]
+    return scenario_from_dict(table)
+
+
+CASES = {
+    "normal": None,
+    "disarm": _sc("disarm", "command", {"action": "inject_command", "command": "disarm"}),
+    "disarm_wrong_system": _sc("disarm-other", "command",
+                               {"action": "inject_command", "command": "disarm", "target_system": 2}),
+    "disarm_no_force": _sc("disarm-noforce", "command", {"action": "inject_command", "command": "disarm",
+                                                         "force": False}),
+    "land": _sc("land", "command", {"action": "inject_command", "command": "land"}),
+    "return": _sc("rtl", "command", {"action": "inject_command", "command": "set_mode", "mode": "return"}),
+    "tamper": _sc("tamper", "command", {"action": "mission_tamper", "item": 2, "shift_m": 20.0,
+                                        "direction_deg": 0.0}, start_s=0.0),
+    "loss": _sc("loss", "link", {"action": "link_loss"}, end_s=5.0),
+}
+
+
+@pytest.fixture(scope="module")
+def flown():
+    names = list(CASES)
+    seeds = [11] * len(names)
+    layer = AttackLayer([[CASES[k]] if CASES[k] else [] for k in names], seeds)
+    batch = simulate(seeds, FlightConfig(), layer=layer)
+    return {k: i for i, k in enumerate(names)}, batch, layer
+
+
+def _truth(batch, i):
+    steps, vals, _ = batch.simulator["truth"]
+    last = np.searchsorted(steps, batch.exit_step[i], side="right")
+    return steps[:last] / 250.0, vals[i, :last]
+
+
+def test_a_forged_disarm_in_flight_makes_the_vehicle_fall_and_crash(flown):
+    idx, batch, _ = flown
+    i = idx["disarm"]
+    assert batch.status[i] == "crashed"
+    t, tr = _truth(batch, i)
+    after = t >= START_S
+    assert tr[after, 9][5:].max() == 0.0, "motors off (disarmed) after the forged command"
+    assert tr[after, 5].max() > 8.0, "free fall from 10 m: over 8 m/s down before impact"
+    assert batch.exit_step[i] / 250.0 < START_S + 3.0
+
+
+def test_a_forged_command_is_refused_unless_it_would_be_accepted(flown):
+    """Wrong target system, or a disarm in the air without PX4's force code: the mission goes on."""
+    idx, batch, _ = flown
+    for case in ("disarm_wrong_system", "disarm_no_force"):
+        i = idx[case]
+        assert batch.status[i] == "landed", case
+        assert batch.exit_step[i] == batch.exit_step[idx["normal"]], case
+
+
+def test_a_forged_land_lands_short_of_the_mission(flown):
+    idx, batch, _ = flown
+    i, n = idx["land"], idx["normal"]
+    assert batch.status[i] == "landed"
+    t, tr = _truth(batch, i)
+    assert t[-1] < START_S + 15.0 < _truth(batch, n)[0][-1]
+    home_dist = np.hypot(*tr[-1, :2])
+    assert home_dist > 8.0, "it landed where it was, not at home"
+    assert tr[:, 0].max() < 35.0, "it never reached the second corner (40 m north)"
+
+
+def test_a_forged_return_flies_home_without_the_rest_of_the_mission(flown):
+    idx, batch, _ = flown
+    t, tr = _truth(batch, idx["return"])
+    assert batch.status[idx["return"]] == "landed"
+    assert np.hypot(*tr[-1, :2]) < 2.0
+    assert _closest(tr, batch.waypoints[idx["return"], 3]) > 10.0, "it never flew the rest of the square"
+
+
+def _closest(tr, item) -> float:
+    return float(np.hypot(tr[:, 0] - item[0], tr[:, 1] - item[1]).min())
+
+
+def test_a_mission_tamper_moves_a_corner_and_the_true_path_goes_there(flown):
+    idx, batch, _ = flown
+    corner = batch.waypoints[idx["tamper"], 2, :2] + (20.0, 0.0)  # item 2 moved 20 m north
+    for case, near in (("tamper", True), ("normal", False)):
+        _, tr = _truth(batch, idx[case])
+        d = np.hypot(tr[:, 0] - corner[0], tr[:, 1] - corner[1]).min()
+        assert (d < 2.0) == near, (case, d)
+    np.testing.assert_array_equal(batch.waypoints[idx["tamper"]], batch.waypoints[idx["normal"]])
+
+
+def test_a_5s_link_loss_holds_then_resumes_the_mission(flown):
+    """PX4 defaults: no setpoint for COM_OF_LOSS_T = 1 s -> hold; the link is back before
+    COM_DL_LOSS_T = 10 s, so the mission computer re-engages offboard and finishes the mission."""
+    idx, batch, layer = flown
+    i = idx["loss"]
+    t, tr = _truth(batch, i)
+    (s, e), = layer.windows(i, 10**12)
+    assert (e - s) / 1e6 == pytest.approx(5.0, abs=0.05)
+    holding = (t >= s / 1e6 + 3.0) & (t < e / 1e6)  # 1 s to the failsafe, then braking
+    spread = np.ptp(tr[holding, :2], axis=0)
+    assert spread.max() < 1.5, f"the vehicle holds its position during the loss (moved {spread})"
+    assert batch.status[i] == "landed"
+    corner3 = batch.waypoints[i, 3, :2]
+    assert np.hypot(tr[:, 0] - corner3[0], tr[:, 1] - corner3[1]).min() < 2.0, "the mission resumed"
+    nav_ok = batch.navigator["local_position_ned"][2][i]
+    steps = batch.navigator["local_position_ned"][0] * 4000
+    lost = (steps >= s) & (steps < e)
+    assert not nav_ok[lost].any() and nav_ok[~lost][: np.searchsorted(steps, e)].sum() > 0
+
+
+def test_a_5s_link_loss_returns_when_the_datalink_timeout_is_shorter():
+    """COM_DL_LOSS_T = 3 s, NAV_DLL_ACT = return: the vehicle flies home and lands, mission unfinished."""
+    cfg = dataclasses.replace(FlightConfig(), control=ControlParams(datalink_loss_s=3.0))
+    layer = AttackLayer([[CASES["loss"]]], [11])
+    batch = simulate([11], cfg, layer=layer)
+    t, tr = _truth(batch, 0)
+    assert batch.status[0] == "landed"
+    assert np.hypot(*tr[-1, :2]) < 2.0
+    assert _closest(tr, batch.waypoints[0, 3]) > 10.0, "it never flew the rest of the square"
+
+
+def test_inject_command_and_mission_tamper_only_at_the_command_point():
+    with pytest.raises(ScenarioError, match="command_long"):
+        _sc("x", "link", {"action": "inject_command", "command": "land"})
+    with pytest.raises(ScenarioError, match="mission"):
+        _sc("x", "command", {"action": "mission_tamper", "target": ["setpoint"]})
