@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from scart_bench.generator.control import ControlParams
+from scart_bench.generator.params import MissionParams
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import scenario_from_dict
 from scart_bench.generator.scart.spec import ScenarioError
@@ -147,3 +148,113 @@ def test_inject_command_and_mission_tamper_only_at_the_command_point():
         _sc("x", "link", {"action": "inject_command", "command": "land"})
     with pytest.raises(ScenarioError, match="mission"):
         _sc("x", "command", {"action": "mission_tamper", "target": ["setpoint"]})
+
+
+@pytest.fixture(scope="module")
+def replay_flood():
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=22.0))
+    replay = _sc("replay", "link", {"action": "replay", "span_s": 2.0}, end_s=4.0, start_s=12.0)
+    flood = _sc("flood", "link", {"action": "flood", "rate_hz": 150.0}, end_s=4.0, start_s=12.0)
+    layer = AttackLayer([[replay], [flood], []], [5, 5, 5])
+    return simulate([5, 5, 5], cfg, layer=layer), layer
+
+
+def _window(layer, i):
+    (s, e), = layer.windows(i, 10**12)
+    return s, e
+
+
+@pytest.mark.parametrize("topic", ["local_position_ned", "attitude", "setpoint"])
+def test_replay_feeds_the_captured_span_again_exactly_in_the_labelled_rows(replay_flood, topic):
+    """The navigator (telemetry) and the flight controller (setpoints) receive, inside the window,
+    the messages of the 2 s before it, in a loop; outside it, what was sent."""
+    batch, layer = replay_flood
+    s, e = _window(layer, 0)
+    steps, sent, _ = batch.simulator[topic]
+    _, got, ok = batch.navigator[topic]
+    t_us = steps * 4000
+    inside = (t_us >= s) & (t_us < e)
+    assert ok[0].all()
+    np.testing.assert_array_equal(got[0, ~inside], sent[0, ~inside])
+    src = s - 2_000_000 + np.mod(t_us[inside] - s, 2_000_000)
+    j = np.searchsorted(t_us, src, side="right") - 1
+    np.testing.assert_array_equal(got[0, inside], sent[0, j])
+    changed = np.any(got[0] != sent[0], axis=1)
+    assert changed[inside].mean() > 0.9 and not changed[~inside].any()
+
+
+def test_flood_delays_then_drops_real_messages_exactly_in_the_labelled_rows(replay_flood):
+    """150 frames/s of 53 bytes on a 5760 B/s link half used: the queue grows 0.88 s per second up
+    to 1 s; each real message carries the value sent that long before, and once the queue is full
+    about half of them (1 / 1.88) get through."""
+    batch, layer = replay_flood
+    s, e = _window(layer, 1)
+    steps, sent, _ = batch.simulator["local_position_ned"]
+    _, got, ok = batch.navigator["local_position_ned"]
+    t_us = steps * 4000
+    inside = (t_us >= s) & (t_us < e)
+    np.testing.assert_array_equal(got[1, ~inside], sent[1, ~inside])
+    assert ok[1, ~inside].all()
+    overload = 150.0 * 53.0 / 5760.0 + 0.5
+    delay = np.round(np.minimum((t_us[inside] - s) / 1e6 * (overload - 1.0), 1.0) * 1e6).astype(np.int64)
+    j = np.searchsorted(t_us, t_us[inside] - delay, side="right") - 1
+    np.testing.assert_array_equal(got[1, inside], sent[1, j])
+    full = (t_us[inside] - s) / 1e6 * (overload - 1.0) >= 1.0
+    assert ok[1, inside][~full].all()
+    assert ok[1, inside][full].mean() == pytest.approx(1.0 / overload, abs=0.05)
+
+
+def test_replay_and_flood_on_a_recorded_flight_in_csv_mode(tmp_path):
+    """csv mode applies replay, flood and link loss to a recorded flight (nothing reacts); forged
+    commands and mission tampering need the closed loop and are refused with a clear error."""
+    from scart_bench.generator.dataset import DatasetError
+    from scart_bench.generator.offline import attack_file
+
+    log = tmp_path / "flight.csv"
+    t = np.arange(0, 20.0, 0.02)
+    import pandas as pd
+
+    pd.DataFrame({"timestamp": (t * 1e6).astype(np.int64), "x": np.sin(t), "y": np.cos(t), "z": -5.0 + 0 * t}
+                 ).to_csv(log, index=False)
+    for name, action in (("replay", {"action": "replay", "span_s": 2.0}), ("flood", {"action": "flood"}),
+                         ("loss", {"action": "link_loss"})):
+        sc = tmp_path / f"{name}.toml"
+        body = "\n".join(f"{k} = {v!r}".replace("'", '"') for k, v in action.items())
+        sc.write_text(f'[scenario]\nid = "{name}"\n[[scenario.start]]\ncondition = "time_window"\nstart_s = 8.0\n'
+                      f'[[scenario.end]]\ncondition = "duration"\nseconds = 4.0\n[[scenario.actions]]\n{body}\n')
+        out = tmp_path / name
+        attack_file(log, sc, out)
+        assert any(out.rglob("*")), name
+    sc = tmp_path / "disarm.toml"
+    sc.write_text('[scenario]\nid = "d"\ninjection_point = "command"\n[[scenario.actions]]\naction = "inject_command"\n')
+    with pytest.raises(DatasetError, match="inject_command.*simulation mode"):
+        attack_file(log, sc, tmp_path / "d")
+
+
+def test_csv_mode_replays_delays_and_drops_exactly_in_the_labelled_rows():
+    import pandas as pd
+
+    from scart_bench.generator.modes import csv_mode
+
+    t_us = np.arange(0, 20_000_000, 20_000)
+    table = pd.DataFrame({"Timestamp": t_us, "x": t_us / 1e6, "y": -t_us / 1e6})
+    jobs = [[_sc("r", "link", {"action": "replay", "span_s": 2.0}, end_s=4.0, start_s=8.0)],
+            [_sc("f", "link", {"action": "flood", "rate_hz": 150.0}, end_s=4.0, start_s=8.0)],
+            [_sc("l", "link", {"action": "link_loss"}, end_s=4.0, start_s=8.0)]]
+    for sc in jobs:  # the generator's topics resolve against this recording's
+        sc[0] = dataclasses.replace(sc[0], actions=[(sc[0].actions[0][0], {**sc[0].actions[0][1], "target": ["*"]})])
+    (replay, rw, _), (flood, fw, _), (loss, lw, _) = csv_mode([{"pos": table}] * 3, jobs, [0, 0, 0])
+    s, e = rw[0][:2]
+    assert (s, e) == (8_000_000, 12_000_000) and fw[0][:2] == lw[0][:2] == (s, e)
+    r = replay["pos"]
+    inside = (r["Timestamp"] >= s) & (r["Timestamp"] < e)
+    assert (r["Is_Anomaly"] == inside).all()
+    expect = (s - 2_000_000 + np.mod(r["Timestamp"][inside] - s, 2_000_000)) / 1e6
+    np.testing.assert_allclose(r["x"][inside], expect)
+    np.testing.assert_allclose(r["x"][~inside], r["Timestamp"][~inside] / 1e6)
+    f = flood["pos"]
+    inside_f = (f["Timestamp"] >= s) & (f["Timestamp"] < e)
+    assert (f["x"][inside_f] < f["Timestamp"][inside_f] / 1e6 - 0.5).mean() > 0.5, "late values"
+    assert len(f) < len(table), "the full queue dropped some"
+    lo = loss["pos"]
+    assert len(lo) == len(table) - 200 and not ((lo["Timestamp"] >= s) & (lo["Timestamp"] < e)).any()

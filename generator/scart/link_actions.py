@@ -201,10 +201,37 @@ class Replay(_ValueAction):
         since = np.maximum(ctx.t_us - ctx.start_us, 0)
         return ctx.start_us - age + np.mod(since, span)
 
+    def capture(self, ctx, topic: str, active: np.ndarray) -> None:
+        """At the attack's first message, keep the messages of the span (the History moves on)."""
+        h = ctx.history.get(topic)
+        if topic not in self._captured:
+            n = ctx.rows.shape[0]
+            self._captured[topic] = (np.full((n, h.depth, h.values.shape[2]), np.nan),
+                                     np.full((n, h.depth), -1, dtype=np.int64), np.full(n, -1, dtype=np.int64))
+        vals, times, start = self._captured[topic]
+        fresh = active & (start != ctx.start_us)
+        if fresh.any():
+            avail = min(h.count, h.depth)
+            order = [(h.count - avail + k) % h.depth for k in range(avail)]  # oldest first
+            rows = ctx.rows[fresh]
+            vals[fresh] = np.nan
+            vals[np.ix_(np.flatnonzero(fresh), np.arange(h.depth - avail, h.depth))] = \
+                h.values[order][:, rows].transpose(1, 0, 2)
+            times[fresh] = -1
+            times[np.ix_(np.flatnonzero(fresh), np.arange(h.depth - avail, h.depth))] = h.times[order]
+            start[fresh] = ctx.start_us[fresh]
+
     def alter(self, ctx, topic, cur, active):
-        src = ctx.per_batch(self.source_us(ctx), 0)
-        old = ctx.history.get(topic).at_time(src)
-        return old[ctx.rows][:, list(self.fields[topic])], np.ones(cur.shape[0], dtype=bool)
+        if not hasattr(self, "_captured"):
+            self._captured: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.capture(ctx, topic, active)
+        vals, times, _ = self._captured[topic]
+        src = self.source_us(ctx)
+        k = (times <= src[:, None]).sum(axis=1) - 1  # the latest captured message at or before src
+        first = (times < 0).sum(axis=1)
+        k = np.maximum(k, np.minimum(first, times.shape[1] - 1))
+        old = vals[np.arange(vals.shape[0]), k]
+        return old[:, list(self.fields[topic])], np.ones(cur.shape[0], dtype=bool)
 
 
 class Flood(_ValueAction):
