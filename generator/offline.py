@@ -67,12 +67,10 @@ def _refuse_physical(jobs, scenario_path) -> None:
                            "flight cannot replay; use them in simulation mode (scart-bench generate --scenarios)")
 
 
-#: Actions that need the closed loop: a recording has no flight controller to obey a forged command
-#: and no navigator to fly a tampered mission.
-CLOSED_LOOP_ACTIONS = ("inject_command", "mission_tamper")
-
-
 def _refuse_closed_loop(jobs, scenario_path) -> None:
+    """A recording has no flight controller to obey a forged command and no navigator to fly a tampered mission."""
+    from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
+
     names = sorted({n for j in jobs for sc in j for n, _ in sc.actions if n in CLOSED_LOOP_ACTIONS})
     if names:
         raise DatasetError(f"{scenario_path}: {', '.join(names)} act(s) on the flight controller or the navigator, "

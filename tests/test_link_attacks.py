@@ -258,3 +258,35 @@ def test_csv_mode_replays_delays_and_drops_exactly_in_the_labelled_rows():
     assert len(f) < len(table), "the full queue dropped some"
     lo = loss["pos"]
     assert len(lo) == len(table) - 200 and not ((lo["Timestamp"] >= s) & (lo["Timestamp"] < e)).any()
+
+
+def test_a_benchmark_run_on_a_dataset_with_control_link_attacks_reports_them(tmp_path, capsys):
+    """generate (simulation and csv mode) -> run -> breakdown by action names every new action."""
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    from scart_bench.benchmark.cli import main
+    from scart_bench.generator.dataset import open_dataset
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from run_fixtures import plugin
+
+    out = tmp_path / "ds"
+    assert main(["generate", "--profile", "quick", "--flights", "4", "--scenarios", "data/scenarios/control_link.toml",
+                 "--out", str(out)]) == 0
+    m = open_dataset(out).manifest.set_index("flight_id")
+    attacked = m[m["mode"] != "normal"]
+    assert (attacked["kind"] == "attack").all()
+    sim = attacked[attacked["mode"] == "simulation"]
+    assert set(sim["action"]) == {"inject_command", "mission_tamper", "link_loss", "replay", "flood"}
+    assert not sim["no_effect"].any(), "every attack changed the flight (or what its navigator received)"
+    assert set(attacked.loc[attacked["mode"] == "csv", "action"]) == {"link_loss", "replay", "flood"}
+    run = tmp_path / "run"
+    assert main(["run", "--dataset", str(out), "--detectors", "zscore_test", "--plugin", plugin("ZScore"),
+                 "--out", str(run)]) == 0
+    capsys.readouterr()
+    bd = pd.read_csv(run / "breakdown.csv")
+    actions = set(bd.loc[bd["dimension"] == "action", "value"])
+    assert {"inject_command", "mission_tamper", "link_loss", "replay", "flood"} <= actions

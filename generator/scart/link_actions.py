@@ -38,6 +38,9 @@ from scart_bench.generator.geo import HOME_ALT, ned_to_latlon
 from scart_bench.generator.scart.actions import MAX_DELAY_S, Action
 from scart_bench.generator.scart.spec import Param, ScenarioError
 
+#: Actions on the flight controller or the navigator themselves: only the closed loop (simulation
+#: mode) can show them, and they change the simulator view (the vehicle) rather than a message.
+CLOSED_LOOP_ACTIONS = ("inject_command", "mission_tamper")
 #: ``target = ["*"]``: every topic passing the action's point(s).
 ALL = "*"
 _ANY_TARGET = Param("target", list, [ALL], help='"*" (every topic that passes) or a list of "topic"', item=str,
