@@ -22,11 +22,11 @@ import pandas as pd
 
 from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
 from scart_bench.generator.effect import attack_effect
-from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
 from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.simulate import FlightConfig, simulate
 

@@ -36,15 +36,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scart_bench.errors import ScartBenchError
-from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
 from scart_bench.generator.control import empty_command
+from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
 from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
     CODECS,
     COMMAND_LONG_ID,
     KNOWN,
-    SYSTEM_TIME_ID,
     STATE_MESSAGES,
+    SYSTEM_TIME_ID,
     LinkState,
     Packer,
     split_frames,

@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from scart_bench.generator.control import (
+    CONTROL_TOPICS,
     FORCE_DISARM,
     MAV_CMD_COMPONENT_ARM_DISARM,
     MAV_CMD_DO_REPOSITION,
@@ -35,8 +36,9 @@ from scart_bench.generator.control import (
     PX4_SUB_RTL,
 )
 from scart_bench.generator.geo import HOME_ALT, ned_to_latlon
-from scart_bench.generator.scart.actions import MAX_DELAY_S, Action
+from scart_bench.generator.scart.action_base import MAX_DELAY_S, Action
 from scart_bench.generator.scart.spec import Param, ScenarioError
+from scart_bench.generator.topics import COMMAND_TOPICS
 
 #: Actions on the flight controller or the navigator themselves: only the closed loop (simulation
 #: mode) can show them, and they change the simulator view (the vehicle) rather than a message.
@@ -163,10 +165,8 @@ class LinkLoss(_LinkAction):
     spec = (_ANY_TARGET, Param("direction", str, "both", choices=("both", "telemetry", "command")))
 
     def alter(self, ctx, topic, cur, active):
-        from scart_bench.generator.scart.scenario import point_topics
-
         direction = self.params["direction"]
-        is_cmd = topic in point_topics("command")
+        is_cmd = topic in COMMAND_TOPICS or topic in CONTROL_TOPICS
         lost = direction == "both" or (direction == "command") == is_cmd
         return cur, np.full(cur.shape[0], not lost)
 
@@ -177,8 +177,6 @@ class _ValueAction(_LinkAction):
 
     @classmethod
     def wildcard(cls, available):
-        from scart_bench.generator.control import CONTROL_TOPICS
-
         return sorted(t for t in available if t not in CONTROL_TOPICS)
 
 
