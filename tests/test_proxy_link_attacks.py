@@ -37,13 +37,16 @@ def _sc(sid: str, point: str, action: dict, seconds: float | None = None, start_
 DISARM = _sc("disarm", "command", {"action": "inject_command", "command": "disarm"})
 NO_FORCE = _sc("disarm-noforce", "command", {"action": "inject_command", "command": "disarm", "force": False})
 LOSS = _sc("loss", "link", {"action": "link_loss"}, seconds=5.0)
+REPLAY = _sc("replay", "link", {"action": "replay", "span_s": 2.0}, seconds=4.0)
+FLOOD = _sc("flood", "link", {"action": "flood", "rate_hz": 200.0}, seconds=6.0)
+CASES = (DISARM, NO_FORCE, LOSS, REPLAY, FLOOD)
 
 
 @pytest.fixture(scope="module")
 def reference():
     from scart_bench.generator.modes import simulation_mode
 
-    batch, layer = simulation_mode([SEED] * 3, [[DISARM], [NO_FORCE], [LOSS]])
+    batch, layer = simulation_mode([SEED] * len(CASES), [[c] for c in CASES])
     return batch, layer
 
 
@@ -60,10 +63,12 @@ def _loopback(scenario):
     return batch, proxy
 
 
-@pytest.mark.parametrize("case", [0, 1, 2], ids=["forged-disarm", "refused-disarm", "link-loss"])
-def test_a_forged_command_and_a_link_loss_through_the_proxy_act_as_in_simulation_mode(reference, case):
+@pytest.mark.parametrize("case", range(len(CASES)), ids=["forged-disarm", "refused-disarm", "link-loss", "replay",
+                                                         "flood"])
+def test_control_link_attacks_through_the_proxy_act_as_in_simulation_mode(reference, case):
+    """A forged command (accepted or refused), a link loss, a replay and a flood: same path, same end."""
     ref, _ = reference
-    batch, proxy = _loopback([DISARM, NO_FORCE, LOSS][case])
+    batch, proxy = _loopback(CASES[case])
     assert batch.status[0] == ref.status[case]
     (_, live), (_, sim) = truth(batch, 0), truth(ref, case)
     assert abs(len(live) - len(sim)) <= 1, "the flight ends at the same time"
@@ -75,8 +80,13 @@ def test_a_forged_command_and_a_link_loss_through_the_proxy_act_as_in_simulation
         assert ref.status[0] == "crashed" and st.forged == 1
     elif case == 1:
         assert ref.status[1] == "landed" and st.forged == 1, "sent, and refused by the flight controller"
-    else:
+    elif case == 2:
         assert st.lost > 0 and st.forged == 0 and st.errors == 0
+    elif case == 3:
+        assert st.altered > 0 and st.dropped == 0 and st.errors == 0
+    else:
+        # 200 frames/s for 6 s in each direction of the link
+        assert st.flooded == pytest.approx(2 * 200 * 6.0, rel=0.02) and st.dropped > 0 and st.errors == 0
 
 
 def test_a_signed_stream_refuses_forged_frames_and_the_proxy_says_so():

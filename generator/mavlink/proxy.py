@@ -42,6 +42,7 @@ from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
     CODECS,
     COMMAND_LONG_ID,
+    HEARTBEAT_ID,
     KNOWN,
     STATE_MESSAGES,
     SYSTEM_TIME_ID,
@@ -99,6 +100,7 @@ class ProxyStats:
     forged: int = 0  # COMMAND_LONG frames forged by inject_command and sent to the autopilot
     refused_signed: int = 0  # forged frames not sent: the stream is signed and the proxy has no key
     lost: int = 0  # frames dropped by link_loss (the whole link silent)
+    flooded: int = 0  # flooding frames the proxy added (flood)
     errors: int = 0  # datagrams passed unchanged because handling them raised
     handle_ns: array = field(default_factory=lambda: array("q"))
 
@@ -113,7 +115,8 @@ class ProxyStats:
                 f"({self.altered} altered), {self.dropped} dropped by the scenario, {self.malformed} malformed "
                 f"dropped, {self.unknown} of unknown message ids passed, {self.errors} errors, {self.foreign} "
                 f"from a second sender dropped, {self.clock_jumps} timestamp leaps ignored, {self.forged} forged "
-                f"commands sent ({self.refused_signed} not sent: signed link), {self.lost} lost to link_loss; "
+                f"commands sent ({self.refused_signed} not sent: signed link), {self.lost} lost to link_loss, {self.flooded} "
+                f"flooding frames added; "
                 f"handling p50 "
                 f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms")
 
@@ -174,6 +177,10 @@ class MavlinkProxy:
         self._loss = [(g, a.params["direction"]) for g in self.layer.groups for a in g.actions
                       if a.name == "link_loss"]
         self._signed_said = False
+        self._flood = [(g, a) for g in self.layer.groups for a in g.actions if a.name == "flood"]
+        self._flood_due = {True: 0.0, False: 0.0}  # flooding frames owed per direction
+        self._flood_at = {True: None, False: None}  # the clock when they were last counted
+        self._flood_seq = 0
         topics = set(CODECS) if (record or self.listeners) else set(self.layer_topics)
         self._codecs = {c.msgid: c for c in BY_MSGID.values() if c.topic in topics}
         self._state_ids = STATE_MESSAGES if "setpoint" in topics else frozenset()
@@ -337,6 +344,11 @@ class MavlinkProxy:
                 changed = True
             parts.append(out)
             ids.append(f.msgid)
+        if self._flood:
+            flood = self._flood_frames(telemetry)
+            if flood:
+                st.flooded += len(flood)
+                parts, ids, changed = parts + flood, ids + [HEARTBEAT_ID] * len(flood), True
         if self._loss and self._link_lost(telemetry):
             # the link is silent: nothing passes but SYSTEM_TIME, the clock of the lockstep link
             keep = [p for p, i in zip(parts, ids) if i == SYSTEM_TIME_ID]
@@ -346,6 +358,26 @@ class MavlinkProxy:
         if not changed:
             return data
         return b"".join(parts)
+
+    def _flood_frames(self, telemetry: bool) -> list[bytes]:
+        """The flooding frames owed in this direction since the last datagram (``rate_hz`` of each active
+        flood scenario, on the proxy's clock): HEARTBEATs of a fake ground station (system 255), which
+        the endpoints ignore but which fill the link."""
+        now = self.clock_us
+        last = self._flood_at[telemetry]
+        self._flood_at[telemetry] = now
+        rate = sum(float(np.asarray(a.params["rate_hz"]).reshape(-1)[0]) for g, a in self._flood if g.active[0])
+        if last is None or rate <= 0:
+            self._flood_due[telemetry] = 0.0
+            return []
+        self._flood_due[telemetry] += rate * max(now - last, 0) / 1e6
+        k = int(self._flood_due[telemetry])
+        self._flood_due[telemetry] -= k
+        out = []
+        for _ in range(k):
+            self._flood_seq = (self._flood_seq + 1) & 0xFF
+            out.append(self.packer.pack(KNOWN[HEARTBEAT_ID](6, 8, 0, 0, 4, 3), 255, 190, self._flood_seq))
+        return out
 
     def _link_lost(self, telemetry: bool) -> bool:
         """A link_loss scenario is active in this direction."""
