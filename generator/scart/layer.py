@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.generator.control import CONTROL_TOPICS
 from scart_bench.generator.disturbances import Disturbances
 from scart_bench.generator.link import field_names as builtin_fields
 from scart_bench.generator.noise import NoiseStream
@@ -348,6 +349,8 @@ class AttackLayer:
         from scart_bench.generator.scart.units import latlon_pair
 
         for topic, vals in messages.items():
+            if topic in CONTROL_TOPICS:  # commands and mission items carry no position of the vehicle
+                continue
             pair = latlon_pair(topic, self.fields(topic))
             if pair is None:
                 continue
