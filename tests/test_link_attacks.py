@@ -283,6 +283,14 @@ def test_a_benchmark_run_on_a_dataset_with_control_link_attacks_reports_them(tmp
     assert set(sim["action"]) == {"inject_command", "mission_tamper", "link_loss", "replay", "flood"}
     assert not sim["no_effect"].any(), "every attack changed the flight (or what its navigator received)"
     assert set(attacked.loc[attacked["mode"] == "csv", "action"]) == {"link_loss", "replay", "flood"}
+    from scart_bench.reports.figures import flight_path
+
+    ds = open_dataset(out)
+    for fid in sim.index:  # the paper-style path figure: the attacked path beside its normal twin
+        assert flight_path(ds, fid, tmp_path / "figures").stat().st_size > 0
+    by_action = sim.reset_index().set_index("action")
+    assert by_action.loc["mission_tamper", "impact_max_dev_m"] > 10.0, "the path went to the moved corner"
+    assert not by_action.loc["inject_command", "impact_mission_completed"], "the forged land ended it early"
     run = tmp_path / "run"
     assert main(["run", "--dataset", str(out), "--detectors", "zscore_test", "--plugin", plugin("ZScore"),
                  "--out", str(run)]) == 0
