@@ -229,6 +229,15 @@ def test_replay_and_flood_on_a_recorded_flight_in_csv_mode(tmp_path):
     sc.write_text('[scenario]\nid = "d"\ninjection_point = "command"\n[[scenario.actions]]\naction = "inject_command"\n')
     with pytest.raises(DatasetError, match="inject_command.*simulation mode"):
         attack_file(log, sc, tmp_path / "d")
+    # in a grid, the closed-loop configurations get no copy and the link ones are written
+    from scart_bench.generator.dataset import open_dataset
+
+    grid = tmp_path / "grid.toml"
+    text = open("data/scenarios/control_link.toml").read()
+    grid.write_text(text.replace("start_s = 20.0", "start_s = 8.0"))
+    attack_file(log, grid, tmp_path / "g")
+    actions = set(open_dataset(tmp_path / "g").manifest["action"])
+    assert actions == {"link_loss", "replay", "flood"}
 
 
 def test_csv_mode_replays_delays_and_drops_exactly_in_the_labelled_rows():
