@@ -26,6 +26,7 @@ from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
 from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.simulate import FlightConfig, simulate
 
@@ -70,8 +71,10 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
         twins = simulate([seeds[i] for i in idx], cfg)
         for j, i in enumerate(idx):
             record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict)
-            record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds,
-                                                 record.manifest["injection_point"]))
+            points = record.manifest["injection_point"]
+            if any(n in CLOSED_LOOP_ACTIONS for sc in configs[i] for n, _ in sc.actions):
+                points += "+controller"  # a forged command or mission moves the vehicle, not a message
+            record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds, points))
             twin_truth = flight_views(twins, j)[1]["truth"]
             record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
             record.simulator[TWIN_TOPIC] = twin_truth

@@ -20,8 +20,9 @@ import numpy as np
 from scart_bench.generator import kernel as K
 from scart_bench.generator import kernel_layout as L
 from scart_bench.generator.autopilot import _AxisKF
+from scart_bench.generator.control import Commander, exchange
 from scart_bench.generator.disturbances import Disturbances, gps_signal_quality
-from scart_bench.generator.flight import _alive, _instance_gps, _instance_imu, _instance_value
+from scart_bench.generator.flight import DT, _alive, _instance_gps, _instance_imu, _instance_value
 from scart_bench.generator.geo import HOME_ALT, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.link import due_steps
 from scart_bench.generator.noise import NOISE_DIM, fill_block
@@ -56,7 +57,7 @@ class BatchState:
         self.row = np.zeros((n, L.WIDTH))
         self.truth_buffer = np.zeros((n, delay, 6))  # true pos/vel, for the GPS delay
         self.history = np.zeros((n, delay, 6))  # estimated pos/vel, for delayed GPS fusion
-        self.waypoints = np.ascontiguousarray(waypoints, dtype=float)
+        self.waypoints = np.array(waypoints, dtype=float, order="C", copy=True)  # a mission tamper rewrites it
 
     def __len__(self) -> int:
         return self.row.shape[0]
@@ -232,6 +233,9 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
     points = layer.points if layer is not None else frozenset()
     physical = bool(getattr(layer, "physical_groups", None))
     hooks = _Hooks(layer, points, st, rec, due, index, n) if points or physical else None
+    if hooks is not None and "command" in points:
+        hooks.commander = Commander(cfg.control, n, np.zeros((n, 2)), cfg.mission.land_speed)
+        hooks.mission = init.waypoints
     active = np.arange(n, dtype=np.int64)
     drawer = _NoiseDrawer(init.rngs, min(BLOCK_STEPS, max_steps))
     s0 = 0
@@ -325,6 +329,8 @@ class _Hooks:
         if "command" in points:
             need |= due[L.D_SETPOINT]
         self.need = need
+        self.commander = None  # the flight controller's commander, when the command point is hooked
+        self.mission: np.ndarray | None = None  # the mission as sent (N, K, 3)
         self.nav: dict[str, np.ndarray | None] = {}
         self.nav_ok: dict[str, np.ndarray | None] = {}
         for k, name in enumerate(rec.names[:-1]):
@@ -385,11 +391,18 @@ class _Hooks:
             if "command" in self.points:
                 K.stage_navigate(st.row, st.waypoints, p, self.all_rows, h, sp)
                 rec_sp[m] = sp
-                vals, sp_ok = layer.on_messages("command", h, t_us, {"setpoint": sp.copy()})["setpoint"]
+                vals, sp_ok, command, st.waypoints[:] = exchange(layer, h, t_us, sp.copy(), self.mission)
+                self.nav["setpoint"][m] = vals
+                self.nav_ok["setpoint"][m] = sp_ok
+                est = st["est_x"].reshape(n, 3, 3)
+                vals, sp_ok, crashed = self.commander.step(h * DT, vals, sp_ok, command, est[:, :, 0], est[:, :, 1],
+                                                           st["setpoint_in"][:, 3].copy(), st["armed"] > 0.5,
+                                                           st["vel"][:, 2].copy(), st["on_ground"] > 0.5, st.done)
+                st["status"][crashed] = 2.0
+                st["disarmed"][crashed] = 1.0
+                st["armed"][crashed] = 0.0
                 sp = np.ascontiguousarray(vals, dtype=float)
                 sp_ok = np.asarray(sp_ok, dtype=bool)
-                self.nav["setpoint"][m] = sp
-                self.nav_ok["setpoint"][m] = sp_ok
             else:
                 K.stage_navigate(st.row, st.waypoints, p, rows, h, sp)
                 rec_sp[m] = sp

@@ -11,6 +11,7 @@ from typing import Protocol
 
 import numpy as np
 
+from scart_bench.generator.control import ControlParams
 from scart_bench.generator.disturbances import Disturbances
 from scart_bench.generator.navigator import mission_waypoints
 from scart_bench.generator.params import (
@@ -51,6 +52,8 @@ class FlightConfig:
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     controller: ControllerParams = field(default_factory=ControllerParams)
     mission: MissionParams = field(default_factory=MissionParams)
+    #: the flight controller's commander: accepted commands, link-loss failsafe (generator.control)
+    control: ControlParams = field(default_factory=ControlParams)
     #: how the written messages are stamped: "ideal" or "realistic" (generator.timing; after flying)
     timing: str = "ideal"
     #: also write the uORB view (PX4 topic names and units, generator.uorb) of each flight; after flying

@@ -96,6 +96,10 @@ def field_names(topic: str) -> tuple[str, ...]:
         return TOPICS[topic].field_names
     if topic in SENSOR_TOPICS:
         return SENSOR_TOPICS[topic][1]
+    from scart_bench.generator.control import CONTROL_TOPICS
+
+    if topic in CONTROL_TOPICS:
+        return CONTROL_TOPICS[topic]
     if topic == "truth":
         from scart_bench.generator.topics import TRUTH_FIELDS
 

@@ -68,6 +68,24 @@ def _refuse_physical(jobs, scenario_path) -> None:
                            "flight cannot replay; use them in simulation mode (scart-bench generate --scenarios)")
 
 
+def _refuse_closed_loop(jobs, scenario_path) -> list:
+    """A recording has no flight controller to obey a forged command and no navigator to fly a tampered
+    mission: configurations with those actions get no copy (a warning names them); when no other
+    configuration is left, a clear error."""
+    from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
+
+    closed = [j for j in jobs if any(n in CLOSED_LOOP_ACTIONS for sc in j for n, _ in sc.actions)]
+    if not closed:
+        return jobs
+    names = sorted({n for j in closed for sc in j for n, _ in sc.actions if n in CLOSED_LOOP_ACTIONS})
+    why = (f"{', '.join(names)} act(s) on the flight controller or the navigator, which a recorded flight cannot "
+           "replay; use them in simulation mode (scart-bench generate --scenarios)")
+    if len(closed) == len(jobs):
+        raise DatasetError(f"{scenario_path}: {why}; replay, flood and link_loss apply to recordings")
+    logger.warning("%s: no copy of %s: %s", scenario_path, ", ".join(_config_id(j) for j in closed), why)
+    return [j for j in jobs if j not in closed]
+
+
 def _start_conditions(job) -> str:
     """The start conditions of a configuration, for a message (``id: condition key=value``)."""
     parts = []
@@ -192,6 +210,7 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                            f"--split {sources[0]} (or --split auto)")
     jobs = load_configurations(Path(scenario_path), check_topics=False)
     _refuse_physical(jobs, scenario_path)
+    jobs = _refuse_closed_loop(jobs, scenario_path)
     flights = []
     for fid in rows["flight_id"].astype(str):
         tables = load_flight_file(ds.flight_dir(fid))
@@ -234,6 +253,7 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     check_output_dir(out, overwrite=overwrite)
     jobs = load_configurations(Path(scenario_path), check_topics=False)
     _refuse_physical(jobs, scenario_path)
+    jobs = _refuse_closed_loop(jobs, scenario_path)
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
     _validate(jobs, tables, str(input_path))
     results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from scart_bench.generator.autopilot import Controller, Estimator
+from scart_bench.generator.control import Commander, exchange
 from scart_bench.generator.disturbances import Disturbances
 from scart_bench.generator.flight import (  # noqa: F401 (re-exported: the public names live on here)
     DT,
@@ -126,7 +127,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     sensors = init.sensors
     est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
     ctrl = Controller(cfg.controller, cfg.vehicle, DT)
-    nav = Navigator(m, waypoints, init.cruise)
+    nav = Navigator(m, waypoints.copy(), init.cruise)  # a copy: a mission tamper changes what it flies
     vs = init.vehicle_state
     ss = init.sensor_state
     es = est.init_state(n, yaw0)
@@ -138,6 +139,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     sim_rec = _Recorder(n, max_steps // 2)
     nav_rec = _Recorder(n, max_steps // 2) if layer is not None else sim_rec
     points = layer.points if layer is not None else frozenset()
+    commander = Commander(cfg.control, n, np.zeros((n, 2)), m.land_speed) if "command" in points else None
 
     sched_len = max_steps + 1
     due = {t: due_steps(TOPICS[t].rate_hz, sched_len) for t in TOPICS}
@@ -281,12 +283,19 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             sp = nav.step(ns, t)
             sim_rec.add("setpoint", step, sp)
             if "command" in points:
-                sp_vals, sp_ok = layer.on_messages("command", step, t_us, {"setpoint": sp})["setpoint"]
+                sp_vals, sp_ok, command, nav.wps = exchange(layer, step, t_us, sp, waypoints)
             else:
-                sp_vals, sp_ok = sp, None
+                sp_vals, sp_ok, command = sp, None, None
             if layer is not None:
                 nav_rec.add("setpoint", step, sp_vals, sp_ok)
             ok = np.ones(n, bool) if sp_ok is None else sp_ok
+            if commander is not None:
+                sp_vals, ok, crashed = commander.step(t, sp_vals, ok, command, es.x[:, :, 0], es.x[:, :, 1],
+                                                      setpoint_in[:, 3],
+                                                      cs.armed, vs.vel[:, 2], vs.on_ground, done)
+                status[crashed] = "crashed"
+                cs.disarmed_after_flight |= crashed
+                cs.armed &= ~crashed
             setpoint_in[ok] = sp_vals[ok]
             vel_sp = setpoint_in[:, 0:3]
             yaw_sp = setpoint_in[:, 3]

@@ -103,6 +103,56 @@ def test_kernel_matches_the_reference_under_environment_attacks_and_faults():
     assert fix < 3, "the jammed receiver lost its fix"
 
 
+def _link_attack(sid: str, point: str, start_s: float, action: dict, seconds: float | None = None) -> object:
+    table = {"id": sid, "injection_point": point, "start": [{"condition": "time_window", "start_s": start_s}],
+             "actions": [action]}
+    if seconds is not None:
+        table["end"] = [{"condition": "duration", "seconds": seconds}]
+    return scenario_from_dict(table)
+
+
+def test_kernel_matches_the_reference_under_attacks_on_the_control_link():
+    """Forged disarm (a fall and a crash), land, return and reposition, a refused command, a tampered
+    mission, a link loss into the datalink failsafe, replay and flooding: both engines react alike."""
+    from scart_bench.generator.control import ControlParams
+
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=24.0), control=ControlParams(datalink_loss_s=2.0))
+    scenarios = [
+        [_link_attack("disarm", "command", 7.0, {"action": "inject_command", "command": "disarm"})],
+        [_link_attack("land", "command", 6.0, {"action": "inject_command", "command": "land"})],
+        [_link_attack("rtl", "command", 6.0, {"action": "inject_command", "command": "return"})],
+        [_link_attack("goto", "command", 6.0, {"action": "inject_command", "command": "reposition",
+                                                "north_m": 5.0, "east_m": -5.0, "alt_m": 6.0})],
+        [_link_attack("refused", "command", 6.0, {"action": "inject_command", "command": "land",
+                                                   "target_component": 7})],
+        [_link_attack("tamper", "command", 0.0, {"action": "mission_tamper", "item": 1, "shift_m": 8.0})],
+        [_link_attack("loss", "link", 5.0, {"action": "link_loss"}, seconds=5.0)],
+        [_link_attack("replay", "link", 6.0, {"action": "replay", "span_s": 1.5}, seconds=3.0),
+         _link_attack("flood", "link", 10.0, {"action": "flood", "rate_hz": 150.0}, seconds=4.0)],
+        [],
+    ]
+    seeds = list(range(60, 60 + len(scenarios)))
+    runs = {}
+    for engine in ("numpy", "kernel"):
+        layer = AttackLayer(scenarios, seeds)
+        runs[engine] = simulate(seeds, cfg, layer=layer, engine=engine), layer
+    (ref, ref_layer), (ker, ker_layer) = runs["numpy"], runs["kernel"]
+    np.testing.assert_array_equal(ker.exit_step, ref.exit_step)
+    assert len(set(ker.exit_step.tolist())) > 2, "flights end at different steps"
+    for view in ("simulator", "navigator"):  # each flight up to its end (the reference flies on after it)
+        for topic, (steps, vals, ok) in getattr(ref, view).items():
+            k_steps, k_vals, k_ok = getattr(ker, view)[topic]
+            np.testing.assert_array_equal(k_steps, steps, err_msg=topic)
+            for i, end in enumerate(ref.exit_step):
+                last = np.searchsorted(steps, end, side="right")
+                np.testing.assert_array_equal(k_ok[i, :last], ok[i, :last], err_msg=f"{view} {topic} {i}")
+                np.testing.assert_allclose(k_vals[i, :last], vals[i, :last], rtol=0, atol=1e-9,
+                                           err_msg=f"{view} {topic} flight {i}")
+    assert ker.status == ref.status and ker.status[0] == "crashed"
+    np.testing.assert_array_equal(ker.exit_step, ref.exit_step)
+    assert [e.__dict__ for e in ker_layer.events] == [e.__dict__ for e in ref_layer.events]
+
+
 def test_batch_equals_its_flights_flown_one_by_one_exactly():
     """Whole flights of different lengths: each flight's bytes are the same alone and in the batch."""
     seeds = [11, 12, 13]

@@ -110,8 +110,8 @@ def test_every_example_applies_to_a_ulog_and_its_csv_or_is_refused_naming_the_to
         else:
             assert code == 2 and not out.exists()
             assert re.search(r"(unknown topic|quantity\) matches no topic|is not in this input) .*'[a-z_]+'|"
-                             r"'[a-z_]+' \(a quantity\) matches no topic|change the physics, which a recorded "
-                             r"flight cannot replay|never started .*: its start conditions \(.+\) never held", err), err
+                             r"'[a-z_]+' \(a quantity\) matches no topic|(change the physics|the flight controller or the "
+                             r"navigator), which a recorded flight cannot replay|never started .*: its start conditions \(.+\) never held", err), err
     # gps_spoof, sensor_gps_drift and the chain start after a mission waypoint, which the RflyMAD log (no
     # mission) never reaches: they are refused as never started, not written as copies that changed nothing
     if path.stem == "sensor_gps_jump":

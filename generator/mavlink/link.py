@@ -177,7 +177,7 @@ class MavlinkLink:
         arrived: dict[str, np.ndarray] = {}
         for msgid, msg in got:
             ep.state.observe(msgid, msg)
-            for topic in messages:
+            for topic in (t for t in messages if t in CODECS):
                 codec = CODECS[topic]
                 if codec.msgid == msgid:
                     arrived[topic] = np.asarray(codec.decode(msg, ep.state), dtype=np.float64)[None, :]
@@ -218,5 +218,19 @@ class MavlinkLink:
         frames.append(mc.closing(t_us))
         self._send(mc, frames, self.command_peer)
         got, _ = self.fc.receive_step(t_us, MISSION_COMPUTER, self.timeout_s, self.keep_raw)
-        return self._collect(messages, got, self.fc)
+        # a COMMAND_LONG other than the mission computer's arm request is a command for the flight
+        # controller's commander (generator.control), which decides whether to obey it
+        commands = [m for i, m in got if i == COMMAND_LONG_ID and not (m.command == ARM_DISARM and m.param1 > 0.5)]
+        out = self._collect(messages, [(i, m) for i, m in got if not any(m is c for c in commands)], self.fc)
+        for topic, vals in messages.items():
+            if topic == "command_long":
+                row = vals.copy()
+                if commands:
+                    c = commands[-1]
+                    row[0] = (c.command, c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
+                              c.target_system, c.target_component)
+                out[topic] = (row, np.ones(1, bool))
+            elif topic not in CODECS:  # the mission items stay on the mission computer's side here
+                out[topic] = (vals, np.ones(1, bool))
+        return out
 

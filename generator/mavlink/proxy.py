@@ -36,12 +36,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.generator.control import empty_command
 from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
 from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
     CODECS,
+    COMMAND_LONG_ID,
+    HEARTBEAT_ID,
     KNOWN,
     STATE_MESSAGES,
+    SYSTEM_TIME_ID,
     LinkState,
     Packer,
     split_frames,
@@ -93,6 +97,10 @@ class ProxyStats:
     no_autopilot: int = 0  # command datagrams before the autopilot was heard from (dropped)
     foreign: int = 0  # datagrams from a second sender to the listen port (dropped: the first peer is kept)
     clock_jumps: int = 0  # message timestamps that leapt ahead of the wall clock (not taken as the time)
+    forged: int = 0  # COMMAND_LONG frames forged by inject_command and sent to the autopilot
+    refused_signed: int = 0  # forged frames not sent: the stream is signed and the proxy has no key
+    lost: int = 0  # frames dropped by link_loss (the whole link silent)
+    flooded: int = 0  # flooding frames the proxy added (flood)
     errors: int = 0  # datagrams passed unchanged because handling them raised
     handle_ns: array = field(default_factory=lambda: array("q"))
 
@@ -106,7 +114,10 @@ class ProxyStats:
         return (f"{self.datagrams} datagrams, {self.frames} frames: {self.forwarded} forwarded "
                 f"({self.altered} altered), {self.dropped} dropped by the scenario, {self.malformed} malformed "
                 f"dropped, {self.unknown} of unknown message ids passed, {self.errors} errors, {self.foreign} "
-                f"from a second sender dropped, {self.clock_jumps} timestamp leaps ignored; handling p50 "
+                f"from a second sender dropped, {self.clock_jumps} timestamp leaps ignored, {self.forged} forged "
+                f"commands sent ({self.refused_signed} not sent: signed link), {self.lost} lost to link_loss, {self.flooded} "
+                f"flooding frames added; "
+                f"handling p50 "
                 f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms")
 
     def to_dict(self) -> dict:
@@ -154,7 +165,22 @@ class MavlinkProxy:
         self.listeners = list(listeners)
         self.recording = bool(record)
         self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+        for sc in scenarios:
+            if any(name == "mission_tamper" for name, _ in sc.actions):
+                raise ProxyError(f"scenario {sc.id!r} ({sc.source}): mission_tamper is not carried by the proxy "
+                                 "(it does not rewrite MISSION_ITEM_INT uploads); use it in simulation mode")
         self.layer_topics = frozenset(t for t in self.layer.listened if t in CODECS)
+        if "command" in self.layer.points:  # the setpoints are the command direction's clock
+            self.layer_topics |= {"setpoint"}
+        #: inject_command scenarios: a COMMAND_LONG is forged after the setpoint it rides on
+        self.forging = any(a.name == "inject_command" for g in self.layer.groups for a in g.actions)
+        self._loss = [(g, a.params["direction"]) for g in self.layer.groups for a in g.actions
+                      if a.name == "link_loss"]
+        self._signed_said = False
+        self._flood = [(g, a) for g in self.layer.groups for a in g.actions if a.name == "flood"]
+        self._flood_due = {True: 0.0, False: 0.0}  # flooding frames owed per direction
+        self._flood_at = {True: None, False: None}  # the clock when they were last counted
+        self._flood_seq = 0
         topics = set(CODECS) if (record or self.listeners) else set(self.layer_topics)
         self._codecs = {c.msgid: c for c in BY_MSGID.values() if c.topic in topics}
         self._state_ids = STATE_MESSAGES if "setpoint" in topics else frozenset()
@@ -296,6 +322,7 @@ class MavlinkProxy:
             st.commands += len(frames)
         changed = bad > 0
         parts: list[bytes] = []
+        ids: list[int] = []
         for f in frames:
             raw = data[f.start:f.end]
             codec = self._codecs.get(f.msgid)
@@ -307,6 +334,7 @@ class MavlinkProxy:
                 elif f.msgid not in KNOWN:
                     st.unknown += 1
                 parts.append(raw)
+                ids.append(f.msgid)
                 continue
             out = self._topic_frame(codec, raw, f.version, f.signed)
             if out is None:
@@ -315,10 +343,60 @@ class MavlinkProxy:
             if out is not raw:
                 changed = True
             parts.append(out)
+            ids.append(f.msgid)
+        if self._flood:
+            flood = self._flood_frames(telemetry)
+            if flood:
+                st.flooded += len(flood)
+                parts, ids, changed = parts + flood, ids + [HEARTBEAT_ID] * len(flood), True
+        if self._loss and self._link_lost(telemetry):
+            # the link is silent: nothing passes but SYSTEM_TIME, the clock of the lockstep link
+            keep = [p for p, i in zip(parts, ids) if i == SYSTEM_TIME_ID]
+            st.lost += len(parts) - len(keep)
+            parts, changed = keep, True
         st.forwarded += len(parts)
         if not changed:
             return data
         return b"".join(parts)
+
+    def _flood_frames(self, telemetry: bool) -> list[bytes]:
+        """The flooding frames owed in this direction since the last datagram (``rate_hz`` of each active
+        flood scenario, on the proxy's clock): HEARTBEATs of a fake ground station (system 255), which
+        the endpoints ignore but which fill the link."""
+        now = self.clock_us
+        last = self._flood_at[telemetry]
+        self._flood_at[telemetry] = now
+        rate = sum(float(np.asarray(a.params["rate_hz"]).reshape(-1)[0]) for g, a in self._flood if g.active[0])
+        if last is None or rate <= 0:
+            self._flood_due[telemetry] = 0.0
+            return []
+        self._flood_due[telemetry] += rate * max(now - last, 0) / 1e6
+        k = int(self._flood_due[telemetry])
+        self._flood_due[telemetry] -= k
+        out = []
+        for _ in range(k):
+            self._flood_seq = (self._flood_seq + 1) & 0xFF
+            out.append(self.packer.pack(KNOWN[HEARTBEAT_ID](6, 8, 0, 0, 4, 3), 255, 190, self._flood_seq))
+        return out
+
+    def _link_lost(self, telemetry: bool) -> bool:
+        """A link_loss scenario is active in this direction."""
+        way = "telemetry" if telemetry else "command"
+        return any(bool(g.active[0]) and d in ("both", way) for g, d in self._loss)
+
+    def _forge(self, row: np.ndarray, header, signed: bool) -> bytes:
+        """The forged COMMAND_LONG of an inject_command row, as from the setpoint's sender (or nothing,
+        on a signed stream: the autopilot would refuse an unsigned or wrongly signed frame)."""
+        if signed:
+            self.stats.refused_signed += 1
+            if not self._signed_said:
+                self._signed_said = True
+                self.log("proxy: the command stream is signed (MAVLink 2 signing) and the proxy has no key: a "
+                         "forged COMMAND_LONG would be refused by the autopilot; forged frames are not sent")
+            return b""
+        msg = KNOWN[COMMAND_LONG_ID](int(row[8]), int(row[9]), int(row[0]), 0, *(float(x) for x in row[1:8]))
+        self.stats.forged += 1
+        return self.packer.pack(msg, header.srcSystem, header.srcComponent, (header.seq + 1) & 0xFF)
 
     def _tick(self, t_msg: int | None) -> int:
         """The layer's clock: the autopilot's message time, never decreasing, and never leaping ahead of
@@ -346,15 +424,22 @@ class MavlinkProxy:
         t_us = self._tick(codec.time_us(msg))
         values = np.asarray(codec.decode(msg, self.state_in), dtype=np.float64)
         new, ok = values, True
+        forged = b""
         if topic in self.layer_topics:
             point = "command" if topic == "setpoint" else "link"
-            vals, delivered = self.layer.on_messages(point, 0, t_us, {topic: values[None, :]})[topic]
+            msgs = {topic: values[None, :]}
+            if point == "command" and self.forging:
+                msgs["command_long"] = empty_command(1)
+            res = self.layer.on_messages(point, 0, t_us, msgs)
+            vals, delivered = res[topic]
             new, ok = vals[0], bool(delivered[0])
+            if "command_long" in res and res["command_long"][0][0, 0] != 0 and res["command_long"][1][0]:
+                forged = self._forge(res["command_long"][0][0], msg.get_header(), signed)
         if self.recording:
             self.views.add("received", topic, t_us, values)
         if not ok:
             self.stats.dropped += 1
-            return None
+            return forged or None
         out = raw
         if new is not values and not signed and not np.array_equal(new, values, equal_nan=True):
             if codec.alter(msg, new, values):
@@ -372,7 +457,7 @@ class MavlinkProxy:
                     if self._error_logged < 5:
                         self._error_logged += 1
                         self.log(f"proxy: a listener failed on a message ({type(exc).__name__}: {exc})")
-        return out
+        return out + forged if forged else out
 
     # -- the recorded flight --------------------------------------------------------------------
     @property

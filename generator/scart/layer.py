@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.generator.control import CONTROL_TOPICS
 from scart_bench.generator.disturbances import Disturbances
 from scart_bench.generator.link import field_names as builtin_fields
 from scart_bench.generator.noise import NoiseStream
@@ -28,7 +29,13 @@ from scart_bench.generator.scart.actions import ACTIONS, Action
 from scart_bench.generator.scart.conditions import CONDITIONS, Condition
 from scart_bench.generator.scart.effects import EFFECTS
 from scart_bench.generator.scart.history import History
-from scart_bench.generator.scart.scenario import Scenario, check_composition, listened_topics, point_topics
+from scart_bench.generator.scart.scenario import (
+    Scenario,
+    check_composition,
+    listened_topics,
+    point_topics,
+    scenario_topics,
+)
 from scart_bench.generator.scart.spec import ScenarioError
 
 
@@ -152,6 +159,11 @@ class _Group:
                     if j not in sel:
                         sel.append(j)
             self.actions.append(ACTIONS[name](params, {k: tuple(v) for k, v in fields.items()}, names))
+        # the points the group acts at: its own, and for a link action also the command direction
+        self.points = {self.point}
+        if not self.physical and self.point == "link":
+            command = point_topics("command")
+            self.points |= {"command" for a in self.actions if a.bidirectional and set(a.fields) & set(command)}
         self.callback = vanilla_callback
         if first.callback:
             self.callback = load_callback(first.callback, first.source)
@@ -243,7 +255,8 @@ class AttackLayer:
             for sc in lst:
                 if id(sc) not in resolved:
                     resolved[id(sc)] = (sc.resolved(given) if given is not None else
-                                        sc.resolved(point_topics(sc.injection_point), listened_topics()))
+                                        sc.resolved(scenario_topics(sc.injection_point, sc.actions),
+                                                    listened_topics()))
         scenarios = [[resolved[id(sc)] for sc in lst] for lst in scenarios]
         self._state_maps: dict[tuple[str, int], list[tuple[_Group, np.ndarray, np.ndarray]]] = {}
         self._fields = dict(fields or {})
@@ -258,7 +271,7 @@ class AttackLayer:
             self.groups.append(_Group(self, slot, scs, np.asarray(rows), [seeds[i] for i in rows]))
         self.physical_groups = [g for g in self.groups if g.physical]
         self.physical_ids = {sid for g in self.physical_groups for sid in g.ids}
-        self.points = frozenset(g.point for g in self.groups if not g.physical)
+        self.points = frozenset(p for g in self.groups if not g.physical for p in g.points)
         depths: dict[str, int] = {}
         for g in self.groups:
             for topic, d in g.lookback(rates or {}).items():
@@ -310,9 +323,10 @@ class AttackLayer:
                 self.history.append(topic, t_us, vals)
         out = {t: (v, np.ones(self.n, dtype=bool)) for t, v in messages.items()}
         for g in self.groups:
-            if point is not None and g.point != point:
+            if point is not None and point not in g.points:
                 continue
-            ctx = g.update(t_us)
+            # a group is evaluated at its own point; at the other direction of the link it acts as it stands
+            ctx = g.update(t_us) if point is None or point == g.point else _Context(self, g, t_us)
             for a in g.actions:
                 for topic in a.fields:
                     if topic not in out:
@@ -335,6 +349,8 @@ class AttackLayer:
         from scart_bench.generator.scart.units import latlon_pair
 
         for topic, vals in messages.items():
+            if topic in CONTROL_TOPICS:  # commands and mission items carry no position of the vehicle
+                continue
             pair = latlon_pair(topic, self.fields(topic))
             if pair is None:
                 continue

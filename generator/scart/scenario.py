@@ -32,6 +32,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from scart_bench.generator.control import CONTROL_TOPICS
 from scart_bench.generator.link import SENSOR_TOPICS
 from scart_bench.generator.scart.actions import ACTIONS
 from scart_bench.generator.scart.conditions import CONDITIONS
@@ -50,12 +51,21 @@ def point_topics(point: str) -> dict[str, tuple[str, ...]]:
     if point == "link":
         return {t: TOPICS[t].field_names for t in TELEMETRY_TOPICS}
     if point == "command":
-        return {t: TOPICS[t].field_names for t in COMMAND_TOPICS}
+        return {**{t: TOPICS[t].field_names for t in COMMAND_TOPICS}, **CONTROL_TOPICS}
     if point == "sensor":
         return {t: f for t, (_, f) in SENSOR_TOPICS.items()}
     if point in PHYSICAL_POINTS:
         return {}  # physical actions touch no message
     raise ScenarioError(f"injection_point {point!r}: expected one of {', '.join(INJECTION_POINTS)}")
+
+
+def scenario_topics(point: str, actions: list[tuple[str, dict]]) -> dict[str, tuple[str, ...]]:
+    """Topics a scenario's actions may target at ``point``: the point's own, and at ``link`` also the
+    command direction when an action works on both directions (link_loss, replay, flood)."""
+    out = point_topics(point)
+    if point == "link" and any(getattr(ACTIONS.get(n), "bidirectional", False) for n, _ in actions):
+        out = {**out, **point_topics("command")}
+    return out
 
 
 def listened_topics() -> dict[str, tuple[str, ...]]:
@@ -152,6 +162,8 @@ class Scenario:
         for i, (name, p) in enumerate(self.actions):
             if "target" in p:
                 targets: list[str] = []
+                if p["target"] == ["*"]:  # every topic that passes (the link actions)
+                    p = {**p, "target": ACTIONS[name].wildcard(available)}
                 for t in p["target"]:
                     for r in resolve_target(t, available, f"{where}: scenario.actions[{i}].target"):
                         if r not in targets:
@@ -276,7 +288,7 @@ def scenario_from_dict(table: dict, source: str = "<memory>", default_id: str = 
                   actions=actions, max_windows=max_windows, kind=kind, callback=callback,
                   description=str(table.get("description", "")), source=source)
     if check_topics:
-        sc.validate_topics(point_topics(point), where=source, listen=listened_topics())
+        sc.validate_topics(scenario_topics(point, actions), where=source, listen=listened_topics())
     return sc
 
 

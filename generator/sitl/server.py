@@ -130,6 +130,10 @@ def check_scenarios(scenarios: list[Scenario]) -> None:
         if bad:
             raise SitlError(f"scenario {sc.id!r} ({sc.source}): action {bad[0]!r} is not modelled by the sitl "
                             "(no sensor-instance failover); use it in simulation mode")
+        forged = [name for name, _ in sc.actions if name in ("inject_command", "mission_tamper")]
+        if forged:
+            raise SitlError(f"scenario {sc.id!r} ({sc.source}): action {forged[0]!r} is not carried inside the sitl; "
+                            "run it in simulation mode, or forge the command on the link with scart-bench proxy")
 
 
 class SitlServer:
