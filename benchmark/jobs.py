@@ -4,6 +4,7 @@ and returns plain, picklable data."""
 
 from __future__ import annotations
 
+import sys
 import time
 import traceback
 from dataclasses import dataclass
@@ -26,6 +27,11 @@ class JobSpec:
     threads: int = 1
     features: tuple[str, ...] | None = None
     exclude: tuple[str, ...] | None = None
+    #: The run's flight cache (:mod:`~scart_bench.benchmark.flight_cache`) and the key it must have;
+    #: None, or a cache this worker cannot read, means the flights are read from the dataset.
+    cache: str | None = None
+    cache_key: dict | None = None
+
 
 @dataclass
 class JobResult:
@@ -74,14 +80,30 @@ def _max_rss_mb() -> float:
         return float("nan")
 
 
+def open_flights(spec: JobSpec):
+    """Where the job reads its flights: the run's flight cache when it is usable here (same key,
+    every flight in it), else the dataset (a line in the job's log says why)."""
+    from scart_bench.generator.dataset import open_dataset
+
+    if spec.cache:
+        from scart_bench.benchmark.flight_cache import CacheInvalid, FlightCache
+
+        try:
+            cache = FlightCache(spec.cache, spec.cache_key)
+            if cache.has(spec.train + spec.scored):
+                return cache
+            print(f"flight cache {spec.cache} lacks some of the job's flights; reading the dataset", file=sys.stderr)
+        except CacheInvalid as exc:
+            print(f"flight cache not used ({exc}); reading the dataset", file=sys.stderr)
+    return open_dataset(spec.dataset)
+
+
 def run_job(spec: JobSpec) -> JobResult:
     """Fit one detector on the train flights and score every validation/test flight.
 
     Never raises for a detector failure: an exception becomes ERROR with its message (the
     traceback goes to the log), a NaN/inf score or a wrong number of scores becomes ERROR.
     """
-    from scart_bench.generator.dataset import open_dataset
-
     fit_s = score_s = float("nan")
     try:
         det = _load_class(spec)(**spec.overrides)
@@ -89,7 +111,7 @@ def run_job(spec: JobSpec) -> JobResult:
             det.features = list(spec.features)
         if spec.exclude:
             det.exclude = list(spec.exclude)
-        ds = open_dataset(spec.dataset)
+        ds = open_flights(spec)
         train = [ds.flight(fid) for fid in spec.train]
         t0 = time.perf_counter()
         det.fit(train)

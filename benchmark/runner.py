@@ -19,11 +19,13 @@ in the folder are kept, so a folder can collect detectors over several invocatio
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
@@ -33,6 +35,14 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.benchmark.config import RunConfig
+from scart_bench.benchmark.flight_cache import (
+    CacheInvalid,
+    FlightCache,
+    build_cache,
+    cache_key,
+    cache_path,
+    remove_cache,
+)
 from scart_bench.benchmark.jobs import JobResult, JobSpec
 from scart_bench.benchmark.protocol import ROLES, Splits, assign_roles
 from scart_bench.benchmark.results import paper_table, score_run, write_results
@@ -131,6 +141,28 @@ def _truth(ds, flight_ids) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         f = ds.flight(fid)
         out[fid] = (f["Timestamp"].to_numpy(np.int64), f["Is_Anomaly"].to_numpy(np.int8))
     return out
+
+
+def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note) -> FlightCache | None:
+    """The run's flight cache holding ``flight_ids``: the one in the run folder when its key matches
+    (kept by an unfinished run), else built now, reading each flight once. None (the jobs read
+    the dataset, as before) when a table cannot be cached exactly or the build fails."""
+    folder = cache_path(store.path)
+    try:
+        cache = FlightCache(folder, key)
+        if cache.has(flight_ids):
+            note(f"flight cache: reusing {folder}")
+            return cache
+    except CacheInvalid:
+        pass
+    t0 = time.perf_counter()
+    try:
+        cache = build_cache(folder, key, flight_ids, ds.flight)
+    except Exception as exc:  # an optimisation only: the jobs read the dataset as before
+        note(f"flight cache off ({type(exc).__name__}: {exc}); every job reads the dataset")
+        return None
+    note(f"flight cache: {len(cache.index)} flights read once in {time.perf_counter() - t0:.1f} s ({folder})")
+    return cache
 
 
 def _previous_config(store: RunStore, seed: int) -> dict | None:
@@ -232,29 +264,38 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         store.write_config(_run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings))
         store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
             ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])
-        if not store.has_truth():
-            store.write_truth(_truth(ds, splits.scored))
-
         skipped = [c.name for c in chosen if cfg.resume and _finished(store, c.name, keys[c.name])]
+        progress = Progress(len(chosen) - len(skipped), enabled=cfg.progress)
+        if skipped:
+            progress.note(f"resume: {len(skipped)} finished job(s) kept: {', '.join(skipped)}")
+        key = cache_key(identity["dataset_fingerprint"])
+        cache = (_flight_cache(store, ds, key, [*splits.train, *splits.scored], progress.note)
+                 if len(skipped) < len(chosen) else None)
+        if not store.has_truth():
+            store.write_truth(_truth(cache or ds, splits.scored))
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
         specs = [JobSpec(c.name, c.source, c.overrides(cfg.seed), tuple(p.source for p in plugins.values()),
                          str(ds.path.resolve()), splits.train, splits.scored, threads,
-                         tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None)
+                         tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
+                         str(cache.folder.resolve()) if cache else None, key if cache else None)
                  for c in chosen if c.name not in skipped]
         for spec in specs:
             store.start_job(spec.detector)
-        progress = Progress(len(specs), enabled=cfg.progress)
-        if skipped:
-            progress.note(f"resume: {len(skipped)} finished job(s) kept: {', '.join(skipped)}")
+        statuses: list[str] = []
 
         def on_done(spec: JobSpec, res: JobResult) -> None:
             params = {"detector": spec.detector, **settings[spec.detector], "key": keys[spec.detector]}
             store.finish_job(spec.detector, _status(spec, res), json_safe(params),
                              res.scores if res.status == "OK" else None, res.log)
+            statuses.append(res.status)
             progress.done(spec.detector, res)
 
         try:
             executor.run(specs, cfg.timeout_s, on_done)
+            if cache is not None and len(statuses) == len(specs) and all(s == "OK" for s in statuses):
+                remove_cache(cache.folder)  # nothing left to resume; a failed job keeps it for --resume
+                with contextlib.suppress(OSError):
+                    cache.folder.parent.rmdir()
         finally:
             progress.close()
             write_results(store)

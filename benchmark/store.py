@@ -18,6 +18,9 @@
                                action / target / injection point / kind / detectability bin (and mode)
 <run>/flight_scores.csv        detector, flight_id, role, mode, score, flagged (anywhere), outcome
                                (detected / late / missed), delay_s, late_delay_s
+<run>/cache/flights/           the run's flight cache (benchmark.flight_cache): every flight read
+                               once, shared by the jobs; removed when every job of the invocation
+                               finished OK, kept (and reused) while one is left to --resume
 <run>/.lock                    held (flock) by the run writing the folder; a second writer is refused
 ```
 A job is complete exactly when its status.json says OK: status.json is removed when a job

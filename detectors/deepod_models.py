@@ -36,6 +36,7 @@ the adapters save and restore them, and the torch thread count, around every cal
 from __future__ import annotations
 
 import contextlib
+import os
 import random
 from collections.abc import Iterator
 from typing import Any, ClassVar
@@ -104,15 +105,26 @@ class _GOADModel(_DeepODGOAD):
 # -- isolation of global state ---------------------------------------------------------------
 
 
+def _job_threads() -> int:
+    """The job's share of the cores: ``OMP_NUM_THREADS`` as the benchmark sets it for each job
+    (``cpu count // --jobs``), else every core."""
+    try:
+        return max(1, int(os.environ.get("OMP_NUM_THREADS", "")))
+    except ValueError:
+        return max(1, os.cpu_count() or 1)
+
+
+
 @contextlib.contextmanager
 def _isolated_global_state(n_threads: int) -> Iterator[None]:
-    """Run DeepOD code with ``n_threads`` torch threads and restore every global RNG afterwards."""
+    """Run DeepOD code with ``n_threads`` torch threads (0: as the process is set, i.e. the job's share
+    of the cores) and restore every global RNG afterwards."""
     np_state = np.random.get_state()
     py_state = random.getstate()
     torch_state = torch.get_rng_state()
     cuda_states = torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None
     threads = torch.get_num_threads()
-    torch.set_num_threads(n_threads)
+    torch.set_num_threads(n_threads if n_threads > 0 else _job_threads())
     try:
         yield
     finally:
@@ -154,9 +166,15 @@ class _DeepODDetector(Detector):
         Extra keyword arguments of the DeepOD model, over the adapter's defaults (see the class).
     device : str or None
         Torch device; None for "cuda" when available, else "cpu".
+    score_batch_size : int
+        Windows per batch when scoring (training keeps ``batch_size``). Larger batches cost less
+        per window (~4-9 % on 2 cores, more on a GPU); a flight is padded to whole batches, so a
+        window's score never depends on the flight's length.
     n_threads : int
-        Torch CPU threads while fitting and scoring. These small networks gain nothing from
-        more, and extra threads spin and slow down badly when the cores are shared.
+        Torch CPU threads while fitting and scoring; 0 for the job's share of the cores (the
+        benchmark runs each job with ``cpu count // --jobs`` threads). Default 1: on 2 shared
+        cores, 2 threads made GOAD 3-8x and DeepSVDD 5x slower (measured for issue 15: the
+        threads spin and wait for each other when another process holds a core).
     columns : list of str or None
         Sensor columns to use; None for every ``topic.field`` column.
     random_state : int
@@ -184,6 +202,7 @@ class _DeepODDetector(Detector):
         stride: int = 5,
         epochs: int = 10,
         batch_size: int = 64,
+        score_batch_size: int = 512,
         lr: float = 1e-3,
         max_train_windows: int = 2000,
         window_stats: bool = True,
@@ -198,6 +217,7 @@ class _DeepODDetector(Detector):
         self.stride = stride
         self.epochs = epochs
         self.batch_size = batch_size
+        self.score_batch_size = score_batch_size
         self.lr = lr
         self.max_train_windows = max_train_windows
         self.window_stats = window_stats
@@ -229,7 +249,10 @@ class _DeepODDetector(Detector):
             raise DetectorError(f"{self.name}: window must be at least 2 rows, got {self.window!r}")
         if not 1 <= int(self.segments) <= int(self.window):
             raise DetectorError(f"{self.name}: segments must be in 1..window, got {self.segments!r}")
-        for key in ("stride", "epochs", "batch_size", "max_train_windows", "n_threads"):
+        if int(self.n_threads) < 0:
+            raise DetectorError(f"{self.name}: n_threads must be 0 (the job's share of the cores) or more, "
+                                f"got {self.n_threads!r}")
+        for key in ("stride", "epochs", "batch_size", "score_batch_size", "max_train_windows"):
             if int(getattr(self, key)) < 1:
                 raise DetectorError(
                     f"{self.name}: {key} must be a positive integer, got {getattr(self, key)!r}"
@@ -276,10 +299,14 @@ class _DeepODDetector(Detector):
         n = feats.shape[0]
         # Score in full batches only, so a window's float32 result never depends on how many
         # windows follow it (batch shapes change the kernels' rounding): pad with the last window.
-        b = int(self.batch_size)
+        b = int(getattr(self, "score_batch_size", self.batch_size))  # detectors pickled before it
         padded = np.concatenate([feats, np.repeat(feats[-1:], (-n) % b, axis=0)], axis=0)
-        with _isolated_global_state(int(self.n_threads)):
-            scores = self.model_.decision_function(padded)
+        train_batch, self.model_.batch_size = self.model_.batch_size, b
+        try:
+            with _isolated_global_state(int(self.n_threads)):
+                scores = self.model_.decision_function(padded)
+        finally:
+            self.model_.batch_size = train_batch
         return np.asarray(scores, dtype=np.float64)[:n]
 
     def _score_last(self, X: np.ndarray) -> float:
