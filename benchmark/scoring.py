@@ -56,7 +56,6 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 from scipy.stats import rankdata
-from sklearn.metrics import average_precision_score
 
 from scart_bench.benchmark.intervals import bootstrap_auc, wilson
 from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol
@@ -363,9 +362,22 @@ class PaperTable(Metric):
         return out
 
 
-def _average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
-    y = np.asarray(labels)
-    return float(average_precision_score(y, scores)) if y.any() else float("nan")
+def average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
+    """Average precision (``sklearn.metrics.average_precision_score`` for 0/1 labels, to rounding):
+    the sum over distinct score thresholds, highest first, of the recall gained times the precision
+    there. NaN without positives. Array code: the bootstrap calls it thousands of times per run."""
+    y = np.asarray(labels, dtype=np.float64).reshape(-1)
+    s = np.asarray(scores, dtype=np.float64).reshape(-1)
+    if y.shape != s.shape:
+        raise ValueError(f"average_precision: {y.size} labels for {s.size} scores")
+    if not y.any():
+        return float("nan")
+    order = np.argsort(-s, kind="mergesort")
+    cuts = np.r_[np.flatnonzero(np.diff(s[order])), y.size - 1]  # the last row of each distinct score
+    tps = np.cumsum(y[order])[cuts]
+    precision = tps / (cuts + 1.0)
+    recall = tps / tps[-1]
+    return float(np.sum(np.diff(np.r_[0.0, recall]) * precision))
 
 
 class FlightROCAUC(Metric):
@@ -383,8 +395,8 @@ class FlightROCAUC(Metric):
         both = normal.size > 0 and attacked.size > 0
         out = {"roc_auc": roc_auc(labels, np.r_[normal, attacked])}
         out["roc_auc_lo"], out["roc_auc_hi"] = bootstrap_auc(roc_auc, normal, attacked)
-        out["auc_pr"] = _average_precision(labels, np.r_[normal, attacked]) if both else float("nan")
-        out["auc_pr_lo"], out["auc_pr_hi"] = bootstrap_auc(_average_precision, normal, attacked)
+        out["auc_pr"] = average_precision(labels, np.r_[normal, attacked]) if both else float("nan")
+        out["auc_pr_lo"], out["auc_pr_hi"] = bootstrap_auc(average_precision, normal, attacked)
         for m in ATTACK_MODES:
             a = ev.test("test_attacked", m)["score"].to_numpy(np.float64)
             out[f"roc_auc_{m}"] = roc_auc(np.r_[np.zeros(normal.size), np.ones(a.size)], np.r_[normal, a])

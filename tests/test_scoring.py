@@ -64,6 +64,22 @@ def test_roc_auc_equals_sklearn_with_ties(seed):
     assert roc_auc(y, s) == pytest.approx(roc_auc_score(y, s), abs=1e-12)
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_average_precision_equals_sklearn_with_ties(seed):
+    from sklearn.metrics import average_precision_score
+
+    from scart_bench.benchmark.scoring import average_precision
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 300))
+    y = rng.integers(0, 2, n)
+    y[:2] = (0, 1)
+    s = np.round(rng.normal(size=n) + y, int(rng.integers(0, 3)))  # rounding makes many ties
+    assert average_precision(y, s) == pytest.approx(average_precision_score(y, s), abs=1e-12)
+    assert average_precision([0, 0, 1, 1], [0.1, 0.4, 0.35, 0.8]) == pytest.approx(5 / 6)
+    assert np.isnan(average_precision([0, 0], [0.1, 0.2]))
+
+
 def test_roc_auc_rejects_nan_and_bad_labels():
     with pytest.raises(ScoreError):
         roc_auc([0, 1], [0.1, np.nan])
