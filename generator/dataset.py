@@ -72,7 +72,7 @@ class FlightRecord:
     ``navigator`` and ``simulator`` map topic name -> table (``Timestamp``, ``Is_Anomaly``,
     fields). ``windows`` are the attack windows ``[start_us, end_us)`` in which an action was
     active; ``events`` is the attack event log (one dict per event). ``uorb``: the flight's uORB
-    view (generator.uorb; topic -> table like the other views), written as ``sensors/uorb/`` when given.
+    view (generator.uorb; topic -> table like the other views), written as a third view when given.
     """
 
     flight_id: str

@@ -60,7 +60,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
 
     ``scenarios``: a scenario, grid or sweep file that replaces the profile's grid for the
     attacked flights (both modes); it is validated before anything is flown. ``uorb``: also write
-    each flight's uORB view (``sensors/uorb/``, generator.uorb); None keeps ``config``'s
+    each flight's uORB view (a third view, generator.uorb); None keeps ``config``'s
     ``FlightConfig.uorb`` (False by default), whatever the profile.
     """
     prof = get_profile(profile)
