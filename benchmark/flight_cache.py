@@ -10,6 +10,9 @@ times, plus once for the labels).
                                  ``b1``, ``str`` codes, ...): flight after flight, each flight's
                                  block column after column (as pandas keeps a table's columns)
 ```
+A float64 column whose every value is a float32 value (bit for bit, as the compact dataset layout's
+fields read back) is kept in ``f8f4.bin`` at half the size and read back as the same float64 values,
+in the table's one float64 block.
 
 A flight read back from the cache is the same table the dataset gives (same columns in the same
 order, same dtypes, same values bit for bit, a default RangeIndex), so every detector, built-in or
@@ -39,7 +42,7 @@ import pandas as pd
 
 from scart_bench.errors import ScartBenchError
 
-FORMAT = "scart-bench-flight-cache/1"
+FORMAT = "scart-bench-flight-cache/2"
 #: Folder of the cache inside a run folder.
 CACHE_DIR = Path("cache") / "flights"
 
@@ -66,6 +69,10 @@ def cache_key(dataset_fingerprint: str, view: str = "navigator", table: str = "m
 def _column_kind(s: pd.Series) -> dict:
     """How a column is stored: ``{"group": file, "dtype": ...}``; CacheUnsupported when not exactly."""
     dt = s.dtype
+    if isinstance(dt, np.dtype) and dt == np.dtype(np.float64):
+        v = s.to_numpy()
+        if np.array_equal(v.view(np.int64), v.astype(np.float32).astype(np.float64).view(np.int64)):
+            return {"group": HALF, "dtype": dt.str}  # exactly float32 values: half the bytes
     if isinstance(dt, np.dtype) and dt.kind in "biuf" and dt.isnative:
         return {"group": dt.str.lstrip("<>|="), "dtype": dt.str}
     if isinstance(dt, pd.StringDtype):
@@ -78,8 +85,12 @@ def _column_kind(s: pd.Series) -> dict:
     raise CacheUnsupported(f"column {s.name!r} has dtype {dt} the flight cache cannot store exactly")
 
 
+#: The group of float64 columns held as float32 (their values are float32 values).
+HALF = "f8f4"
+
+
 def _group_dtype(group: str) -> np.dtype:
-    return np.dtype(np.int32) if group == "str" else np.dtype(group)
+    return np.dtype(np.int32) if group == "str" else np.dtype(np.float32) if group == HALF else np.dtype(group)
 
 
 def _text_column(codes: np.ndarray, cats: np.ndarray, kind: dict) -> pd.Series | pd.api.extensions.ExtensionArray:
@@ -254,6 +265,28 @@ class FlightCache:
     def has(self, flight_ids: Iterable[str]) -> bool:
         return all(str(f) in self.index for f in flight_ids)
 
+    def _block(self, group: str, n_cols: int, rec: dict, n: int) -> np.ndarray:
+        """One group's (columns, rows) array of one flight, copied out of its file (float64 for HALF)."""
+        dtype = _group_dtype(group)
+        if not n:
+            return np.zeros((n_cols, 0), dtype=np.float64 if group == HALF else dtype)
+        mm = np.memmap(self.folder / f"{group}.bin", dtype=dtype, mode="r", offset=int(rec["offsets"][group]),
+                       shape=(n_cols, n))
+        block = np.array(mm, dtype=np.float64 if group == HALF else dtype)
+        del mm
+        return block
+
+    def _float64_frame(self, by_group: dict[str, list[int]], entries: list[dict], rec: dict, n: int) -> pd.DataFrame:
+        """The float64 columns of a flight (held in f8 and, as float32 values, in HALF) as one block."""
+        half, full = by_group[HALF], by_group.get("f8", [])
+        cols = sorted(half + full)
+        at = {i: k for k, i in enumerate(cols)}
+        block = np.empty((len(cols), n), dtype=np.float64)
+        block[[at[i] for i in half]] = self._block(HALF, len(half), rec, n)
+        if full:
+            block[[at[i] for i in full]] = self._block("f8", len(full), rec, n)
+        return pd.DataFrame(block.T, columns=[entries[i]["name"] for i in cols], index=pd.RangeIndex(n), copy=False)
+
     def flight(self, flight_id: str) -> pd.DataFrame:
         """The flight's table, equal to the dataset's (KeyError when it is not cached)."""
         rec = self.index[str(flight_id)]
@@ -263,15 +296,14 @@ class FlightCache:
         for i, e in enumerate(entries):
             by_group.setdefault(e["group"], []).append(i)
         frames = []
+        merged = False
         for group, cols in by_group.items():
-            dtype = _group_dtype(group)
-            if n:
-                mm = np.memmap(self.folder / f"{group}.bin", dtype=dtype, mode="r", offset=int(rec["offsets"][group]),
-                               shape=(len(cols), n))
-                block = np.array(mm).T  # rows x columns, each column contiguous (as pandas keeps them)
-                del mm
-            else:
-                block = np.zeros((0, len(cols)), dtype=dtype)
+            if HALF in by_group and group in (HALF, "f8"):
+                if not merged:  # float64 columns held as float32 go back into the one float64 block
+                    frames.append(self._float64_frame(by_group, entries, rec, n))
+                    merged = True
+                continue
+            block = self._block(group, len(cols), rec, n).T  # rows x columns, each column contiguous
             names = [entries[i]["name"] for i in cols]
             if group == "str":
                 frames.append(pd.DataFrame({name: _text_column(block[:, j], self.strings, entries[i])

@@ -87,13 +87,27 @@ def test_odd_columns_round_trip_or_are_refused(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c"]
 
 
+def test_float64_columns_of_float32_values_take_half_the_bytes_and_read_back_bit_for_bit(tmp_path):
+    rng = np.random.default_rng(0)
+    n = 1000
+    f32 = rng.normal(size=(n, 3)).astype(np.float32).astype(np.float64)  # what the compact layout gives
+    f32[5, 0], f32[6, 1] = np.nan, -0.0
+    table = pd.DataFrame({"Timestamp": np.arange(n, dtype=np.int64), "a.x": f32[:, 0],
+                          "gps.lat": 47.397742 + rng.normal(size=n) * 1e-5,  # not a float32 value: kept whole
+                          "a.y": f32[:, 1], "label": np.array([""] * n, object), "a.z": f32[:, 2]})
+    cache = build_cache(tmp_path / "c", cache_key("fp"), ["f"], lambda fid: table)
+    _same_table(table, cache.flight("f"))
+    sizes = {p.name: p.stat().st_size for p in (tmp_path / "c").glob("*.bin")}
+    assert sizes["f8f4.bin"] == 3 * n * 4 and sizes["f8.bin"] == n * 8, sizes
+
+
 def test_a_cache_of_another_dataset_or_a_damaged_one_is_not_read(tmp_path):
     df = pd.DataFrame({"a.x": np.arange(5.0)})
     folder = tmp_path / "c"
     build_cache(folder, cache_key("fp"), ["f"], lambda fid: df)
     with pytest.raises(CacheInvalid, match="another dataset"):
         FlightCache(folder, cache_key("other"))
-    with open(folder / "f8.bin", "r+b") as fh:
+    with open(next(folder.glob("*.bin")), "r+b") as fh:
         fh.truncate(8)
     with pytest.raises(CacheInvalid, match="damaged"):
         FlightCache(folder, cache_key("fp"))
