@@ -87,6 +87,12 @@ class Action:
         self.n_since[topic] += 1
         return out
 
+    def idle_draws(self, topic: str) -> int | None:
+        """Standard normals (per flight) ``apply`` draws on a message of ``topic`` while no flight of
+        the group is active, where that is all it does (the layer then only draws them); None: call
+        ``apply``."""
+        return None
+
     def apply(self, ctx, topic: str, values: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Alter ``values`` (N, F, a copy) where ``active``; returns (values, delivered)."""
         idx = list(self.fields[topic])

@@ -26,7 +26,7 @@ from scart_bench.generator.disturbances import Disturbances
 from scart_bench.generator.link import field_names as builtin_fields
 from scart_bench.generator.noise import NoiseStream
 from scart_bench.generator.scart.actions import ACTIONS, Action
-from scart_bench.generator.scart.conditions import CONDITIONS, Condition
+from scart_bench.generator.scart.conditions import CONDITIONS, PURE_CONDITIONS, Condition
 from scart_bench.generator.scart.effects import EFFECTS
 from scart_bench.generator.scart.history import History
 from scart_bench.generator.scart.scenario import (
@@ -175,6 +175,16 @@ class _Group:
         self.end_us = np.full(n, -1, dtype=np.int64)
         self.windows_used = np.zeros(n, dtype=np.int64)
         self._streams: dict[tuple[int, str], NoiseStream] = {}
+        # Shortcuts that leave the result unchanged (the paper's callback and the built-in, pure
+        # conditions only): a group none of whose flights is active cannot start before its time
+        # conditions allow, and never again once every flight has used its windows; the start
+        # conditions do not matter while all its flights are active, nor the end ones while none is.
+        self._vanilla = self.callback is vanilla_callback and all(
+            type(c) in PURE_CONDITIONS for c in self.start_conds + self.end_conds)
+        times = [c.earliest_s() for c in self.start_conds] if self._vanilla else []
+        self._wake_s = max((t for t in times if t is not None), default=None)
+        self._dead = False
+        self._ctx: _Context | None = None  # made on first use (the layer's History comes after its groups)
 
     def stream(self, action: Action, topic: str, dim: int) -> NoiseStream:
         key = (id(action), topic)
@@ -195,9 +205,20 @@ class _Group:
                 out[topic] = max(out.get(topic, 1), a.lookback(topic, rates.get(topic, 250.0)))
         return out
 
+    def context(self, t_us: int) -> _Context:
+        """The group's context at ``t_us`` (one object, reused)."""
+        ctx = self._ctx
+        if ctx is None:
+            ctx = self._ctx = _Context(self.layer, self, t_us)
+        ctx.t_us = t_us
+        ctx.start_us = self.start_us
+        return ctx
+
     def update(self, t_us: int) -> _Context:
         """Evaluate the callback; log transitions."""
-        ctx = _Context(self.layer, self, t_us)
+        ctx = self.context(t_us)
+        if self._vanilla:
+            return self._update_vanilla(ctx, t_us)
         n = len(self.rows)
         start = np.ones(n, dtype=bool)
         for c in self.start_conds:
@@ -207,6 +228,50 @@ class _Group:
             end |= np.asarray(c(ctx), dtype=bool)
         can_start = self.windows_used < self.max_windows
         new_active = np.asarray(self.callback(ctx, start, end, self.active, can_start), dtype=bool)
+        self._transitions(new_active, t_us)
+        return ctx
+
+    def _update_vanilla(self, ctx: _Context, t_us: int) -> _Context:
+        """``update`` for the paper's callback and pure conditions, skipping what cannot matter."""
+        if self._dead:
+            return ctx
+        active = self.active
+        any_active = active.any()
+        if not any_active:
+            if self._wake_s is not None and t_us / 1e6 < self._wake_s:
+                return ctx  # a time condition is False for every flight: nothing starts
+            can_start = self.windows_used < self.max_windows
+            if not can_start.any():
+                self._dead = True  # no flight active and none may start again
+                return ctx
+            start = np.ones(len(self.rows), dtype=bool)
+            for c in self.start_conds:
+                start &= np.asarray(c(ctx), dtype=bool)
+                if not start.any():
+                    return ctx  # nothing starts
+            self._transitions(start & can_start, t_us)
+            return ctx
+        if active.all():
+            end = np.zeros(len(self.rows), dtype=bool)
+            for c in self.end_conds:
+                end |= np.asarray(c(ctx), dtype=bool)
+            if not end.any():
+                return ctx  # every flight stays active
+            self._transitions(~end, t_us)
+            return ctx
+        n = len(self.rows)
+        start = np.ones(n, dtype=bool)
+        for c in self.start_conds:
+            start &= np.asarray(c(ctx), dtype=bool)
+        end = np.zeros(n, dtype=bool)
+        for c in self.end_conds:
+            end |= np.asarray(c(ctx), dtype=bool)
+        can_start = self.windows_used < self.max_windows
+        self._transitions(np.where(active, ~end, start & can_start), t_us)
+        return ctx
+
+    def _transitions(self, new_active: np.ndarray, t_us: int) -> None:
+        """Take ``new_active``: log starts and ends."""
         began = new_active & ~self.active
         ended = self.active & ~new_active
         if began.any():
@@ -219,8 +284,6 @@ class _Group:
             for r in np.flatnonzero(ended):
                 self.layer.log(int(self.rows[r]), t_us, "end", self.ids[r], self.kind)
         self.active = new_active
-        ctx.start_us = self.start_us
-        return ctx
 
 
 @dataclass
@@ -326,13 +389,19 @@ class AttackLayer:
             if point is not None and point not in g.points:
                 continue
             # a group is evaluated at its own point; at the other direction of the link it acts as it stands
-            ctx = g.update(t_us) if point is None or point == g.point else _Context(self, g, t_us)
+            ctx = g.update(t_us) if point is None or point == g.point else g.context(t_us)
+            idle = not g.active.any()
             for a in g.actions:
                 for topic in a.fields:
                     if topic not in out:
                         continue
-                    if not g.active.any() and not a.random:
-                        continue
+                    if idle:
+                        if not a.random:
+                            continue
+                        dim = a.idle_draws(topic)
+                        if dim is not None:  # inactive: only its random draws, the message stays as it is
+                            g.stream(a, topic, dim).next()
+                            continue
                     vals, ok = out[topic]
                     sub = vals[g.rows].copy()
                     new, delivered = a.apply(ctx, topic, sub, g.active)
