@@ -49,19 +49,32 @@ class Action:
         """Messages of history this action needs for ``topic``."""
         return 1
 
+    def _cached(self, key: tuple, make) -> np.ndarray:
+        """``make()``, kept: parameters and targets never change after construction (read-only)."""
+        cache = self.__dict__.setdefault("_cache", {})
+        out = cache.get(key)
+        if out is None:
+            out = cache[key] = make()
+            out.flags.writeable = False
+        return out
+
     def p(self, name: str) -> np.ndarray:
         """A numeric parameter as a column (N, 1) for broadcasting over fields."""
-        return np.asarray(self.params[name], dtype=float).reshape(-1, 1)
+        return self._cached(("p", name), lambda: np.array(self.params[name], dtype=float).reshape(-1, 1))
 
     def scales(self, topic: str) -> np.ndarray:
         names = self.field_names[topic]
-        return np.array([units.scale(topic, names[i]) for i in self.fields[topic]])
+        return self._cached(("scales", topic), lambda: np.array([units.scale(topic, names[i])
+                                                                   for i in self.fields[topic]]))
 
     def signed(self, topic: str) -> np.ndarray:
         """(N, F) field units per physical unit along each flight's direction."""
         names = self.field_names[topic]
-        d = np.deg2rad(np.asarray(self.params.get("direction_deg", 45.0), dtype=float)).reshape(-1)
-        return np.array([[units.signed(topic, names[i], di) for i in self.fields[topic]] for di in d])
+
+        def make():
+            d = np.deg2rad(np.asarray(self.params.get("direction_deg", 45.0), dtype=float)).reshape(-1)
+            return np.array([[units.signed(topic, names[i], di) for i in self.fields[topic]] for di in d])
+        return self._cached(("signed", topic), make)
 
     def start_values(self, ctx, topic: str, current: np.ndarray) -> np.ndarray:
         """Values of the target fields when the attack started (captured on its first message)."""

@@ -184,6 +184,9 @@ class _Group:
         times = [c.earliest_s() for c in self.start_conds] if self._vanilla else []
         self._wake_s = max((t for t in times if t is not None), default=None)
         self._dead = False
+        #: (action, topic) in the order they act on a message, and those of the random actions
+        self.action_targets = [(a, topic) for a in self.actions for topic in a.fields]
+        self.random_targets = [(a, topic) for a, topic in self.action_targets if a.random]
         self._ctx: _Context | None = None  # made on first use (the layer's History comes after its groups)
 
     def stream(self, action: Action, topic: str, dim: int) -> NoiseStream:
@@ -391,26 +394,24 @@ class AttackLayer:
             # a group is evaluated at its own point; at the other direction of the link it acts as it stands
             ctx = g.update(t_us) if point is None or point == g.point else g.context(t_us)
             idle = not g.active.any()
-            for a in g.actions:
-                for topic in a.fields:
-                    if topic not in out:
+            # inactive: only the random actions act (for their draws), in the same order
+            for a, topic in (g.random_targets if idle else g.action_targets):
+                if topic not in out:
+                    continue
+                if idle:
+                    dim = a.idle_draws(topic)
+                    if dim is not None:  # all it would do is draw: the message stays as it is
+                        g.stream(a, topic, dim).next()
                         continue
-                    if idle:
-                        if not a.random:
-                            continue
-                        dim = a.idle_draws(topic)
-                        if dim is not None:  # inactive: only its random draws, the message stays as it is
-                            g.stream(a, topic, dim).next()
-                            continue
-                    vals, ok = out[topic]
-                    sub = vals[g.rows].copy()
-                    new, delivered = a.apply(ctx, topic, sub, g.active)
-                    if vals is messages[topic]:
-                        vals = vals.copy()
-                        ok = ok.copy()
-                    vals[g.rows] = new
-                    ok[g.rows] &= delivered
-                    out[topic] = (vals, ok)
+                vals, ok = out[topic]
+                sub = vals[g.rows].copy()
+                new, delivered = a.apply(ctx, topic, sub, g.active)
+                if vals is messages[topic]:
+                    vals = vals.copy()
+                    ok = ok.copy()
+                vals[g.rows] = new
+                ok[g.rows] &= delivered
+                out[topic] = (vals, ok)
         return out
 
     def learn_origin(self, messages: dict[str, np.ndarray]) -> None:
