@@ -324,7 +324,7 @@ class AttackLayer:
                                         sc.resolved(scenario_topics(sc.injection_point, sc.actions),
                                                     listened_topics()))
         scenarios = [[resolved[id(sc)] for sc in lst] for lst in scenarios]
-        self._state_maps: dict[tuple[str, int], list[tuple[_Group, np.ndarray, np.ndarray]]] = {}
+        self._state_maps: dict[tuple[str, int], list | tuple] = {}
         self._fields = dict(fields or {})
         self.events: list[Event] = []
         self.groups: list[_Group] = []
@@ -367,7 +367,13 @@ class AttackLayer:
                 src = [j for j, r in enumerate(g.rows) if int(r) in where and g.ids[j] == scenario_id]
                 if src:
                     maps.append((g, np.asarray(src), np.asarray([where[int(g.rows[j])] for j in src])))
+            if len(maps) == 1 and len(maps[0][2]) == len(rows):  # one group holds it for every row
+                g, src, dst = maps[0]
+                maps = (g, src[np.argsort(dst)])
             self._state_maps[key] = maps
+        if isinstance(maps, tuple):
+            g, src = maps
+            return {"active": g.active[src], "start_us": g.start_us[src], "end_us": g.end_us[src]}
         active = np.zeros(len(rows), dtype=bool)
         start = np.full(len(rows), -1, dtype=np.int64)
         end = np.full(len(rows), -1, dtype=np.int64)
