@@ -68,31 +68,51 @@ def metres_per_degree(lat=HOME_LAT) -> tuple[np.ndarray, np.ndarray]:
     return m_lat, m_lon
 
 
-def ne_from_latlon(lat, lon, lat0, lon0) -> tuple[np.ndarray, np.ndarray]:
+def origin_ecef(lat0, lon0) -> tuple:
+    """ECEF (m) of tangent-plane origins on the ellipsoid: pass it as ``ecef0`` to
+    :func:`ne_from_latlon` / :func:`latlon_from_ne` with the same origins to skip recomputing it."""
+    import pymap3d
+
+    return pymap3d.geodetic2ecef(lat0, lon0, 0.0)
+
+
+def ne_from_latlon(lat, lon, lat0, lon0, ecef0: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """North/east metres of ``lat``/``lon`` in the WGS-84 tangent plane at ``lat0``/``lon0`` (deg).
 
     All arguments broadcast (one origin per flight: pass ``lat0`` with the flights' shape).
-    Heights are taken as 0 on the ellipsoid: a horizontal conversion.
+    Heights are taken as 0 on the ellipsoid: a horizontal conversion. ``ecef0``: the origins'
+    :func:`origin_ecef`, if known (the result is the same, bit for bit).
     """
     import pymap3d
 
     lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
-    e, n, _ = pymap3d.geodetic2enu(lat, lon, np.zeros_like(lat), lat0, lon0, 0.0)
+    if ecef0 is None:
+        e, n, _ = pymap3d.geodetic2enu(lat, lon, np.zeros_like(lat), lat0, lon0, 0.0)
+    else:  # pymap3d.geodetic2enu's own steps, with the origin's ECEF given
+        x1, y1, z1 = pymap3d.geodetic2ecef(lat, lon, np.zeros_like(lat))
+        x2, y2, z2 = ecef0
+        e, n, _ = pymap3d.uvw2enu(x1 - x2, y1 - y2, z1 - z2, lat0, lon0)
     return np.asarray(n, dtype=np.float64), np.asarray(e, dtype=np.float64)
 
 
-def latlon_from_ne(n, e, lat0, lon0) -> tuple[np.ndarray, np.ndarray]:
+def latlon_from_ne(n, e, lat0, lon0, ecef0: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`ne_from_latlon`: the latitude/longitude (deg) of a tangent-plane point.
 
     Only latitude/longitude are returned (the plane's height above the surface, d^2 / 2R,
-    moves them by less than a micrometre within kilometres of the origin).
+    moves them by less than a micrometre within kilometres of the origin). ``ecef0``: as in
+    :func:`ne_from_latlon`.
     """
     import pymap3d
 
     n, e = np.asarray(n, dtype=np.float64), np.asarray(e, dtype=np.float64)
     # pymap3d.enu2geodetic is enu2ecef then ecef2geodetic; the latter is taken bit for bit from
     # pymap3d without its per-call overhead where it can be (see _ecef_to_latlon)
-    x, y, z = pymap3d.enu2ecef(e, n, np.zeros_like(n), lat0, lon0, 0.0)
+    if ecef0 is None:
+        x, y, z = pymap3d.enu2ecef(e, n, np.zeros_like(n), lat0, lon0, 0.0)
+    else:  # pymap3d.enu2ecef's own steps, with the origin's ECEF given
+        x0, y0, z0 = ecef0
+        u, v, w = pymap3d.enu2uvw(e, n, np.zeros_like(n), lat0, lon0)
+        x, y, z = x0 + u, y0 + v, z0 + w
     fast = _ecef_to_latlon(x, y, z)
     if fast is None:
         lat, lon, _ = pymap3d.ecef2geodetic(x, y, z)

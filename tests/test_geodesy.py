@@ -115,3 +115,16 @@ def test_latlon_from_ne_gives_pymap3d_bit_for_bit():
     ref = pymap3d.enu2geodetic(0.0, 0.0, 0.0, 90.0, 0.0, 0.0)
     assert np.array_equal(lat, [ref[0]]) and np.array_equal(lon, [ref[1]])
     assert latlon_from_ne(10.0, 20.0, 63.0, 10.0) == tuple(float(v) for v in pymap3d.enu2geodetic(20.0, 10.0, 0.0, 63.0, 10.0, 0.0)[:2])
+
+
+def test_a_given_origin_ecef_changes_no_bit():
+    from scart_bench.generator.geo import origin_ecef
+
+    rng = np.random.default_rng(1)
+    lat0, lon0 = rng.uniform(-80, 80, 5), rng.uniform(-180, 180, 5)
+    north, east = rng.normal(0, 300, 5), rng.normal(0, 300, 5)
+    ecef0 = origin_ecef(lat0, lon0)
+    lat, lon = latlon_from_ne(north, east, lat0, lon0)
+    assert all(np.array_equal(a, b) for a, b in zip((lat, lon), latlon_from_ne(north, east, lat0, lon0, ecef0)))
+    ne = ne_from_latlon(lat, lon, lat0, lon0)
+    assert all(np.array_equal(a, b) for a, b in zip(ne, ne_from_latlon(lat, lon, lat0, lon0, ecef0)))

@@ -135,11 +135,18 @@ def _origin(ctx, values: np.ndarray, pair: tuple[int, int]) -> np.ndarray:
     return o
 
 
+def _origin_and_ecef(ctx, values: np.ndarray, pair: tuple[int, int]) -> tuple[np.ndarray, tuple | None]:
+    """:func:`_origin` and, once the origins are fixed, their ECEF (kept by the context)."""
+    fixed = getattr(ctx, "fixed_origin", None)
+    got = fixed() if fixed is not None else None
+    return got if got is not None else (_origin(ctx, values, pair), None)
+
+
 def to_metres(ctx, values: np.ndarray, pair: tuple[int, int]) -> np.ndarray:
     """A copy of ``values`` with the lat/lon columns ``pair`` as north/east metres from the origin."""
     work = values.copy()
-    o = _origin(ctx, values, pair)
-    n, e = geo.ne_from_latlon(values[:, pair[0]], values[:, pair[1]], o[:, 0], o[:, 1])
+    o, ecef0 = _origin_and_ecef(ctx, values, pair)
+    n, e = geo.ne_from_latlon(values[:, pair[0]], values[:, pair[1]], o[:, 0], o[:, 1], ecef0)
     work[:, pair[0]], work[:, pair[1]] = n, e
     return work
 
@@ -149,8 +156,8 @@ def from_metres(ctx, values: np.ndarray, work: np.ndarray, pair: tuple[int, int]
     """``values`` with the target columns ``idx`` taken from ``work`` where ``active`` (metres ->
     lat/lon for the pair); everything else unchanged, bit for bit."""
     out = values.copy()
-    o = _origin(ctx, values, pair)
-    lat, lon = geo.latlon_from_ne(work[:, pair[0]], work[:, pair[1]], o[:, 0], o[:, 1])
+    o, ecef0 = _origin_and_ecef(ctx, values, pair)
+    lat, lon = geo.latlon_from_ne(work[:, pair[0]], work[:, pair[1]], o[:, 0], o[:, 1], ecef0)
     back = work.copy()
     back[:, pair[0]], back[:, pair[1]] = lat, lon
     out[:, idx] = np.where(active[:, None], back[:, idx], values[:, idx])

@@ -23,6 +23,7 @@ import numpy as np
 
 from scart_bench.generator.control import CONTROL_TOPICS
 from scart_bench.generator.disturbances import Disturbances
+from scart_bench.generator.geo import origin_ecef
 from scart_bench.generator.link import field_names as builtin_fields
 from scart_bench.generator.noise import NoiseStream
 from scart_bench.generator.scart.actions import ACTIONS, Action
@@ -99,6 +100,18 @@ class _Context:
 
     def fields(self, topic: str) -> tuple[str, ...]:
         return self.layer.fields(topic)
+
+    def fixed_origin(self) -> tuple[np.ndarray, tuple] | None:
+        """(origin, its ECEF) of the group's flights once every flight of the batch has its origin
+        (it never changes then; read-only), else None."""
+        if self.layer._origin_open:
+            return None
+        g = self.group
+        if g.origin_cache is None:
+            o = np.array(self.layer.origin[self.rows], dtype=np.float64, copy=True)
+            o.flags.writeable = False
+            g.origin_cache = (o, origin_ecef(o[:, 0], o[:, 1]))
+        return g.origin_cache
 
     def per_batch(self, values, fill) -> np.ndarray:
         """A per-group parameter spread to the whole batch (other flights get ``fill``)."""
@@ -187,7 +200,8 @@ class _Group:
         #: (action, topic) in the order they act on a message, and those of the random actions
         self.action_targets = [(a, topic) for a in self.actions for topic in a.fields]
         self.random_targets = [(a, topic) for a, topic in self.action_targets if a.random]
-        self._ctx: _Context | None = None  # made on first use (the layer's History comes after its groups)
+        self._ctx: _Context | None = None
+        self.origin_cache: tuple[np.ndarray, tuple] | None = None  # see _Context.fixed_origin  # made on first use (the layer's History comes after its groups)
 
     def stream(self, action: Action, topic: str, dim: int) -> NoiseStream:
         key = (id(action), topic)
