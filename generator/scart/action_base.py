@@ -108,8 +108,12 @@ class Action:
 
     def apply(self, ctx, topic: str, values: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Alter ``values`` (N, F, a copy) where ``active``; returns (values, delivered)."""
-        idx = list(self.fields[topic])
-        pair = units.latlon_pair(topic, self.field_names[topic]) if self.metric else None
+        got = self.__dict__.setdefault("_targets", {}).get(topic)
+        if got is None:  # the target columns and the lat/lon pair of a topic never change
+            got = self._targets[topic] = (list(self.fields[topic]), units.latlon_pair(
+                topic, self.field_names[topic]) if self.metric else None)
+        idx, pair = got
+        idx = list(idx)
         if pair is None or not active.any():  # inactive: alter only for its random draws, nothing changes
             cur = values[:, idx]
             new, delivered = self.alter(ctx, topic, cur, active)

@@ -222,6 +222,12 @@ class _Group:
                 out[topic] = max(out.get(topic, 1), a.lookback(topic, rates.get(topic, 250.0)))
         return out
 
+    @property
+    def finished(self) -> bool:
+        """True once the group can never act again: no flight active, none may start again (the
+        paper's callback), and no random action that must keep drawing."""
+        return self._dead and not self.random_targets
+
     def context(self, t_us: int) -> _Context:
         """The group's context at ``t_us`` (one object, reused)."""
         ctx = self._ctx
@@ -350,6 +356,7 @@ class AttackLayer:
             scs = [scenarios[i][slot] for i in rows]
             self.groups.append(_Group(self, slot, scs, np.asarray(rows), [seeds[i] for i in rows]))
         self.physical_groups = [g for g in self.groups if g.physical]
+        self._live = list(self.groups)  # the groups on_messages still runs (see _Group.finished)
         self.physical_ids = {sid for g in self.physical_groups for sid in g.ids}
         self.points = frozenset(p for g in self.groups if not g.physical for p in g.points)
         depths: dict[str, int] = {}
@@ -408,8 +415,12 @@ class AttackLayer:
                 self._fields.setdefault(topic, self.fields(topic))
                 self.history.append(topic, t_us, vals)
         out = {t: (v, np.ones(self.n, dtype=bool)) for t, v in messages.items()}
-        for g in self.groups:
+        done = False
+        for g in self._live:
             if point is not None and point not in g.points:
+                continue
+            if g.finished:
+                done = True
                 continue
             # a group is evaluated at its own point; at the other direction of the link it acts as it stands
             ctx = g.update(t_us) if point is None or point == g.point else g.context(t_us)
@@ -432,6 +443,10 @@ class AttackLayer:
                 vals[g.rows] = new
                 ok[g.rows] &= delivered
                 out[topic] = (vals, ok)
+            if g.finished:
+                done = True
+        if done:  # a finished group does nothing more at any point
+            self._live = [g for g in self._live if not g.finished]
         return out
 
     def learn_origin(self, messages: dict[str, np.ndarray]) -> None:
