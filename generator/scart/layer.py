@@ -184,6 +184,7 @@ class _Group:
         for c in self.start_conds + self.end_conds:
             self.listeners |= c.topics()
         self.active = np.zeros(n, dtype=bool)
+        self.any_active = self.all_active = False  # active.any() and .all(), kept by _transitions
         self.start_us = np.full(n, -1, dtype=np.int64)
         self.end_us = np.full(n, -1, dtype=np.int64)
         self.windows_used = np.zeros(n, dtype=np.int64)
@@ -259,8 +260,7 @@ class _Group:
         if self._dead:
             return ctx
         active = self.active
-        any_active = active.any()
-        if not any_active:
+        if not self.any_active:
             if self._wake_s is not None and t_us / 1e6 < self._wake_s:
                 return ctx  # a time condition is False for every flight: nothing starts
             can_start = self.windows_used < self.max_windows
@@ -274,7 +274,7 @@ class _Group:
                     return ctx  # nothing starts
             self._transitions(start & can_start, t_us)
             return ctx
-        if active.all():
+        if self.all_active:
             end = np.zeros(len(self.rows), dtype=bool)
             for c in self.end_conds:
                 end |= np.asarray(c(ctx), dtype=bool)
@@ -307,6 +307,8 @@ class _Group:
             for r in np.flatnonzero(ended):
                 self.layer.log(int(self.rows[r]), t_us, "end", self.ids[r], self.kind)
         self.active = new_active
+        self.any_active = bool(new_active.any())
+        self.all_active = bool(new_active.all())
 
 
 @dataclass
@@ -424,7 +426,7 @@ class AttackLayer:
                 continue
             # a group is evaluated at its own point; at the other direction of the link it acts as it stands
             ctx = g.update(t_us) if point is None or point == g.point else g.context(t_us)
-            idle = not g.active.any()
+            idle = not g.any_active
             # inactive: only the random actions act (for their draws), in the same order
             for a, topic in (g.random_targets if idle else g.action_targets):
                 if topic not in out:
