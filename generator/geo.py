@@ -68,30 +68,87 @@ def metres_per_degree(lat=HOME_LAT) -> tuple[np.ndarray, np.ndarray]:
     return m_lat, m_lon
 
 
-def ne_from_latlon(lat, lon, lat0, lon0) -> tuple[np.ndarray, np.ndarray]:
+def origin_ecef(lat0, lon0) -> tuple:
+    """ECEF (m) of tangent-plane origins on the ellipsoid: pass it as ``ecef0`` to
+    :func:`ne_from_latlon` / :func:`latlon_from_ne` with the same origins to skip recomputing it."""
+    import pymap3d
+
+    return pymap3d.geodetic2ecef(lat0, lon0, 0.0)
+
+
+def ne_from_latlon(lat, lon, lat0, lon0, ecef0: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """North/east metres of ``lat``/``lon`` in the WGS-84 tangent plane at ``lat0``/``lon0`` (deg).
 
     All arguments broadcast (one origin per flight: pass ``lat0`` with the flights' shape).
-    Heights are taken as 0 on the ellipsoid: a horizontal conversion.
+    Heights are taken as 0 on the ellipsoid: a horizontal conversion. ``ecef0``: the origins'
+    :func:`origin_ecef`, if known (the result is the same, bit for bit).
     """
     import pymap3d
 
     lat, lon = np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
-    e, n, _ = pymap3d.geodetic2enu(lat, lon, np.zeros_like(lat), lat0, lon0, 0.0)
+    if ecef0 is None:
+        e, n, _ = pymap3d.geodetic2enu(lat, lon, np.zeros_like(lat), lat0, lon0, 0.0)
+    else:  # pymap3d.geodetic2enu's own steps, with the origin's ECEF given
+        x1, y1, z1 = pymap3d.geodetic2ecef(lat, lon, np.zeros_like(lat))
+        x2, y2, z2 = ecef0
+        e, n, _ = pymap3d.uvw2enu(x1 - x2, y1 - y2, z1 - z2, lat0, lon0)
     return np.asarray(n, dtype=np.float64), np.asarray(e, dtype=np.float64)
 
 
-def latlon_from_ne(n, e, lat0, lon0) -> tuple[np.ndarray, np.ndarray]:
+def latlon_from_ne(n, e, lat0, lon0, ecef0: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`ne_from_latlon`: the latitude/longitude (deg) of a tangent-plane point.
 
     Only latitude/longitude are returned (the plane's height above the surface, d^2 / 2R,
-    moves them by less than a micrometre within kilometres of the origin).
+    moves them by less than a micrometre within kilometres of the origin). ``ecef0``: as in
+    :func:`ne_from_latlon`.
     """
     import pymap3d
 
     n, e = np.asarray(n, dtype=np.float64), np.asarray(e, dtype=np.float64)
-    lat, lon, _ = pymap3d.enu2geodetic(e, n, np.zeros_like(n), lat0, lon0, 0.0)
+    # pymap3d.enu2geodetic is enu2ecef then ecef2geodetic; the latter is taken bit for bit from
+    # pymap3d without its per-call overhead where it can be (see _ecef_to_latlon)
+    if ecef0 is None:
+        x, y, z = pymap3d.enu2ecef(e, n, np.zeros_like(n), lat0, lon0, 0.0)
+    else:  # pymap3d.enu2ecef's own steps, with the origin's ECEF given
+        x0, y0, z0 = ecef0
+        u, v, w = pymap3d.enu2uvw(e, n, np.zeros_like(n), lat0, lon0)
+        x, y, z = x0 + u, y0 + v, z0 + w
+    fast = _ecef_to_latlon(x, y, z)
+    if fast is None:
+        lat, lon, _ = pymap3d.ecef2geodetic(x, y, z)
+    else:
+        lat, lon = fast
     return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+
+
+def _ecef_to_latlon(x, y, z) -> tuple[np.ndarray, np.ndarray] | None:
+    """Latitude/longitude (deg) of ECEF points on WGS-84: the operations of pymap3d 3.2's
+    ``ecef2geodetic`` (You, 2000) for arrays, in the same order, so the results are the same bits;
+    without its checks' overhead and the altitude. None where pymap3d's special cases apply (a
+    point at the centre or on the axis, or not an array): the caller then asks pymap3d itself."""
+    from pymap3d import Ellipsoid
+
+    x, y, z = np.asarray(x), np.asarray(y), np.asarray(z)
+    if x.ndim == 0 or x.shape != y.shape or x.shape != z.shape or x.dtype != np.float64:
+        return None
+    ell = Ellipsoid.from_name("wgs84")
+    a, b = ell.semimajor_axis, ell.semiminor_axis
+    r = np.sqrt(x**2 + y**2 + z**2)
+    E = np.sqrt(a**2 - b**2)
+    u = np.sqrt(0.5 * (r**2 - E**2) + 0.5 * np.hypot(r**2 - E**2, 2 * E * z))
+    hxy = np.hypot(x, y)
+    huE = np.hypot(u, E)
+    # pymap3d's np.isclose(v, 0) is |v| <= 1e-8
+    if not ((np.abs(u) > 1e-8) & (np.abs(hxy) > 1e-8)).all():
+        return None
+    beta = np.arctan(huE / u * z / hxy)
+    beta = beta + ((b * u - a * huE + E**2) * np.sin(beta)) / (a * huE * 1 / np.cos(beta) - E**2 * np.cos(beta))
+    lat = np.arctan(a / b * np.tan(beta))
+    lim_pi2 = np.pi / 2 - np.finfo(beta.dtype).eps
+    lat = np.where(beta >= lim_pi2, np.pi / 2, lat)
+    lat = np.where(beta <= -lim_pi2, -np.pi / 2, lat)
+    lon = np.arctan2(y, x)
+    return np.degrees(lat), np.degrees(lon)
 
 
 def offset_latlon(lat, lon, d_north, d_east, lat0=None, lon0=None) -> tuple[np.ndarray, np.ndarray]:

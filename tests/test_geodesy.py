@@ -100,3 +100,31 @@ def test_offset_round_trip_is_exact_to_a_micrometre():
     lat, lon = offset_latlon(63.0, 10.0, 30.0, -40.0)
     n, e = ne_from_latlon(lat, lon, 63.0, 10.0)
     assert abs(n - 30.0) < 1e-6 and abs(e + 40.0) < 1e-6
+
+
+def test_latlon_from_ne_gives_pymap3d_bit_for_bit():
+    # the fast path must not move a single bit, or datasets change (the poles and scalars go to pymap3d)
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 64):
+        lat0, lon0 = rng.uniform(-89.9, 89.9, n), rng.uniform(-180, 180, n)
+        north, east = rng.normal(0, 500, n), rng.normal(0, 500, n)
+        lat, lon = latlon_from_ne(north, east, lat0, lon0)
+        ref_lat, ref_lon, _ = pymap3d.enu2geodetic(east, north, np.zeros(n), lat0, lon0, 0.0)
+        assert np.array_equal(lat, ref_lat) and np.array_equal(lon, ref_lon)
+    lat, lon = latlon_from_ne(np.array([0.0]), np.array([0.0]), np.array([90.0]), np.array([0.0]))
+    ref = pymap3d.enu2geodetic(0.0, 0.0, 0.0, 90.0, 0.0, 0.0)
+    assert np.array_equal(lat, [ref[0]]) and np.array_equal(lon, [ref[1]])
+    assert latlon_from_ne(10.0, 20.0, 63.0, 10.0) == tuple(float(v) for v in pymap3d.enu2geodetic(20.0, 10.0, 0.0, 63.0, 10.0, 0.0)[:2])
+
+
+def test_a_given_origin_ecef_changes_no_bit():
+    from scart_bench.generator.geo import origin_ecef
+
+    rng = np.random.default_rng(1)
+    lat0, lon0 = rng.uniform(-80, 80, 5), rng.uniform(-180, 180, 5)
+    north, east = rng.normal(0, 300, 5), rng.normal(0, 300, 5)
+    ecef0 = origin_ecef(lat0, lon0)
+    lat, lon = latlon_from_ne(north, east, lat0, lon0)
+    assert all(np.array_equal(a, b) for a, b in zip((lat, lon), latlon_from_ne(north, east, lat0, lon0, ecef0)))
+    ne = ne_from_latlon(lat, lon, lat0, lon0)
+    assert all(np.array_equal(a, b) for a, b in zip(ne, ne_from_latlon(lat, lon, lat0, lon0, ecef0)))

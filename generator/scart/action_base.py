@@ -49,19 +49,32 @@ class Action:
         """Messages of history this action needs for ``topic``."""
         return 1
 
+    def _cached(self, key: tuple, make) -> np.ndarray:
+        """``make()``, kept: parameters and targets never change after construction (read-only)."""
+        cache = self.__dict__.setdefault("_cache", {})
+        out = cache.get(key)
+        if out is None:
+            out = cache[key] = make()
+            out.flags.writeable = False
+        return out
+
     def p(self, name: str) -> np.ndarray:
         """A numeric parameter as a column (N, 1) for broadcasting over fields."""
-        return np.asarray(self.params[name], dtype=float).reshape(-1, 1)
+        return self._cached(("p", name), lambda: np.array(self.params[name], dtype=float).reshape(-1, 1))
 
     def scales(self, topic: str) -> np.ndarray:
         names = self.field_names[topic]
-        return np.array([units.scale(topic, names[i]) for i in self.fields[topic]])
+        return self._cached(("scales", topic), lambda: np.array([units.scale(topic, names[i])
+                                                                   for i in self.fields[topic]]))
 
     def signed(self, topic: str) -> np.ndarray:
         """(N, F) field units per physical unit along each flight's direction."""
         names = self.field_names[topic]
-        d = np.deg2rad(np.asarray(self.params.get("direction_deg", 45.0), dtype=float)).reshape(-1)
-        return np.array([[units.signed(topic, names[i], di) for i in self.fields[topic]] for di in d])
+
+        def make():
+            d = np.deg2rad(np.asarray(self.params.get("direction_deg", 45.0), dtype=float)).reshape(-1)
+            return np.array([[units.signed(topic, names[i], di) for i in self.fields[topic]] for di in d])
+        return self._cached(("signed", topic), make)
 
     def start_values(self, ctx, topic: str, current: np.ndarray) -> np.ndarray:
         """Values of the target fields when the attack started (captured on its first message)."""
@@ -87,10 +100,20 @@ class Action:
         self.n_since[topic] += 1
         return out
 
+    def idle_draws(self, topic: str) -> int | None:
+        """Standard normals (per flight) ``apply`` draws on a message of ``topic`` while no flight of
+        the group is active, where that is all it does (the layer then only draws them); None: call
+        ``apply``."""
+        return None
+
     def apply(self, ctx, topic: str, values: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Alter ``values`` (N, F, a copy) where ``active``; returns (values, delivered)."""
-        idx = list(self.fields[topic])
-        pair = units.latlon_pair(topic, self.field_names[topic]) if self.metric else None
+        got = self.__dict__.setdefault("_targets", {}).get(topic)
+        if got is None:  # the target columns and the lat/lon pair of a topic never change
+            got = self._targets[topic] = (list(self.fields[topic]), units.latlon_pair(
+                topic, self.field_names[topic]) if self.metric else None)
+        idx, pair = got
+        idx = list(idx)
         if pair is None or not active.any():  # inactive: alter only for its random draws, nothing changes
             cur = values[:, idx]
             new, delivered = self.alter(ctx, topic, cur, active)
@@ -116,11 +139,18 @@ def _origin(ctx, values: np.ndarray, pair: tuple[int, int]) -> np.ndarray:
     return o
 
 
+def _origin_and_ecef(ctx, values: np.ndarray, pair: tuple[int, int]) -> tuple[np.ndarray, tuple | None]:
+    """:func:`_origin` and, once the origins are fixed, their ECEF (kept by the context)."""
+    fixed = getattr(ctx, "fixed_origin", None)
+    got = fixed() if fixed is not None else None
+    return got if got is not None else (_origin(ctx, values, pair), None)
+
+
 def to_metres(ctx, values: np.ndarray, pair: tuple[int, int]) -> np.ndarray:
     """A copy of ``values`` with the lat/lon columns ``pair`` as north/east metres from the origin."""
     work = values.copy()
-    o = _origin(ctx, values, pair)
-    n, e = geo.ne_from_latlon(values[:, pair[0]], values[:, pair[1]], o[:, 0], o[:, 1])
+    o, ecef0 = _origin_and_ecef(ctx, values, pair)
+    n, e = geo.ne_from_latlon(values[:, pair[0]], values[:, pair[1]], o[:, 0], o[:, 1], ecef0)
     work[:, pair[0]], work[:, pair[1]] = n, e
     return work
 
@@ -130,8 +160,8 @@ def from_metres(ctx, values: np.ndarray, work: np.ndarray, pair: tuple[int, int]
     """``values`` with the target columns ``idx`` taken from ``work`` where ``active`` (metres ->
     lat/lon for the pair); everything else unchanged, bit for bit."""
     out = values.copy()
-    o = _origin(ctx, values, pair)
-    lat, lon = geo.latlon_from_ne(work[:, pair[0]], work[:, pair[1]], o[:, 0], o[:, 1])
+    o, ecef0 = _origin_and_ecef(ctx, values, pair)
+    lat, lon = geo.latlon_from_ne(work[:, pair[0]], work[:, pair[1]], o[:, 0], o[:, 1], ecef0)
     back = work.copy()
     back[:, pair[0]], back[:, pair[1]] = lat, lon
     out[:, idx] = np.where(active[:, None], back[:, idx], values[:, idx])

@@ -38,6 +38,9 @@ class AddWhiteNoise(Action):
     spec = (_TARGET, Param("std", float, required=True, minimum=0.0, exclusive_min=True))
     random = True
 
+    def idle_draws(self, topic):
+        return len(self.fields[topic]) if type(self) is AddWhiteNoise else None  # a subclass may alter more
+
     def alter(self, ctx, topic, cur, active):
         z = ctx.normal(self, topic, cur.shape[1])
         return cur + z * self.p("std") * self.scales(topic), _keep(cur.shape[0])
@@ -50,6 +53,9 @@ class RandomChange(Action):
     metric = True
     spec = (_TARGET, Param("range", float, required=True, minimum=0.0, exclusive_min=True))
     random = True
+
+    def idle_draws(self, topic):
+        return len(self.fields[topic]) if type(self) is RandomChange else None  # a subclass may alter more
 
     def alter(self, ctx, topic, cur, active):
         u = ndtr(ctx.normal(self, topic, cur.shape[1]))
@@ -76,6 +82,9 @@ class DisconnectSensor(Action):
     name = "disconnect_sensor"
     spec = (_TARGET, Param("probability", float, 1.0, minimum=0.0, maximum=1.0))
     random = True
+
+    def idle_draws(self, topic):
+        return 1 if type(self) is DisconnectSensor else None  # a subclass may alter more
 
     def alter(self, ctx, topic, cur, active):
         u = ndtr(ctx.normal(self, topic, 1))[:, 0]
@@ -172,6 +181,9 @@ class Garbage(Action):
     metric = True
     spec = (_TARGET, Param("range", float, 1000.0, minimum=0.0, exclusive_min=True))
     random = True
+
+    def idle_draws(self, topic):
+        return len(self.fields[topic]) if type(self) is Garbage else None  # a subclass may alter more
 
     def alter(self, ctx, topic, cur, active):
         u = ndtr(ctx.normal(self, topic, cur.shape[1]))

@@ -34,6 +34,13 @@ class Condition:
     def __call__(self, ctx) -> np.ndarray:
         raise NotImplementedError
 
+    def earliest_s(self) -> float | None:
+        """A time (s) before which the condition is False for every flight (None: no such time known).
+
+        Lets the layer skip evaluating a group that cannot start yet; the built-in time conditions
+        give the same comparison as their ``__call__``."""
+        return None
+
 
 def _latest(ctx, topic: str) -> tuple[np.ndarray, tuple[str, ...]] | tuple[None, None]:
     h = ctx.history.get(topic)
@@ -84,6 +91,9 @@ class TimeWindow(Condition):
     def __call__(self, ctx):
         t = ctx.t_us / 1e6
         return (t >= self.params["start_s"]) & (t < self.params["end_s"])
+
+    def earliest_s(self):
+        return float(np.min(self.params["start_s"]))
 
 
 class MessageCount(Condition):
@@ -164,6 +174,10 @@ class RandomStart(Condition):
         lo, hi = self.params["low_s"], self.params["high_s"]
         return ctx.t_us / 1e6 >= lo + (hi - lo) * self.u
 
+    def earliest_s(self):
+        lo, hi = self.params["low_s"], self.params["high_s"]
+        return float(np.min(lo + (hi - lo) * self.u))
+
 
 class Duration(Condition):
     """End condition: holds ``seconds`` after the attack started."""
@@ -218,3 +232,7 @@ CONDITIONS: dict[str, type[Condition]] = {
     c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, RandomStart, Duration,
                         ScenarioActive, ScenarioStarted, ScenarioEnded)
 }
+
+#: The built-in conditions: pure functions of the context (no state, no random draws), so the layer
+#: may leave one unevaluated when its value cannot change the outcome.
+PURE_CONDITIONS = frozenset(CONDITIONS.values())

@@ -23,10 +23,11 @@ import numpy as np
 
 from scart_bench.generator.control import CONTROL_TOPICS
 from scart_bench.generator.disturbances import Disturbances
+from scart_bench.generator.geo import origin_ecef
 from scart_bench.generator.link import field_names as builtin_fields
 from scart_bench.generator.noise import NoiseStream
 from scart_bench.generator.scart.actions import ACTIONS, Action
-from scart_bench.generator.scart.conditions import CONDITIONS, Condition
+from scart_bench.generator.scart.conditions import CONDITIONS, PURE_CONDITIONS, Condition
 from scart_bench.generator.scart.effects import EFFECTS
 from scart_bench.generator.scart.history import History
 from scart_bench.generator.scart.scenario import (
@@ -100,6 +101,18 @@ class _Context:
     def fields(self, topic: str) -> tuple[str, ...]:
         return self.layer.fields(topic)
 
+    def fixed_origin(self) -> tuple[np.ndarray, tuple] | None:
+        """(origin, its ECEF) of the group's flights once every flight of the batch has its origin
+        (it never changes then; read-only), else None."""
+        if self.layer._origin_open:
+            return None
+        g = self.group
+        if g.origin_cache is None:
+            o = np.array(self.layer.origin[self.rows], dtype=np.float64, copy=True)
+            o.flags.writeable = False
+            g.origin_cache = (o, origin_ecef(o[:, 0], o[:, 1]))
+        return g.origin_cache
+
     def per_batch(self, values, fill) -> np.ndarray:
         """A per-group parameter spread to the whole batch (other flights get ``fill``)."""
         full = np.full(self.n_batch, fill, dtype=np.asarray(values).dtype)
@@ -171,10 +184,25 @@ class _Group:
         for c in self.start_conds + self.end_conds:
             self.listeners |= c.topics()
         self.active = np.zeros(n, dtype=bool)
+        self.any_active = self.all_active = False  # active.any() and .all(), kept by _transitions
         self.start_us = np.full(n, -1, dtype=np.int64)
         self.end_us = np.full(n, -1, dtype=np.int64)
         self.windows_used = np.zeros(n, dtype=np.int64)
         self._streams: dict[tuple[int, str], NoiseStream] = {}
+        # Shortcuts that leave the result unchanged (the paper's callback and the built-in, pure
+        # conditions only): a group none of whose flights is active cannot start before its time
+        # conditions allow, and never again once every flight has used its windows; the start
+        # conditions do not matter while all its flights are active, nor the end ones while none is.
+        self._vanilla = self.callback is vanilla_callback and all(
+            type(c) in PURE_CONDITIONS for c in self.start_conds + self.end_conds)
+        times = [c.earliest_s() for c in self.start_conds] if self._vanilla else []
+        self._wake_s = max((t for t in times if t is not None), default=None)
+        self._dead = False
+        #: (action, topic) in the order they act on a message, and those of the random actions
+        self.action_targets = [(a, topic) for a in self.actions for topic in a.fields]
+        self.random_targets = [(a, topic) for a, topic in self.action_targets if a.random]
+        self._ctx: _Context | None = None
+        self.origin_cache: tuple[np.ndarray, tuple] | None = None  # see _Context.fixed_origin  # made on first use (the layer's History comes after its groups)
 
     def stream(self, action: Action, topic: str, dim: int) -> NoiseStream:
         key = (id(action), topic)
@@ -195,9 +223,26 @@ class _Group:
                 out[topic] = max(out.get(topic, 1), a.lookback(topic, rates.get(topic, 250.0)))
         return out
 
+    @property
+    def finished(self) -> bool:
+        """True once the group can never act again: no flight active, none may start again (the
+        paper's callback), and no random action that must keep drawing."""
+        return self._dead and not self.random_targets
+
+    def context(self, t_us: int) -> _Context:
+        """The group's context at ``t_us`` (one object, reused)."""
+        ctx = self._ctx
+        if ctx is None:
+            ctx = self._ctx = _Context(self.layer, self, t_us)
+        ctx.t_us = t_us
+        ctx.start_us = self.start_us
+        return ctx
+
     def update(self, t_us: int) -> _Context:
         """Evaluate the callback; log transitions."""
-        ctx = _Context(self.layer, self, t_us)
+        ctx = self.context(t_us)
+        if self._vanilla:
+            return self._update_vanilla(ctx, t_us)
         n = len(self.rows)
         start = np.ones(n, dtype=bool)
         for c in self.start_conds:
@@ -207,6 +252,49 @@ class _Group:
             end |= np.asarray(c(ctx), dtype=bool)
         can_start = self.windows_used < self.max_windows
         new_active = np.asarray(self.callback(ctx, start, end, self.active, can_start), dtype=bool)
+        self._transitions(new_active, t_us)
+        return ctx
+
+    def _update_vanilla(self, ctx: _Context, t_us: int) -> _Context:
+        """``update`` for the paper's callback and pure conditions, skipping what cannot matter."""
+        if self._dead:
+            return ctx
+        active = self.active
+        if not self.any_active:
+            if self._wake_s is not None and t_us / 1e6 < self._wake_s:
+                return ctx  # a time condition is False for every flight: nothing starts
+            can_start = self.windows_used < self.max_windows
+            if not can_start.any():
+                self._dead = True  # no flight active and none may start again
+                return ctx
+            start = np.ones(len(self.rows), dtype=bool)
+            for c in self.start_conds:
+                start &= np.asarray(c(ctx), dtype=bool)
+                if not start.any():
+                    return ctx  # nothing starts
+            self._transitions(start & can_start, t_us)
+            return ctx
+        if self.all_active:
+            end = np.zeros(len(self.rows), dtype=bool)
+            for c in self.end_conds:
+                end |= np.asarray(c(ctx), dtype=bool)
+            if not end.any():
+                return ctx  # every flight stays active
+            self._transitions(~end, t_us)
+            return ctx
+        n = len(self.rows)
+        start = np.ones(n, dtype=bool)
+        for c in self.start_conds:
+            start &= np.asarray(c(ctx), dtype=bool)
+        end = np.zeros(n, dtype=bool)
+        for c in self.end_conds:
+            end |= np.asarray(c(ctx), dtype=bool)
+        can_start = self.windows_used < self.max_windows
+        self._transitions(np.where(active, ~end, start & can_start), t_us)
+        return ctx
+
+    def _transitions(self, new_active: np.ndarray, t_us: int) -> None:
+        """Take ``new_active``: log starts and ends."""
         began = new_active & ~self.active
         ended = self.active & ~new_active
         if began.any():
@@ -219,8 +307,8 @@ class _Group:
             for r in np.flatnonzero(ended):
                 self.layer.log(int(self.rows[r]), t_us, "end", self.ids[r], self.kind)
         self.active = new_active
-        ctx.start_us = self.start_us
-        return ctx
+        self.any_active = bool(new_active.any())
+        self.all_active = bool(new_active.all())
 
 
 @dataclass
@@ -258,7 +346,7 @@ class AttackLayer:
                                         sc.resolved(scenario_topics(sc.injection_point, sc.actions),
                                                     listened_topics()))
         scenarios = [[resolved[id(sc)] for sc in lst] for lst in scenarios]
-        self._state_maps: dict[tuple[str, int], list[tuple[_Group, np.ndarray, np.ndarray]]] = {}
+        self._state_maps: dict[tuple[str, int], list | tuple] = {}
         self._fields = dict(fields or {})
         self.events: list[Event] = []
         self.groups: list[_Group] = []
@@ -270,6 +358,7 @@ class AttackLayer:
             scs = [scenarios[i][slot] for i in rows]
             self.groups.append(_Group(self, slot, scs, np.asarray(rows), [seeds[i] for i in rows]))
         self.physical_groups = [g for g in self.groups if g.physical]
+        self._live = list(self.groups)  # the groups on_messages still runs (see _Group.finished)
         self.physical_ids = {sid for g in self.physical_groups for sid in g.ids}
         self.points = frozenset(p for g in self.groups if not g.physical for p in g.points)
         depths: dict[str, int] = {}
@@ -301,7 +390,13 @@ class AttackLayer:
                 src = [j for j, r in enumerate(g.rows) if int(r) in where and g.ids[j] == scenario_id]
                 if src:
                     maps.append((g, np.asarray(src), np.asarray([where[int(g.rows[j])] for j in src])))
+            if len(maps) == 1 and len(maps[0][2]) == len(rows):  # one group holds it for every row
+                g, src, dst = maps[0]
+                maps = (g, src[np.argsort(dst)])
             self._state_maps[key] = maps
+        if isinstance(maps, tuple):
+            g, src = maps
+            return {"active": g.active[src], "start_us": g.start_us[src], "end_us": g.end_us[src]}
         active = np.zeros(len(rows), dtype=bool)
         start = np.full(len(rows), -1, dtype=np.int64)
         end = np.full(len(rows), -1, dtype=np.int64)
@@ -322,26 +417,38 @@ class AttackLayer:
                 self._fields.setdefault(topic, self.fields(topic))
                 self.history.append(topic, t_us, vals)
         out = {t: (v, np.ones(self.n, dtype=bool)) for t, v in messages.items()}
-        for g in self.groups:
+        done = False
+        for g in self._live:
             if point is not None and point not in g.points:
                 continue
+            if g.finished:
+                done = True
+                continue
             # a group is evaluated at its own point; at the other direction of the link it acts as it stands
-            ctx = g.update(t_us) if point is None or point == g.point else _Context(self, g, t_us)
-            for a in g.actions:
-                for topic in a.fields:
-                    if topic not in out:
+            ctx = g.update(t_us) if point is None or point == g.point else g.context(t_us)
+            idle = not g.any_active
+            # inactive: only the random actions act (for their draws), in the same order
+            for a, topic in (g.random_targets if idle else g.action_targets):
+                if topic not in out:
+                    continue
+                if idle:
+                    dim = a.idle_draws(topic)
+                    if dim is not None:  # all it would do is draw: the message stays as it is
+                        g.stream(a, topic, dim).next()
                         continue
-                    if not g.active.any() and not a.random:
-                        continue
-                    vals, ok = out[topic]
-                    sub = vals[g.rows].copy()
-                    new, delivered = a.apply(ctx, topic, sub, g.active)
-                    if vals is messages[topic]:
-                        vals = vals.copy()
-                        ok = ok.copy()
-                    vals[g.rows] = new
-                    ok[g.rows] &= delivered
-                    out[topic] = (vals, ok)
+                vals, ok = out[topic]
+                sub = vals[g.rows].copy()
+                new, delivered = a.apply(ctx, topic, sub, g.active)
+                if vals is messages[topic]:
+                    vals = vals.copy()
+                    ok = ok.copy()
+                vals[g.rows] = new
+                ok[g.rows] &= delivered
+                out[topic] = (vals, ok)
+            if g.finished:
+                done = True
+        if done:  # a finished group does nothing more at any point
+            self._live = [g for g in self._live if not g.finished]
         return out
 
     def learn_origin(self, messages: dict[str, np.ndarray]) -> None:

@@ -1,0 +1,109 @@
+"""Speed of the SCART attack layer: simulation mode and csv mode on paper configurations.
+
+Runs ``simulation_mode`` and ``csv_mode`` on the first ``--n`` configurations of a grid in the
+generator's order (``generator.attacks._order``), prints the wall time of each and a hash of every
+output (BatchResult arrays, event logs, csv tables, windows), so two versions of the layer can be
+compared for speed and byte-identical output::
+
+    python -m perf.layer_speed --n 256 --out before.json
+    python -m perf.layer_speed --n 256 --out after.json --compare before.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+
+import numpy as np
+
+
+def _hash_batch(batch, layer) -> str:
+    h = hashlib.sha256()
+    for view in (batch.simulator, batch.navigator):
+        for topic in sorted(view):
+            h.update(topic.encode())
+            for arr in view[topic]:
+                h.update(np.ascontiguousarray(arr).tobytes())
+    for name in ("exit_step", "waypoints", "wind", "gps_rejections"):
+        h.update(np.ascontiguousarray(getattr(batch, name)).tobytes())
+    h.update(repr(batch.status).encode())
+    h.update(repr([(e.flight, e.timestamp_us, e.event, e.scenario_id, e.kind) for e in layer.events]).encode())
+    return h.hexdigest()
+
+
+def _hash_csv(results) -> str:
+    h = hashlib.sha256()
+    for nav, windows, events in results:
+        for topic in sorted(nav):
+            df = nav[topic]
+            h.update(topic.encode() + repr(list(df.columns)).encode())
+            for c in df.columns:
+                arr = df[c].to_numpy()
+                h.update(repr(arr.tolist()).encode() if arr.dtype == object else np.ascontiguousarray(arr).tobytes())
+        h.update(repr(windows).encode() + repr(events).encode())
+    return h.hexdigest()
+
+
+def main(argv: list[str] | None = None) -> None:
+    from scart_bench.generator.attacks import _order, attack_seeds, grid_path, strip_labels
+    from scart_bench.generator.modes import csv_mode, simulation_mode
+    from scart_bench.generator.records import normal_record
+    from scart_bench.generator.scart.grid import load_configurations
+    from scart_bench.generator.simulate import FlightConfig, simulate
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--grid", default="paper.toml")
+    ap.add_argument("--n", type=int, default=256, help="configurations (first n in the generator's order)")
+    ap.add_argument("--skip", type=int, default=0, help="configurations skipped first")
+    ap.add_argument("--sources", type=int, default=4, help="normal flights used as csv sources")
+    ap.add_argument("--modes", default="simulation,csv", help="comma-separated: simulation, csv")
+    ap.add_argument("--out", help="write times and hashes here (JSON)")
+    ap.add_argument("--compare", help="a JSON of an earlier run: print the speedup and whether outputs match")
+    args = ap.parse_args(argv)
+
+    configs = load_configurations(grid_path(args.grid))
+    seeds = attack_seeds(0, len(configs))
+    order = _order(configs)[args.skip:args.skip + args.n]
+    cfg = FlightConfig()
+    simulate([1], cfg)  # compile / warm up the kernel
+    modes = args.modes.split(",")
+    t_sim, sim_hash, t_csv, csv_hash = float("nan"), "", float("nan"), ""
+    if "simulation" in modes:
+        t0 = time.perf_counter()
+        batch, layer = simulation_mode([seeds[i] for i in order], [configs[i] for i in order], cfg)
+        t_sim = time.perf_counter() - t0
+        sim_hash = _hash_batch(batch, layer)
+
+    link_idx = [i for i in order if any(s.injection_point == "link" for s in configs[i])]
+    if "csv" in modes:
+        src_seeds = [10_000 + k for k in range(args.sources)]
+        normal = simulate(src_seeds, cfg)
+        sources = [strip_labels(normal_record(normal, j, f"normal-{j}", "csv_source", {}).navigator)
+                   for j in range(len(src_seeds))]
+        link = [{t: df for t, df in sources[k % len(sources)].items() if t != "truth"} for k in range(len(link_idx))]
+        t0 = time.perf_counter()
+        results = csv_mode(link, [configs[i] for i in link_idx],
+                           [src_seeds[k % len(sources)] for k in range(len(link_idx))])
+        t_csv = time.perf_counter() - t0
+        csv_hash = _hash_csv(results)
+    res = {"n": len(order), "n_csv": len(link_idx), "sim_s": round(t_sim, 2), "csv_s": round(t_csv, 2),
+           "sim_hash": sim_hash, "csv_hash": csv_hash}
+    print(json.dumps(res))
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(res, f)
+    if args.compare:
+        with open(args.compare) as f:
+            ref = json.load(f)
+        if "simulation" in modes:
+            print(f"simulation mode: {ref['sim_s']:.1f} s -> {t_sim:.1f} s ({ref['sim_s'] / t_sim:.2f}x), "
+                  f"identical: {ref['sim_hash'] == sim_hash}")
+        if "csv" in modes:
+            print(f"csv mode: {ref['csv_s']:.1f} s -> {t_csv:.1f} s ({ref['csv_s'] / t_csv:.2f}x), "
+                  f"identical: {ref['csv_hash'] == csv_hash}")
+
+
+if __name__ == "__main__":
+    main()
