@@ -71,7 +71,9 @@ def _column_kind(s: pd.Series) -> dict:
     dt = s.dtype
     if isinstance(dt, np.dtype) and dt == np.dtype(np.float64):
         v = s.to_numpy()
-        if np.array_equal(v.view(np.int64), v.astype(np.float32).astype(np.float64).view(np.int64)):
+        with np.errstate(over="ignore", invalid="ignore"):  # 1e300 becomes inf in float32: not equal, kept whole
+            back = v.astype(np.float32).astype(np.float64)
+        if np.array_equal(v.view(np.int64), back.view(np.int64)):
             return {"group": HALF, "dtype": dt.str}  # exactly float32 values: half the bytes
     if isinstance(dt, np.dtype) and dt.kind in "biuf" and dt.isnative:
         return {"group": dt.str.lstrip("<>|="), "dtype": dt.str}
