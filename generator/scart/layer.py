@@ -243,13 +243,7 @@ class _Group:
         ctx = self.context(t_us)
         if self._vanilla:
             return self._update_vanilla(ctx, t_us)
-        n = len(self.rows)
-        start = np.ones(n, dtype=bool)
-        for c in self.start_conds:
-            start &= np.asarray(c(ctx), dtype=bool)
-        end = np.zeros(n, dtype=bool)
-        for c in self.end_conds:
-            end |= np.asarray(c(ctx), dtype=bool)
+        start, end = self._conditions(ctx)
         can_start = self.windows_used < self.max_windows
         new_active = np.asarray(self.callback(ctx, start, end, self.active, can_start), dtype=bool)
         self._transitions(new_active, t_us)
@@ -282,6 +276,13 @@ class _Group:
                 return ctx  # every flight stays active
             self._transitions(~end, t_us)
             return ctx
+        start, end = self._conditions(ctx)
+        can_start = self.windows_used < self.max_windows
+        self._transitions(np.where(active, ~end, start & can_start), t_us)
+        return ctx
+
+    def _conditions(self, ctx: _Context) -> tuple[np.ndarray, np.ndarray]:
+        """Every start condition and'ed, every end condition or'ed, per flight of the group."""
         n = len(self.rows)
         start = np.ones(n, dtype=bool)
         for c in self.start_conds:
@@ -289,9 +290,7 @@ class _Group:
         end = np.zeros(n, dtype=bool)
         for c in self.end_conds:
             end |= np.asarray(c(ctx), dtype=bool)
-        can_start = self.windows_used < self.max_windows
-        self._transitions(np.where(active, ~end, start & can_start), t_us)
-        return ctx
+        return start, end
 
     def _transitions(self, new_active: np.ndarray, t_us: int) -> None:
         """Take ``new_active``: log starts and ends."""
