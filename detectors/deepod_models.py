@@ -97,9 +97,37 @@ class _GOADModel(_DeepODGOAD):
     def inference_prepare(self, X):
         if self.rep_means is None:  # first call, inside fit: compute the centres
             return super().inference_prepare(X)
-        x_trans = np.stack([X.dot(rot) for rot in self.affine_weights], 2)
         self.net.eval()
-        return DataLoader(torch.from_numpy(x_trans).float(), batch_size=self.batch_size, shuffle=False)
+        return DataLoader(self.transform(X), batch_size=self.batch_size, shuffle=False)
+
+    def transform(self, X: np.ndarray) -> torch.Tensor:
+        """Every affine transformation of every row, (rows, trans_dim, n_trans) float32.
+
+        One float64 matrix product with the transformations side by side: the same values as
+        DeepOD's one product per transformation (each entry is the same dot product), 2x faster.
+        """
+        weights = self.__dict__.get("_stacked_weights")
+        if weights is None:  # (features, n_trans * trans_dim), transformation-major columns
+            weights = np.ascontiguousarray(np.transpose(self.affine_weights, (1, 0, 2)).reshape(X.shape[1], -1))
+            self.__dict__["_stacked_weights"] = weights
+        x_trans = (np.asarray(X, dtype=np.float64) @ weights).reshape(X.shape[0], self.n_trans, -1)
+        return torch.from_numpy(x_trans.transpose(0, 2, 1)).float()
+
+
+def _model_scores(model: BaseDeepAD, X: np.ndarray, batch_size: int) -> np.ndarray:
+    """DeepOD's ``decision_function`` scores of the rows of ``X``, in batches of ``batch_size``.
+
+    The same batches and the same ``inference_forward`` as DeepOD, without its per-row data
+    loader and without collecting the representations it also returns (unused here).
+    """
+    data = model.inference_prepare(X).dataset  # also what the model sets up for inference
+    data = data if isinstance(data, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(X))
+    model.net.eval()
+    out = []
+    with torch.no_grad():
+        for lo in range(0, data.shape[0], batch_size):
+            out.append(model.inference_forward(data[lo : lo + batch_size], model.net, model.criterion)[1])
+    return torch.cat(out).cpu().numpy().astype(np.float64)
 
 
 # -- isolation of global state ---------------------------------------------------------------
@@ -232,12 +260,13 @@ class _DeepODDetector(Detector):
         """Raw feature vectors (float32) of the windows ending at rows 0, step, 2 step, ..."""
         w, k = int(self.window), int(self.segments)
         X = pad_start(X.astype(np.float32), w - 1)
-        view = sliding_window_view(X, w, axis=0)[::step]  # (n, channels, w)
+        # (n, w, channels): each window's rows contiguous, which numpy reduces fastest
+        view = sliding_window_view(X, w, axis=0)[::step].transpose(0, 2, 1)
         bounds = np.linspace(0, w, k + 1).round().astype(int)
-        paa = np.add.reduceat(view, bounds[:-1], axis=2) / np.diff(bounds).astype(np.float32)
-        parts = [paa.transpose(0, 2, 1).reshape(view.shape[0], -1)]
+        paa = np.add.reduceat(view, bounds[:-1], axis=1) / np.diff(bounds).astype(np.float32)[:, None]
+        parts = [paa.reshape(view.shape[0], -1)]
         if self.window_stats:
-            parts += [view.std(axis=2), np.diff(view, axis=2).std(axis=2)]
+            parts += [view.std(axis=1), np.diff(view, axis=1).std(axis=1)]
         return np.concatenate(parts, axis=1)
 
     def _features(self, X: np.ndarray, step: int = 1) -> np.ndarray:
@@ -301,13 +330,9 @@ class _DeepODDetector(Detector):
         # windows follow it (batch shapes change the kernels' rounding): pad with the last window.
         b = int(getattr(self, "score_batch_size", self.batch_size))  # detectors pickled before it
         padded = np.concatenate([feats, np.repeat(feats[-1:], (-n) % b, axis=0)], axis=0)
-        train_batch, self.model_.batch_size = self.model_.batch_size, b
-        try:
-            with _isolated_global_state(int(self.n_threads)):
-                scores = self.model_.decision_function(padded)
-        finally:
-            self.model_.batch_size = train_batch
-        return np.asarray(scores, dtype=np.float64)[:n]
+        with _isolated_global_state(int(self.n_threads)):
+            scores = _model_scores(self.model_, padded, b)
+        return scores[:n]
 
     def _score_last(self, X: np.ndarray) -> float:
         """Only the window ending at the last row, scored alone (for streaming).
@@ -317,7 +342,7 @@ class _DeepODDetector(Detector):
         """
         feats = self._features(X[-int(self.window):])[-1:]
         with _isolated_global_state(int(self.n_threads)):
-            scores = self.model_.decision_function(feats)
+            scores = _model_scores(self.model_, feats, 1)
         return float(scores[0])
 
 # -- the five built-ins ------------------------------------------------------------------------

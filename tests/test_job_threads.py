@@ -59,3 +59,25 @@ def test_deepod_scores_in_large_batches_without_depending_on_the_flight_length()
     # a window's score is the same whatever follows it: the flight is padded to whole batches
     assert np.array_equal(det.score(flight.iloc[:300]), full[:300])
     assert det.get_params()["score_batch_size"] == 256
+
+
+@pytest.mark.parametrize("name", ["deepsvdd", "rdp", "rca", "goad", "neutral"])
+def test_deepod_scores_equal_deepods_own_decision_function(name):
+    """The adapters score without DeepOD's data loader (and GOAD transforms with one matrix
+    product); the scores must stay exactly DeepOD's."""
+    from scart_bench.detectors.registry import make
+
+    rng = np.random.default_rng(1)
+    extra = {"model_params": {"n_trans": 8}} if name == "goad" else {}
+    det = make(name, epochs=1, max_train_windows=300, score_batch_size=128, **extra).fit([_flight(rng, 600)])
+    flight = _flight(rng, 500)
+    feats = det._features(det._transform(flight))
+    if name == "goad":  # DeepOD's own transformation: one product per affine map
+        rots = det.model_.affine_weights
+        assert torch.equal(det.model_.transform(feats), torch.from_numpy(np.stack([feats.dot(r) for r in rots], 2)).float())
+    padded = np.concatenate([feats, np.repeat(feats[-1:], (-len(feats)) % 128, axis=0)])
+    det.model_.batch_size = 128
+    with _isolated_global_state(1):
+        theirs = det.model_.decision_function(padded)[: len(feats)]
+    det.model_.batch_size = 64
+    assert np.array_equal(det.score(flight), theirs)
