@@ -47,54 +47,51 @@ def _ranges(label: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1], axis=1).astype(np.int64)
 
 
-def _merged(seq: np.ndarray, w: int, length: int) -> list[tuple[int, int]]:
-    """Ranges widened by ``w // 2`` each side, overlapping ones merged (TSB-AD ``new_sequence``)."""
-    h = w // 2
-    out = []
-    a = max(int(seq[0, 0]) - h, 0)
-    for i in range(len(seq) - 1):
-        if seq[i, 1] + h < seq[i + 1, 0] - h:
-            out.append((a, int(seq[i, 1]) + h))
-            a = int(seq[i + 1, 0]) - h
-    out.append((a, min(int(seq[-1, 1]) + h, length - 1)))
-    return out
-
-
-def _extended(label: np.ndarray, seq: np.ndarray, w: int) -> np.ndarray:
-    """Labels with a soft border of ``w // 2`` rows each side (TSB-AD ``sequencing``)."""
-    ext = label.astype(np.float64).copy()
-    n = ext.size
-    h = w // 2
-    for s, e in seq:
-        x1 = np.arange(e + 1, min(e + h + 1, n))
-        ext[x1] += np.sqrt(1 - (x1 - e) / w)
-        x2 = np.arange(max(s - h, 0), s)
-        ext[x2] += np.sqrt(1 - (s - x2) / w)
-    return np.minimum(1.0, ext)
-
-
-def _mask(length: int, segments) -> np.ndarray:
-    m = np.zeros(length, dtype=bool)
-    for a, b in segments:
-        m[a : b + 1] = True
-    return m
-
-
 def _count_at_least(sorted_scores: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """For each threshold, how many of the (ascending) scores are >= it."""
     return sorted_scores.size - np.searchsorted(sorted_scores, thresholds, side="left")
 
 
-def _sum_at_least(sorted_scores: np.ndarray, weights_csum: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
-    """For each threshold, the sum of the weights of the scores >= it (``weights_csum``: cumsum
-    of the weights in ascending score order, with a leading 0)."""
-    idx = np.searchsorted(sorted_scores, thresholds, side="left")
-    return weights_csum[-1] - weights_csum[idx]
+def _border_distances(n: int, seq: np.ndarray, in_seq: np.ndarray, reach: int):
+    """Rows outside the ranges within ``reach`` rows of one; per row, the distance to the end of
+    the range before it, to the start of the range after it, and the smaller of the distances to
+    the second range before and after it (``reach + 1`` when farther or absent)."""
+    far, r = reach + 1, len(seq)
+    rows = np.arange(n)
+    k = np.searchsorted(seq[:, 1], rows, side="left") - 1  # last range ending before the row
+    j = np.searchsorted(seq[:, 0], rows, side="right")  # first range starting after the row
+
+    def gap(valid: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        return np.where(valid, np.minimum(dist, far), far)
+
+    d_prev = gap(k >= 0, rows - seq[np.clip(k, 0, r - 1), 1])
+    d_next = gap(j < r, seq[np.clip(j, 0, r - 1), 0] - rows)
+    d_second = np.minimum(gap(k >= 1, rows - seq[np.clip(k - 1, 0, r - 1), 1]),
+                          gap(j + 1 < r, seq[np.clip(j + 1, 0, r - 1), 0] - rows))
+    keep = np.flatnonzero(~in_seq & (np.minimum(d_prev, d_next) <= reach))
+    return keep, d_prev[keep], d_next[keep], d_second[keep]
+
+
+def _reach_max(score: np.ndarray, starts: np.ndarray, step: int, reach: int) -> np.ndarray:
+    """``(ranges, reach + 1)``: the largest score among rows ``starts + step * 1..d`` (clipped to
+    the series) for d = 0..reach; -inf for d = 0."""
+    d = np.arange(1, reach + 1)
+    idx = starts[:, None] + step * d[None, :]
+    vals = np.where((idx >= 0) & (idx < score.size), score[np.clip(idx, 0, score.size - 1)], -np.inf)
+    return np.maximum.accumulate(np.c_[np.full(len(starts), -np.inf), vals], axis=1)
 
 
 def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
         n_thresholds: int = VUS_THRESHOLDS) -> tuple[float, float]:
-    """``(VUS-ROC, VUS-PR)`` of per-row ``scores`` against 0/1 ``labels``; NaN without anomalies."""
+    """``(VUS-ROC, VUS-PR)`` of per-row ``scores`` against 0/1 ``labels``; NaN without anomalies.
+
+    At border width ``w`` (``h = w // 2``), a row outside the true ranges weighs
+    ``min(1, sum of sqrt(1 - d / w))`` over the range borders ``d <= h`` rows away (TSB-AD
+    ``sequencing``; each term is at least ``sqrt(1/2)``, so two borders make 1); only the rows within ``window // 2`` of a range ever weigh anything, so they
+    are sorted by score once and weighed for every width in one array. TP at a threshold is the
+    number of true rows plus the border weight at or above it; the label mass adds the same border
+    weight to the true rows (TSB-AD's ``l``-window bookkeeping reduces to this).
+    """
     label = np.asarray(labels).reshape(-1).astype(np.int64)
     score = np.asarray(scores, dtype=np.float64).reshape(-1)
     if label.shape != score.shape:
@@ -104,39 +101,54 @@ def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
     if n == 0 or len(seq) == 0:
         return float("nan"), float("nan")
     window = int(window)
-    p_total = float(label.sum())
-    outer = _mask(n, _merged(seq, window, n))  # TSB-AD's ``l``: ranges widened by the largest border
+    reach = window // 2
     in_seq = label.astype(bool)
-    thresholds = -np.sort(-score)[np.linspace(0, n - 1, n_thresholds).astype(int)]
-    n_pred = _count_at_least(np.sort(score), thresholds).astype(np.float64)
-    aucs, aps = [], []
-    for w in range(window + 1):
-        ext = _extended(label, seq, w)
-        segs = _merged(seq, w, n)
-        in_l = _mask(n, segs)
-        # rows of ``outer``: inside a true range count 1; inside a widened range their border
-        # weight only when predicted; elsewhere their border weight always (it is 0 there)
-        sel = outer
-        s_sel = score[sel]
-        order = np.argsort(s_sel, kind="stable")
-        s_sorted = s_sel[order]
-        seq_sel, l_sel, e_sel = in_seq[sel][order], in_l[sel][order], ext[sel][order]
-        c_tp = np.where(seq_sel, 1.0, e_sel)
-        tp = _sum_at_least(s_sorted, np.r_[0.0, np.cumsum(c_tp)], thresholds)
-        fixed = float(seq_sel.sum()) + float(e_sel[~seq_sel & ~l_sel].sum())
-        c_lab = np.where(~seq_sel & l_sel, e_sel, 0.0)
-        n_labels = fixed + _sum_at_least(s_sorted, np.r_[0.0, np.cumsum(c_lab)], thresholds)
-        seg_max = np.sort(np.array([score[a : b + 1].max() for a, b in segs]))
-        existence = _count_at_least(seg_max, thresholds) / len(segs)
-        p_new = (p_total + n_labels) / 2.0
-        tpr = np.minimum(tp / p_new, 1.0) * existence
-        fpr = (n_pred - tp) / (n - p_new)
-        precision = tp / n_pred
-        roc_x = np.r_[0.0, fpr, 1.0]
-        roc_y = np.r_[0.0, tpr, 1.0]
-        aucs.append(float(np.dot(roc_x[1:] - roc_x[:-1], (roc_y[1:] + roc_y[:-1]) / 2.0)))
-        aps.append(float(np.dot(np.diff(np.r_[0.0, tpr]), precision)))
-    return float(sum(aucs) / len(aucs)), float(sum(aps) / len(aps))
+    p_total = float(label.sum())
+    ascending = np.sort(score)
+    thresholds = ascending[::-1][np.linspace(0, n - 1, n_thresholds).astype(int)]
+    n_pred = _count_at_least(ascending, thresholds).astype(np.float64)
+    true_at = _count_at_least(np.sort(score[in_seq]), thresholds).astype(np.float64)
+    # border rows sorted by score; for every width the weights of those at or above each threshold
+    rows, d_prev, d_next, d_second = _border_distances(n, seq, in_seq, reach)
+    order = np.argsort(score[rows], kind="stable")
+    d_prev, d_next, d_second = d_prev[order], d_next[order], d_second[order]
+    above = np.searchsorted(score[rows][order], thresholds, side="left")
+    widths = np.arange(window + 1)
+    border_at = np.zeros((window + 1, n_thresholds))
+    for lo in range(0, window + 1, 16):  # blocks of widths bound the memory on long series
+        w = widths[lo : lo + 16, None].astype(np.float64)
+        h = widths[lo : lo + 16, None] // 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            weight = (np.where(d_prev <= h, np.sqrt(1 - d_prev / w), 0.0)
+                      + np.where(d_next <= h, np.sqrt(1 - d_next / w), 0.0)
+                      + (d_second <= h))  # a second range as near: two borders, weight 1
+        csum = np.c_[np.zeros(len(w)), np.cumsum(np.minimum(weight, 1.0), axis=1)]
+        border_at[lo : lo + 16] = csum[:, -1:] - csum[:, above]
+    # existence: per width, the merged widened ranges whose largest score reaches the threshold
+    inner = np.maximum.reduceat(np.r_[score, -np.inf], np.c_[seq[:, 0], seq[:, 1] + 1].ravel())[::2]
+    left = _reach_max(score, seq[:, 0], -1, reach)
+    right = _reach_max(score, seq[:, 1], 1, reach)
+    hs = np.arange(reach + 1)
+    widened = np.maximum(inner[None, :], np.maximum(left.T, right.T))  # (h, ranges)
+    split = seq[None, :-1, 1] + hs[:, None] < seq[None, 1:, 0] - hs[:, None]  # TSB-AD new_sequence
+    group = np.c_[np.zeros((len(hs), 1), dtype=np.int64), np.cumsum(split, axis=1)]
+    seg_max = np.full(widened.shape, -np.inf)
+    np.maximum.at(seg_max, (np.repeat(hs, len(seq)), group.ravel()), widened.ravel())
+    if seg_max.size * n_thresholds <= 4_000_000:
+        reached = (seg_max[:, :, None] >= thresholds[None, None, :]).sum(axis=1)
+    else:  # many ranges: one sorted count per border width
+        reached = np.stack([_count_at_least(np.sort(m), thresholds) for m in seg_max])
+    existence = (reached / (group[:, -1:] + 1))[widths // 2]  # (widths, thresholds)
+    tp = true_at[None, :] + border_at
+    p_new = (p_total + (p_total + border_at)) / 2.0
+    tpr = np.minimum(tp / p_new, 1.0) * existence
+    fpr = (n_pred - tp) / (n - p_new)
+    precision = tp / n_pred
+    ones, zeros = np.ones((len(widths), 1)), np.zeros((len(widths), 1))
+    roc_x, roc_y = np.c_[zeros, fpr, ones], np.c_[zeros, tpr, ones]
+    aucs = ((roc_x[:, 1:] - roc_x[:, :-1]) * (roc_y[:, 1:] + roc_y[:, :-1]) / 2.0).sum(axis=1)
+    aps = (np.diff(np.c_[zeros, tpr], axis=1) * precision).sum(axis=1)
+    return float(aucs.mean()), float(aps.mean())
 
 
 def auc_pr(labels: np.ndarray, scores: np.ndarray) -> float:

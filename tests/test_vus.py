@@ -45,6 +45,8 @@ def _synthetic(case: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         y[:30] = y[770:] = 1
     elif case == 3:  # close ranges whose borders overlap
         y[100:110] = y[118:130] = y[135:200] = 1
+    elif case == 7:  # single-row ranges nearer than the border: rows reach two borders on one side
+        y[300] = y[303] = y[305] = y[309:312] = y[320] = 1
     else:            # random ranges
         for _ in range(case):
             s = int(rng.integers(0, n - 60))
@@ -55,10 +57,10 @@ def _synthetic(case: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     preds = (s > np.quantile(s, 0.9)).astype(int)
     if case == 6:  # alarms on every row: TSB-AD sees no predicted range in a constant vector
         preds[:] = 1
-    return y, s, preds, (0, 7, 10, 33, 100, 16, 5)[case]
+    return y, s, preds, (0, 7, 10, 33, 100, 16, 5, 24)[case]
 
 
-@pytest.mark.parametrize("case", range(7))
+@pytest.mark.parametrize("case", range(8))
 def test_synthetic_cases_agree_with_tsb_ad(case):
     y, s, p, window = _synthetic(case)
     want, got = reference(y, s, p, window), ours(y, s, p, window)
