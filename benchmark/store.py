@@ -221,14 +221,19 @@ class RunStore:
             df = pd.read_parquet(path)
         except Exception as exc:  # pyarrow raises its own types for a damaged file
             raise RunStoreError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
-        fid = df["flight_id"].astype(str).to_numpy()
+        col = df["flight_id"]
+        if isinstance(col.dtype, pd.CategoricalDtype):  # as written: compare codes, not 12 M strings
+            fid, names = col.cat.codes.to_numpy(), np.asarray(col.cat.categories.astype(str))
+        else:
+            fid = col.astype(str).to_numpy()
+            names = None
         ts = df["Timestamp"].to_numpy(np.int64)
         lab = df["Is_Anomaly"].to_numpy(np.int8)
         if fid.size == 0:
             return {}
         cut = np.flatnonzero(fid[1:] != fid[:-1]) + 1
         starts, ends = np.r_[0, cut], np.r_[cut, fid.size]
-        return {str(fid[s]): (ts[s:e], lab[s:e]) for s, e in zip(starts, ends)}
+        return {str(fid[s] if names is None else names[fid[s]]): (ts[s:e], lab[s:e]) for s, e in zip(starts, ends)}
 
     # -- jobs ---------------------------------------------------------------------------------
     def job_names(self) -> list[str]:

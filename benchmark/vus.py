@@ -12,7 +12,7 @@ field's tables; ``tests/test_vus.py`` cross-checks them against that package.
   ``n_thresholds`` score thresholds, and the areas under the ROC and PR curves are averaged over
   the border widths ``w = 0 .. window``. Vectorised here with sorted cumulative sums (one pass
   per width), the reference loops over thresholds and ranges.
-- :func:`auc_pr`: average precision (``sklearn.metrics.average_precision_score``);
+- :func:`auc_pr`: average precision (``sklearn.metrics.average_precision_score``, in array code);
   :func:`row_roc_auc`: row-level ROC-AUC.
 - :func:`r_prf`: range-based precision / recall / F1 of binary predictions (Tatbul et al. 2018
   as TSB-AD parameterises it): recall with alpha 0.2 (existence reward), precision with alpha 0,
@@ -25,7 +25,7 @@ A series with no anomalous row has no VUS, AUC-PR or range recall: the functions
 from __future__ import annotations
 
 import numpy as np
-from sklearn.metrics import average_precision_score, roc_auc_score
+from sklearn.metrics import roc_auc_score
 
 #: Border width (rows) of VUS and number of score thresholds, TSB-AD's defaults are the
 #: data's period (``slidingWindow``) and 250.
@@ -78,7 +78,7 @@ def _reach_max(score: np.ndarray, starts: np.ndarray, step: int, reach: int) -> 
     d = np.arange(1, reach + 1)
     idx = starts[:, None] + step * d[None, :]
     vals = np.where((idx >= 0) & (idx < score.size), score[np.clip(idx, 0, score.size - 1)], -np.inf)
-    return np.maximum.accumulate(np.c_[np.full(len(starts), -np.inf), vals], axis=1)
+    return np.maximum.accumulate(np.hstack([np.full((len(starts), 1), -np.inf), vals]), axis=1)
 
 
 def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
@@ -122,16 +122,16 @@ def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
             weight = (np.where(d_prev <= h, np.sqrt(1 - d_prev / w), 0.0)
                       + np.where(d_next <= h, np.sqrt(1 - d_next / w), 0.0)
                       + (d_second <= h))  # a second range as near: two borders, weight 1
-        csum = np.c_[np.zeros(len(w)), np.cumsum(np.minimum(weight, 1.0), axis=1)]
+        csum = np.hstack([np.zeros((len(w), 1)), np.cumsum(np.minimum(weight, 1.0), axis=1)])
         border_at[lo : lo + 16] = csum[:, -1:] - csum[:, above]
     # existence: per width, the merged widened ranges whose largest score reaches the threshold
-    inner = np.maximum.reduceat(np.r_[score, -np.inf], np.c_[seq[:, 0], seq[:, 1] + 1].ravel())[::2]
+    inner = np.maximum.reduceat(np.append(score, -np.inf), np.column_stack([seq[:, 0], seq[:, 1] + 1]).ravel())[::2]
     left = _reach_max(score, seq[:, 0], -1, reach)
     right = _reach_max(score, seq[:, 1], 1, reach)
     hs = np.arange(reach + 1)
     widened = np.maximum(inner[None, :], np.maximum(left.T, right.T))  # (h, ranges)
     split = seq[None, :-1, 1] + hs[:, None] < seq[None, 1:, 0] - hs[:, None]  # TSB-AD new_sequence
-    group = np.c_[np.zeros((len(hs), 1), dtype=np.int64), np.cumsum(split, axis=1)]
+    group = np.hstack([np.zeros((len(hs), 1), dtype=np.int64), np.cumsum(split, axis=1)])
     seg_max = np.full(widened.shape, -np.inf)
     np.maximum.at(seg_max, (np.repeat(hs, len(seq)), group.ravel()), widened.ravel())
     if seg_max.size * n_thresholds <= 4_000_000:
@@ -145,18 +145,33 @@ def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
     fpr = (n_pred - tp) / (n - p_new)
     precision = tp / n_pred
     ones, zeros = np.ones((len(widths), 1)), np.zeros((len(widths), 1))
-    roc_x, roc_y = np.c_[zeros, fpr, ones], np.c_[zeros, tpr, ones]
+    roc_x, roc_y = np.hstack([zeros, fpr, ones]), np.hstack([zeros, tpr, ones])
     aucs = ((roc_x[:, 1:] - roc_x[:, :-1]) * (roc_y[:, 1:] + roc_y[:, :-1]) / 2.0).sum(axis=1)
-    aps = (np.diff(np.c_[zeros, tpr], axis=1) * precision).sum(axis=1)
+    aps = (np.diff(np.hstack([zeros, tpr]), axis=1) * precision).sum(axis=1)
     return float(aucs.mean()), float(aps.mean())
+
+
+def average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
+    """Average precision (``sklearn.metrics.average_precision_score`` for 0/1 labels, to rounding):
+    the sum over distinct score thresholds, highest first, of the recall gained times the precision
+    there. NaN without positives. Array code: the bootstrap and the per-flight scores call it thousands of times per run."""
+    y = np.asarray(labels, dtype=np.float64).reshape(-1)
+    s = np.asarray(scores, dtype=np.float64).reshape(-1)
+    if y.shape != s.shape:
+        raise ValueError(f"average_precision: {y.size} labels for {s.size} scores")
+    if not y.any():
+        return float("nan")
+    order = np.argsort(-s, kind="mergesort")
+    cuts = np.append(np.flatnonzero(np.diff(s[order])), y.size - 1)  # the last row of each distinct score
+    tps = np.cumsum(y[order])[cuts]
+    precision = tps / (cuts + 1.0)
+    recall = tps / tps[-1]
+    return float(np.sum(np.diff(recall, prepend=0.0) * precision))
 
 
 def auc_pr(labels: np.ndarray, scores: np.ndarray) -> float:
     """Average precision of the scores (NaN without an anomalous row)."""
-    y = np.asarray(labels).reshape(-1).astype(np.int64)
-    if not y.any():
-        return float("nan")
-    return float(average_precision_score(y, np.asarray(scores, dtype=np.float64).reshape(-1)))
+    return average_precision(labels, scores)
 
 
 def row_roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
