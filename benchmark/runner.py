@@ -279,6 +279,9 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
                          tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
                          str(cache.folder.resolve()) if cache else None, key if cache else None)
                  for c in chosen if c.name not in skipped]
+        # costliest first (a scheduling hint only: tables keep the detectors' order)
+        cost = {c.name: float(getattr(c.cls, "relative_cost", 10.0)) for c in chosen}
+        specs.sort(key=lambda spec: -cost[spec.detector])
         for spec in specs:
             store.start_job(spec.detector)
         statuses: list[str] = []

@@ -111,6 +111,10 @@ class Detector(BaseEstimator):
     description: str = ""
     #: True when the detector implements ``alarms`` with its own threshold.
     has_alarms: bool = False
+    #: Rough scoring cost per row relative to the others (microseconds per row on one core, as
+    #: ``perf.detector_speed`` measures it). Only a scheduling hint: a run starts its costliest
+    #: jobs first, so that two long jobs do not end up last on the same worker.
+    relative_cost: float = 10.0
 
     # -- public API -------------------------------------------------------------------------
     def fit(self, flights: list[pd.DataFrame]) -> Detector:

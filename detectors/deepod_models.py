@@ -431,6 +431,7 @@ class DeepSVDD(_DeepODDetector):
     """
 
     name = "deepsvdd"
+    relative_cost = 10.0  # us per row, paper flights (scheduling hint)
     description = (
         "Deep SVDD (Ruff et al. 2018) on flattened windows: distance to a learned hypersphere centre"
     )
@@ -445,6 +446,7 @@ class RDP(_DeepODDetector):
     """
 
     name = "rdp"
+    relative_cost = 9.0  # us per row, paper flights (scheduling hint)
     description = "RDP (Wang et al. 2020) on flattened windows: random-distance prediction error"
     _model_class = _RDPModel
 
@@ -457,6 +459,7 @@ class RCA(_DeepODDetector):
     """
 
     name = "rca"
+    relative_cost = 12.0  # us per row, paper flights (scheduling hint)
     description = (
         "RCA (Liu et al. 2021) on flattened windows: collaborative autoencoders' reconstruction error"
     )
@@ -473,6 +476,7 @@ class GOAD(_DeepODDetector):
     """
 
     name = "goad"
+    relative_cost = 45.0  # us per row, paper flights (scheduling hint)
     description = "GOAD (Bergman & Hoshen 2020) on flattened windows: transformation-classification error"
     _model_class = _GOADModel
     _model_defaults = {"n_trans": 32}
@@ -486,5 +490,6 @@ class NeuTraL(_DeepODDetector):
     """
 
     name = "neutral"
+    relative_cost = 55.0  # us per row, paper flights (scheduling hint)
     description = "NeuTraL AD (Qiu et al. 2021) on windows: contrastive loss of learned transformations"
     _model_class = _DeepODNeuTraL
