@@ -2,4 +2,5 @@
 
 from scart_bench.benchmark.cli import main
 
-raise SystemExit(main())
+if __name__ == "__main__":  # not again in worker processes started by spawn (they import this module)
+    raise SystemExit(main())
