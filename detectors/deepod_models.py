@@ -43,9 +43,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from numba import njit
 from torch.utils.data import DataLoader
 
+from scart_bench.detectors._kernels import window_features
 from scart_bench.detectors.base import Detector, DetectorError
 from scart_bench.detectors.statistical import pad_start
 
@@ -131,84 +131,6 @@ def _model_scores(model: BaseDeepAD, X: np.ndarray, batch_size: int) -> np.ndarr
 
 
 # -- window features ---------------------------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def _numpy_sum(x: np.ndarray, lo: int, hi: int, column: int) -> np.float32:
-    """``x[lo:hi, column]`` summed as numpy's reductions sum a float32 run along it: the first
-    value plus the pairwise sum of the others (blocks of 8 partial sums, halves above 128)."""
-    return x[lo, column] + _pairwise(x, lo + 1, hi - lo - 1, column)
-
-
-@njit(cache=True, nogil=True)
-def _pairwise(x: np.ndarray, lo: int, n: int, column: int) -> np.float32:
-    if n < 8:
-        res = np.float32(0.0)
-        for i in range(n):
-            res = res + x[lo + i, column]
-        return res
-    if n <= 128:
-        r = np.empty(8, dtype=np.float32)
-        for j in range(8):
-            r[j] = x[lo + j, column]
-        i = 8
-        while i < n - n % 8:
-            for j in range(8):
-                r[j] = r[j] + x[lo + i + j, column]
-            i += 8
-        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-        while i < n:
-            res = res + x[lo + i, column]
-            i += 1
-        return res
-    half = n // 2
-    half -= half % 8
-    return _pairwise(x, lo, half, column) + _pairwise(x, lo + half, n - half, column)
-
-
-@njit(cache=True, nogil=True)
-def _window_features(X: np.ndarray, w: int, bounds: np.ndarray, step: int, stats: bool) -> np.ndarray:
-    """Per window of ``w`` rows of ``X`` (every ``step`` rows): the mean of each segment
-    ``bounds[j]:bounds[j+1]`` per channel, then (``stats``) each channel's standard deviation and
-    that of its row-to-row increments; in float32, bit for bit numpy's ``add.reduceat`` / ``std``
-    over the window view (what this replaced), in one pass without the view's temporaries."""
-    n_rows, ch = X.shape
-    n = (n_rows - w) // step + 1
-    k = bounds.size - 1
-    out = np.empty((n, k * ch + (2 * ch if stats else 0)), dtype=np.float32)
-    diff = np.empty((max(w - 1, 1), ch), dtype=np.float32)
-    for r in range(n):
-        s = r * step
-        for c in range(ch):
-            for j in range(k):
-                length = np.float32(bounds[j + 1] - bounds[j])
-                out[r, j * ch + c] = _numpy_sum(X, s + bounds[j], s + bounds[j + 1], c) / length
-        if not stats:
-            continue
-        for c in range(ch):  # numpy's std over the window axis: sums row after row
-            total = X[s, c]
-            for i in range(1, w):
-                total = total + X[s + i, c]
-            mean = total / np.float32(w)
-            d = X[s, c] - mean
-            var = d * d
-            for i in range(1, w):
-                d = X[s + i, c] - mean
-                var = var + d * d
-            out[r, k * ch + c] = np.sqrt(var / np.float32(w))
-            for i in range(w - 1):
-                diff[i, c] = X[s + i + 1, c] - X[s + i, c]
-            total = diff[0, c]
-            for i in range(1, w - 1):
-                total = total + diff[i, c]
-            mean = total / np.float32(w - 1)
-            d = diff[0, c] - mean
-            var = d * d
-            for i in range(1, w - 1):
-                d = diff[i, c] - mean
-                var = var + d * d
-            out[r, (k + 1) * ch + c] = np.sqrt(var / np.float32(w - 1))
-    return out
 
 
 # -- isolation of global state ---------------------------------------------------------------
@@ -342,7 +264,7 @@ class _DeepODDetector(Detector):
         w, k = int(self.window), int(self.segments)
         X = np.ascontiguousarray(pad_start(X.astype(np.float32), w - 1))
         bounds = np.linspace(0, w, k + 1).round().astype(np.int64)
-        return _window_features(X, w, bounds, int(step), bool(self.window_stats))
+        return window_features(X, w, bounds, int(step), bool(self.window_stats))
 
     def _features(self, X: np.ndarray, step: int = 1) -> np.ndarray:
         """Window features standardised with the training windows' mean and spread."""

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.stats import norm
 
+from scart_bench.detectors._kernels import bitmap_distances
 from scart_bench.detectors.base import Detector, DetectorError, DetectorStream
 from scart_bench.detectors.statistical import pad_start
 
@@ -186,25 +187,17 @@ class TSBitmaps(Detector):
     def _bitmap_distance(
         codes: np.ndarray, bounds: tuple[np.ndarray, np.ndarray, np.ndarray], full_history: int
     ) -> np.ndarray:
-        """Squared distance between the max-normalised lag and lead bitmaps of one channel."""
+        """Squared distance between the max-normalised lag and lead bitmaps of one channel.
+
+        Warm-up: bitmaps of a few counts are noisy, so the distance is weighed by the share of
+        history available; with no lag window yet (the first row) there is nothing to compare with.
+        """
         if codes.size == 0:
             return np.zeros(0)
         _, compact = np.unique(codes, return_inverse=True)  # only the subwords that occur
-        n, cells = codes.size, int(compact.max()) + 1
-        cum = np.zeros((n + 1, cells), dtype=np.int32)
-        cum[np.arange(1, n + 1), compact] = 1
-        np.cumsum(cum, axis=0, out=cum)
-        lag_start, lead_start, end = bounds
-        bitmaps = []
-        for lo, hi in ((lag_start, lead_start), (lead_start, end)):
-            counts = (cum[hi] - cum[lo]).astype(np.float64)
-            peak = counts.max(axis=1, keepdims=True)
-            bitmaps.append(np.divide(counts, peak, out=np.zeros_like(counts), where=peak > 0))
-        dist = np.sum((bitmaps[1] - bitmaps[0]) ** 2, axis=1)
-        # Warm-up: bitmaps of a few counts are noisy, so weigh by the share of history available;
-        # with no lag window yet (the first row) there is nothing to compare with.
-        weight = np.where(lead_start > lag_start, np.minimum(1.0, (end - lag_start) / full_history), 0.0)
-        return dist * weight
+        lag_start, lead_start, end = (np.asarray(b, dtype=np.int64) for b in bounds)
+        return bitmap_distances(compact.astype(np.int64).reshape(-1), int(compact.max()) + 1,
+                                 lag_start, lead_start, end, float(full_history))
 
     def _channel_distances(self, X: np.ndarray) -> np.ndarray:
         """Raw lag/lead bitmap distance (rows, channels) of standardised ``X``."""
