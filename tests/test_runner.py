@@ -386,3 +386,35 @@ def test_console_script(reference_run, tmp_path):
     assert len(bad.stderr.strip().splitlines()) == 1
     assert bad.stderr.startswith(f"scart-bench run: error: {tmp_path}: no manifest.parquet or manifest.csv")
     assert not (tmp_path / "x").exists()
+
+
+def test_costliest_jobs_start_first_and_tables_keep_the_order(dataset, tmp_path, monkeypatch):
+    """Jobs are handed to the executor by their detectors' cost hint, costliest first (two long jobs
+    must not end up last on one worker); results and metrics keep the order the user gave."""
+    from scart_bench.benchmark import executors
+    from scart_bench.detectors.registry import available
+
+    started: list[str] = []
+    make = executors.make_executor
+
+    def recording(*args, **kwargs):
+        ex = make(*args, **kwargs)
+        run = ex.run
+
+        def run_recorded(specs, timeout, on_done):
+            started.extend(s.detector for s in specs)
+            return run(specs, timeout, on_done)
+
+        ex.run = run_recorded
+        return ex
+
+    monkeypatch.setattr(executors, "make_executor", recording)
+    chosen = ["statistical", "tsbitmaps", *OK_PAIR[1].split(",")]
+    costs = {n: available()[n].cls.relative_cost for n in ("statistical", "tsbitmaps")}
+    assert costs["tsbitmaps"] > costs["statistical"]
+    out = tmp_path / "run"
+    assert main(["run", "--detectors", ",".join(chosen), *OK_PAIR[2:], "--dataset", str(dataset),
+                 "--out", str(out), "--jobs", "2"]) == 0
+    assert started.index("tsbitmaps") < started.index("statistical")
+    assert pd.read_csv(out / "results.csv")["detector"].tolist() == chosen
+    assert pd.read_csv(out / "metrics.csv")["detector"].tolist() == chosen
