@@ -24,7 +24,7 @@ from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
 from scart_bench.generator.effect import attack_effect
 from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
-from scart_bench.generator.records import flight_views
+from scart_bench.generator.records import truth_table
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 from scart_bench.generator.scart.scenario import Scenario
@@ -75,7 +75,7 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
             if any(n in CLOSED_LOOP_ACTIONS for sc in configs[i] for n, _ in sc.actions):
                 points += "+controller"  # a forged command or mission moves the vehicle, not a message
             record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds, points))
-            twin_truth = flight_views(twins, j)[1]["truth"]
+            twin_truth = truth_table(twins, j)  # the twin's other topics are not used
             record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
             record.simulator[TWIN_TOPIC] = twin_truth
             writer.write(record)

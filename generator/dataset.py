@@ -147,9 +147,23 @@ def label_columns(timestamps: np.ndarray, windows: Iterable[tuple]) -> dict[str,
     return {"Is_Anomaly": flag, "Anomaly_Ids": ids, "Anomaly_Kind": kinds}
 
 
+def labelled_table(timestamps: np.ndarray, values: np.ndarray, fields, windows: Iterable[tuple]) -> pd.DataFrame:
+    """A topic table built in one go: ``Timestamp``, the label columns, then ``fields`` (the
+    columns of the 2-D ``values``). The same table as inserting the labels into a frame of the
+    fields, without pandas' per-insert copies."""
+    data = {"Timestamp": timestamps, **label_columns(timestamps, list(windows))}
+    for j, name in enumerate(fields):
+        data[name] = values[:, j]
+    return pd.DataFrame(data)
+
+
 def insert_labels(df: pd.DataFrame, timestamps: np.ndarray, windows: Iterable[tuple], at: int = 1) -> pd.DataFrame:
     """Put the label columns into ``df`` at position ``at`` (replacing any there were)."""
-    df = df.drop(columns=[c for c in LABEL_COLUMNS if c in df.columns])
+    old = [c for c in LABEL_COLUMNS if c in df.columns]
+    if old:
+        df = df.drop(columns=old)
+    else:
+        df = df.copy()  # as drop would (the caller's table is left as it was)
     for k, (name, col) in enumerate(label_columns(timestamps, list(windows)).items()):
         df.insert(at + k, name, col)
     return df
