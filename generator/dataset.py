@@ -159,12 +159,16 @@ def labelled_table(timestamps: np.ndarray, values: np.ndarray, fields, windows: 
 
 def insert_labels(df: pd.DataFrame, timestamps: np.ndarray, windows: Iterable[tuple], at: int = 1) -> pd.DataFrame:
     """Put the label columns into ``df`` at position ``at`` (replacing any there were)."""
-    old = [c for c in LABEL_COLUMNS if c in df.columns]
-    if old:
-        df = df.drop(columns=old)
-    else:
-        df = df.copy()  # as drop would (the caller's table is left as it was)
-    for k, (name, col) in enumerate(label_columns(timestamps, list(windows)).items()):
+    labels = label_columns(timestamps, list(windows))
+    keep = [c for c in df.columns if c not in LABEL_COLUMNS]
+    if df.columns.is_unique and all(isinstance(c, str) for c in df.columns) and 0 <= at <= len(keep):
+        # one constructor instead of a drop and three inserts (each copies the table)
+        data = {c: df[c] for c in keep[:at]}
+        data.update(labels)
+        data.update({c: df[c] for c in keep[at:]})
+        return pd.DataFrame(data, index=df.index)
+    df = df.drop(columns=[c for c in LABEL_COLUMNS if c in df.columns])
+    for k, (name, col) in enumerate(labels.items()):
         df.insert(at + k, name, col)
     return df
 
