@@ -405,6 +405,19 @@ class DatasetWriter:
             self.rows.append(self._pending.pop(0).result())
         self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record, self.layout))
 
+    def add_written(self, rows: list[dict]) -> None:
+        """Take the manifest rows of flights written into this dataset by another process (after
+        the flights written through this writer, in order)."""
+        ids = [str(r["flight_id"]) for r in rows]
+        taken = sorted(set(ids) & self.ids)
+        if taken or len(set(ids)) != len(ids):
+            raise DatasetError(f"{self.out}: flight ids written twice: {', '.join(taken[:5]) or 'within the rows'}")
+        while self._pending:
+            self.rows.append(self._pending.pop(0).result())
+        self.ids.update(ids)
+        self.written.extend(ids)
+        self.rows.extend(rows)
+
     def abort(self) -> None:
         """Stop without writing a manifest: a new dataset stays incomplete; an appended-to dataset
         keeps its manifest and loses the flights this writer wrote."""
