@@ -24,7 +24,7 @@ from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
 from scart_bench.generator.effect import attack_effect
 from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
-from scart_bench.generator.records import flight_views
+from scart_bench.generator.records import truth_table
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 from scart_bench.generator.scart.scenario import Scenario
@@ -75,7 +75,7 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
             if any(n in CLOSED_LOOP_ACTIONS for sc in configs[i] for n, _ in sc.actions):
                 points += "+controller"  # a forged command or mission moves the vehicle, not a message
             record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds, points))
-            twin_truth = flight_views(twins, j)[1]["truth"]
+            twin_truth = truth_table(twins, j)  # the twin's other topics are not used
             record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
             record.simulator[TWIN_TOPIC] = twin_truth
             writer.write(record)
@@ -118,10 +118,123 @@ def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[st
                    cfg: FlightConfig, config_dict: dict, say: Callable[[str], None],
                    stds: dict[str, float] | None = None) -> None:
     """Both modes for every configuration of the profile's grid (or sweep, or scenario file);
-    ``normal_sources``: the csv_source flights; ``stds``: validation std per ``topic.field``."""
+    ``normal_sources``: the csv_source flights; ``stds``: validation std per ``topic.field``.
+
+    With a writer that writes in a worker process (dataset generation), csv mode runs in a
+    process of its own while this one flies simulation mode (the two share nothing but the
+    sources, so the files are the same as one after the other); its manifest rows follow the
+    simulation flights', as before."""
     configs = load_configurations(grid_path(profile.scenario_grid))
-    simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say, stds)
-    csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds)
+    side = _CsvProcess.start(writer, profile, normal_sources, config_dict, say, stds)
+    try:
+        simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say, stds)
+    except BaseException:
+        if side is not None:
+            side.stop()
+        raise
+    if side is None:
+        csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds)
+    else:
+        writer.add_written(side.rows())
+
+
+class _RowWriter:
+    """Writes flights in the calling process and keeps their manifest rows (the csv-mode process)."""
+
+    def __init__(self, out: Path, fmt: str, layout: str):
+        self.out, self.fmt, self.layout = out, fmt, layout
+        self.rows: list[dict] = []
+        self.ids: set[str] = set()
+
+    def write(self, record) -> None:
+        from scart_bench.generator.dataset import DatasetError, write_flight
+
+        if record.flight_id in self.ids:
+            raise DatasetError(f"{self.out}: a flight {record.flight_id!r} is already in the dataset; "
+                               "flight ids must be unique")
+        self.ids.add(record.flight_id)
+        self.rows.append(write_flight(self.out, self.fmt, record, self.layout))
+
+
+def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, sources, config_dict: dict,
+              batch_size: int, stds) -> None:
+    """Entry of the csv-mode process: replay every configuration, write the flights, send the rows."""
+    from scart_bench.generator.dataset import exit_with_parent
+
+    exit_with_parent(parent)
+    try:
+        w = _RowWriter(out, fmt, layout)
+        csv_flights(w, load_configurations(grid_path(grid)), sources, config_dict, batch_size,
+                    lambda msg: conn.send(("say", msg)), stds)
+        conn.send(("rows", w.rows))
+    except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
+        try:
+            conn.send(("error", exc))  # raised again as it is in the parent
+        except Exception:  # noqa: BLE001 - an exception that does not pickle goes as text
+            import traceback
+
+            conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+    finally:
+        conn.close()
+
+
+class _CsvProcess:
+    """csv mode in a process of its own; relays its progress messages to ``say``."""
+
+    def __init__(self, proc, conn, say: Callable[[str], None]):
+        import threading
+
+        self.proc, self.conn, self.say = proc, conn, say
+        self.result: tuple[str, object] | None = None
+        self.thread = threading.Thread(target=self._relay, daemon=True, name="csv-mode-relay")
+        self.thread.start()
+
+    @classmethod
+    def start(cls, writer: DatasetWriter, profile, sources, config_dict: dict, say: Callable[[str], None],
+              stds) -> _CsvProcess | None:
+        if getattr(writer, "_pool", None) is None:  # no worker process: stay in this one
+            return None
+        import multiprocessing
+        import os
+
+        ctx = multiprocessing.get_context("spawn")
+        recv, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_csv_main, name="scart-bench-csv-mode", daemon=True,
+                           args=(send, os.getpid(), writer.out, writer.fmt, writer.layout,
+                                 str(profile.scenario_grid), sources, config_dict, profile.batch_size, stds))
+        proc.start()
+        send.close()
+        return cls(proc, recv, say)
+
+    def _relay(self) -> None:
+        try:
+            while True:
+                kind, payload = self.conn.recv()
+                if kind == "say":
+                    self.say(payload)
+                else:
+                    self.result = (kind, payload)
+                    return
+        except (EOFError, OSError):
+            return
+
+    def rows(self) -> list[dict]:
+        """Wait for the process; its flights' manifest rows (RuntimeError if it failed)."""
+        self.thread.join()
+        self.proc.join()
+        if self.result is not None and isinstance(self.result[1], BaseException):
+            raise self.result[1]
+        if self.result is None or self.result[0] != "rows":
+            detail = self.result[1] if self.result else f"it ended with exit code {self.proc.exitcode}"
+            raise RuntimeError(f"csv mode failed: {detail}")
+        return self.result[1]
+
+    def stop(self) -> None:
+        """End the process (nothing more is written) before the caller cleans up."""
+        if self.proc.is_alive():
+            self.proc.terminate()
+        self.proc.join()
+        self.thread.join(timeout=5)
 
 
 def strip_labels(topics: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:

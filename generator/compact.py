@@ -63,6 +63,11 @@ def _arrow(values: pd.Series, key: str, downcast: bool) -> pa.Array:
     if downcast and values.dtype == np.float64:
         return pa.array(values.to_numpy(np.float32), type=pa.float32())
     if key in ("Anomaly_Ids", "Anomaly_Kind"):
+        if isinstance(values.dtype, pd.StringDtype) and values.dtype.storage == "pyarrow" and not values.hasnans:
+            # already Arrow text with nothing missing: the same array without a round trip through Python
+            arr = pa.array(values)
+            if arr.null_count == 0 and (pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type)):
+                return arr.cast(pa.string())
         return pa.array(values.astype(object).where(values.notna(), "").astype(str).tolist(), type=pa.string())
     return pa.Array.from_pandas(values)
 

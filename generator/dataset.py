@@ -147,10 +147,28 @@ def label_columns(timestamps: np.ndarray, windows: Iterable[tuple]) -> dict[str,
     return {"Is_Anomaly": flag, "Anomaly_Ids": ids, "Anomaly_Kind": kinds}
 
 
+def labelled_table(timestamps: np.ndarray, values: np.ndarray, fields, windows: Iterable[tuple]) -> pd.DataFrame:
+    """A topic table built in one go: ``Timestamp``, the label columns, then ``fields`` (the
+    columns of the 2-D ``values``). The same table as inserting the labels into a frame of the
+    fields, without pandas' per-insert copies."""
+    data = {"Timestamp": timestamps, **label_columns(timestamps, list(windows))}
+    for j, name in enumerate(fields):
+        data[name] = values[:, j]
+    return pd.DataFrame(data)
+
+
 def insert_labels(df: pd.DataFrame, timestamps: np.ndarray, windows: Iterable[tuple], at: int = 1) -> pd.DataFrame:
     """Put the label columns into ``df`` at position ``at`` (replacing any there were)."""
+    labels = label_columns(timestamps, list(windows))
+    keep = [c for c in df.columns if c not in LABEL_COLUMNS]
+    if df.columns.is_unique and all(isinstance(c, str) for c in df.columns) and 0 <= at <= len(keep):
+        # one constructor instead of a drop and three inserts (each copies the table)
+        data = {c: df[c] for c in keep[:at]}
+        data.update(labels)
+        data.update({c: df[c] for c in keep[at:]})
+        return pd.DataFrame(data, index=df.index)
     df = df.drop(columns=[c for c in LABEL_COLUMNS if c in df.columns])
-    for k, (name, col) in enumerate(label_columns(timestamps, list(windows)).items()):
+    for k, (name, col) in enumerate(labels.items()):
         df.insert(at + k, name, col)
     return df
 
@@ -386,6 +404,19 @@ class DatasetWriter:
         while len(self._pending) >= 2 * self.workers:  # bound the records held in memory
             self.rows.append(self._pending.pop(0).result())
         self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record, self.layout))
+
+    def add_written(self, rows: list[dict]) -> None:
+        """Take the manifest rows of flights written into this dataset by another process (after
+        the flights written through this writer, in order)."""
+        ids = [str(r["flight_id"]) for r in rows]
+        taken = sorted(set(ids) & self.ids)
+        if taken or len(set(ids)) != len(ids):
+            raise DatasetError(f"{self.out}: flight ids written twice: {', '.join(taken[:5]) or 'within the rows'}")
+        while self._pending:
+            self.rows.append(self._pending.pop(0).result())
+        self.ids.update(ids)
+        self.written.extend(ids)
+        self.rows.extend(rows)
 
     def abort(self) -> None:
         """Stop without writing a manifest: a new dataset stays incomplete; an appended-to dataset

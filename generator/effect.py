@@ -50,6 +50,26 @@ def field_stds(flights: list[dict[str, pd.DataFrame]]) -> dict[str, float]:
     return out
 
 
+def _last_in_windows(df: pd.DataFrame, windows) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct timestamps of ``df``'s rows inside the windows (sorted) and, for each, the row
+    of its last message (a repeated timestamp keeps its last message)."""
+    ts = df["Timestamp"].to_numpy(np.int64)
+    rows = np.flatnonzero(label_rows(ts, windows))
+    order = np.argsort(ts[rows], kind="stable")
+    ts_sorted = ts[rows][order]
+    last = np.ones(len(ts_sorted), dtype=bool)
+    last[:-1] = ts_sorted[1:] != ts_sorted[:-1]
+    return ts_sorted[last], rows[order[last]]
+
+
+def _values(df: pd.DataFrame, fields: list[str], rows: np.ndarray) -> np.ndarray:
+    """``df``'s ``fields`` at ``rows`` as a float64 (rows x fields) array."""
+    out = np.empty((len(rows), len(fields)))
+    for j, f in enumerate(fields):
+        out[:, j] = df[f].to_numpy(np.float64)[rows]
+    return out
+
+
 def attack_effect(navigator: dict[str, pd.DataFrame], reference: dict[str, pd.DataFrame], windows,
                   stds: dict[str, float] | None = None, injection_points: str = "link") -> dict:
     """Manifest fields ``effect_rows``, ``effect_fields``, ``no_effect``, ``detectability`` of one
@@ -67,21 +87,19 @@ def attack_effect(navigator: dict[str, pd.DataFrame], reference: dict[str, pd.Da
         if topic == "truth" or topic not in navigator:
             continue
         nav = navigator[topic]
-        r_in = ref[label_rows(ref["Timestamp"].to_numpy(np.int64), windows).astype(bool)]
-        n_in = nav[label_rows(nav["Timestamp"].to_numpy(np.int64), windows).astype(bool)]
-        fields = [f for f in _fields(ref) if f in nav.columns]
-        if r_in.empty and n_in.empty:
+        r_ts, r_rows = _last_in_windows(ref, windows)
+        n_ts, n_rows = _last_in_windows(nav, windows)
+        if not r_ts.size and not n_ts.size:
             continue
-        r_in = r_in.drop_duplicates("Timestamp", keep="last").set_index("Timestamp")
-        n_in = n_in.drop_duplicates("Timestamp", keep="last").set_index("Timestamp")
-        dropped = r_in.index.difference(n_in.index)
-        both = r_in.index.intersection(n_in.index)
-        a = n_in.loc[both, fields].to_numpy(np.float64)
-        b = r_in.loc[both, fields].to_numpy(np.float64)
+        fields = [f for f in _fields(ref) if f in nav.columns]
+        n_dropped = np.setdiff1d(r_ts, n_ts, assume_unique=True).size
+        _, r_at, n_at = np.intersect1d(r_ts, n_ts, assume_unique=True, return_indices=True)
+        a = _values(nav, fields, n_rows[n_at])
+        b = _values(ref, fields, r_rows[r_at])
         differs = ~((a == b) | (np.isnan(a) & np.isnan(b)))
-        changed_rows += int(differs.any(axis=1).sum()) + len(dropped)
+        changed_rows += int(differs.any(axis=1).sum()) + n_dropped
         for j, f in enumerate(fields):
-            if differs[:, j].any() or len(dropped):
+            if differs[:, j].any() or n_dropped:
                 changed_fields.add(f"{topic}.{f}")
             if differs[:, j].any():
                 d = np.abs(a[:, j] - b[:, j])

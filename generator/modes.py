@@ -10,7 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import LABEL_COLUMNS, FlightRecord, flight_record, insert_labels
+from scart_bench.generator.dataset import (
+    LABEL_COLUMNS,
+    FlightRecord,
+    flight_record,
+    insert_labels,
+    labelled_table,
+)
 from scart_bench.generator.effect import attack_effect
 from scart_bench.generator.records import flight_views, with_uorb
 from scart_bench.generator.scart.layer import AttackLayer
@@ -148,10 +154,7 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
         for t in topics:
             k = lengths[t][i]
             keep = delivered[t][i, :k]
-            df = pd.DataFrame(out_vals[t][i, :k][keep], columns=list(fields[t]))
-            ts = times[t][:k][keep]
-            df.insert(0, "Timestamp", ts)
-            nav[t] = insert_labels(df, ts, windows)
+            nav[t] = labelled_table(times[t][:k][keep], out_vals[t][i, :k][keep], list(fields[t]), windows)
         results.append((nav, windows, layer.event_log(i, end_us)))
     return results
 

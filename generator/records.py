@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import FlightRecord, flight_record, insert_labels
+from scart_bench.generator.dataset import FlightRecord, flight_record, labelled_table
 from scart_bench.generator.link import field_names
 from scart_bench.generator.simulate import STEP_US, BatchResult
 from scart_bench.generator.timing import message_timing
@@ -26,9 +26,7 @@ def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | N
         keep = keep & delivered
     ts = ts_all[keep]
     order = np.argsort(ts, kind="stable")  # a late message comes after the ones stamped before it
-    df = pd.DataFrame(values[keep][order], columns=list(fields))
-    df.insert(0, "Timestamp", ts[order])
-    return insert_labels(df, ts[order], windows)
+    return labelled_table(ts[order], values[keep][order], list(fields), windows)
 
 
 def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
@@ -46,6 +44,13 @@ def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
         nav[topic] = topic_table(steps, vals[i], ok[i], field_names(topic), windows, last,
                                  (timing, batch.seeds[i], topic))
     return nav, sim
+
+
+def truth_table(batch: BatchResult, i: int) -> pd.DataFrame:
+    """Flight ``i``'s truth table alone (what :func:`flight_views` puts in the simulator view)."""
+    steps, vals, _ = batch.simulator["truth"]
+    return topic_table(steps, vals[i], None, field_names("truth"), (), int(batch.exit_step[i]),
+                       (getattr(batch, "timing", "ideal"), batch.seeds[i], "truth"))
 
 
 def normal_record(batch: BatchResult, i: int, flight_id: str, split: str, config: dict) -> FlightRecord:

@@ -177,3 +177,17 @@ def test_generate_csv_format_writes_paper_layout(tmp_path):
     assert list(df.columns[:3]) == ["Index", "Timestamp", "Is_Anomaly"]
     ds = open_dataset(out)
     assert ds.flight("normal-0000")["global_position_int.lat"].dtype == np.float64
+
+
+def test_csv_mode_in_its_own_process_writes_the_same_dataset(tmp_path, monkeypatch):
+    """Generation replays csv mode in a second process while simulation mode flies; the dataset
+    (every file, the manifest's row order included) equals the one made one mode after the other."""
+    from scart_bench.generator import attacks
+    from scart_bench.generator.generate import generate_dataset
+
+    side = generate_dataset("quick", tmp_path / "side", seed=5, n_normal=4, config=SHORT)
+    monkeypatch.setattr(attacks._CsvProcess, "start", classmethod(lambda cls, *a, **k: None))
+    serial = generate_dataset("quick", tmp_path / "serial", seed=5, n_normal=4, config=SHORT)
+    assert _digest(side) == _digest(serial)
+    modes = open_dataset(side).manifest["mode"].tolist()
+    assert "csv" in modes and modes == sorted(modes, key=["normal", "simulation", "csv"].index)
