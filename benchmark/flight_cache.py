@@ -31,10 +31,12 @@ cache serves every choice of columns.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -194,9 +196,43 @@ class _Builder:
             fh.close()
 
 
+class DatasetReader:
+    """``read(fid)`` for :func:`build_cache` that pickles to worker processes: a flight's table
+    from the dataset at ``path`` (opened once per process)."""
+
+    def __init__(self, path: str | Path):
+        self.path = str(path)
+
+    def __call__(self, fid: str) -> pd.DataFrame:
+        from scart_bench.generator.dataset import open_dataset
+
+        if _OPENED.get("path") != self.path:
+            _OPENED.update(path=self.path, dataset=open_dataset(self.path))
+        return _OPENED["dataset"].flight(fid)
+
+
+_OPENED: dict = {}
+
+#: Fewest flights read by worker processes: below it, starting them (~2 s each) costs more than it saves.
+PARALLEL_READ_MIN = 200
+
+
+def _read_all(ids: list[str], read: Callable[[str], pd.DataFrame], workers: int) -> Iterator[pd.DataFrame]:
+    """The tables of ``ids`` in order: read here, or by ``workers`` spawned processes when more
+    than one (Parquet decoding and the table assembly are CPU work that one process does serially)."""
+    if workers <= 1 or len(ids) < PARALLEL_READ_MIN:
+        yield from map(read, ids)
+        return
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield from pool.map(read, ids, chunksize=8)
+
+
 def build_cache(folder: str | Path, key: dict, flight_ids: Iterable[str],
-                read: Callable[[str], pd.DataFrame]) -> FlightCache:
+                read: Callable[[str], pd.DataFrame], workers: int = 1) -> FlightCache:
     """Read every flight once with ``read(fid)`` and write the cache at ``folder`` (replacing any).
+
+    ``workers`` > 1: that many processes read the flights (``read`` must pickle, e.g. a
+    :class:`DatasetReader`) and this one writes them in the given order: the same cache.
 
     Written in a temp folder beside ``folder`` and renamed into place when complete. Raises
     CacheUnsupported (nothing left behind) for a table it cannot reproduce exactly.
@@ -207,9 +243,10 @@ def build_cache(folder: str | Path, key: dict, flight_ids: Iterable[str],
         shutil.rmtree(stale, ignore_errors=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.build-", dir=folder.parent))
     builder = _Builder(tmp)
+    ids = [str(fid) for fid in dict.fromkeys(flight_ids)]
     try:
-        for fid in dict.fromkeys(flight_ids):
-            builder.add(str(fid), read(fid))
+        for fid, df in zip(ids, _read_all(ids, read, int(workers)), strict=True):
+            builder.add(fid, df)
         builder.close(key)
         remove_cache(folder)
         os.replace(tmp, folder)

@@ -37,6 +37,7 @@ import pandas as pd
 from scart_bench.benchmark.config import RunConfig
 from scart_bench.benchmark.flight_cache import (
     CacheInvalid,
+    DatasetReader,
     FlightCache,
     build_cache,
     cache_key,
@@ -143,7 +144,8 @@ def _truth(ds, flight_ids) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note) -> FlightCache | None:
+def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note,
+                  workers: int = 1) -> FlightCache | None:
     """The run's flight cache holding ``flight_ids``: the one in the run folder when its key matches
     (kept by an unfinished run), else built now, reading each flight once. None (the jobs read
     the dataset, as before) when a table cannot be cached exactly or the build fails."""
@@ -157,7 +159,7 @@ def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note) -
         pass
     t0 = time.perf_counter()
     try:
-        cache = build_cache(folder, key, flight_ids, ds.flight)
+        cache = build_cache(folder, key, flight_ids, DatasetReader(ds.path), workers=workers)
     except Exception as exc:  # an optimisation only: the jobs read the dataset as before
         note(f"flight cache off ({type(exc).__name__}: {exc}); every job reads the dataset")
         return None
@@ -269,7 +271,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         if skipped:
             progress.note(f"resume: {len(skipped)} finished job(s) kept: {', '.join(skipped)}")
         key = cache_key(identity["dataset_fingerprint"])
-        cache = (_flight_cache(store, ds, key, [*splits.train, *splits.scored], progress.note)
+        readers = min(int(cfg.jobs), os.cpu_count() or 1) if cfg.executor == "local" else 1
+        cache = (_flight_cache(store, ds, key, [*splits.train, *splits.scored], progress.note, readers)
                  if len(skipped) < len(chosen) else None)
         if not store.has_truth():
             store.write_truth(_truth(cache or ds, splits.scored))

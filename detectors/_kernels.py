@@ -14,33 +14,40 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
+def _plus_zero(v):
+    """``v + 0.0`` in ``v``'s own type (-0.0 becomes 0.0), as numpy's sums start from 0."""
+    return v if v != 0 else abs(v)
+
+
+@njit(cache=True, nogil=True)
 def _block_sum(x: np.ndarray, lo: int, n: int):
-    """numpy's sum of a run of at most 128 values: in order below 8, else 8 partial sums."""
-    acc = np.zeros(1, dtype=x.dtype)
+    """numpy's sum of a run of 1 to 128 values: in order below 8, else 8 partial sums (in
+    registers: an allocation per call would cost more than the sum)."""
     if n < 8:
-        for i in range(n):
-            acc[0] = acc[0] + x[lo + i]
-        return acc[0]
-    r = np.empty(8, dtype=x.dtype)
-    for j in range(8):
-        r[j] = x[lo + j]
+        acc = _plus_zero(x[lo])
+        for i in range(1, n):
+            acc = acc + x[lo + i]
+        return acc
+    r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
+    r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
     i = 8
     while i < n - n % 8:
-        for j in range(8):
-            r[j] = r[j] + x[lo + i + j]
+        r0, r1, r2, r3 = r0 + x[lo + i], r1 + x[lo + i + 1], r2 + x[lo + i + 2], r3 + x[lo + i + 3]
+        r4, r5, r6, r7 = r4 + x[lo + i + 4], r5 + x[lo + i + 5], r6 + x[lo + i + 6], r7 + x[lo + i + 7]
         i += 8
-    acc[0] = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    acc = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
     while i < n:
-        acc[0] = acc[0] + x[lo + i]
+        acc = acc + x[lo + i]
         i += 1
-    return acc[0]
+    return acc
 
 
 @njit(cache=True, nogil=True)
 def pairwise_sum(x: np.ndarray, lo: int, n: int):
-    """``x[lo:lo + n]`` summed in ``x``'s dtype as numpy's ``add.reduce`` sums a run along its
-    inner loop: blocks of at most 128 values (:func:`_block_sum`), halved above that and the halves
-    added. The halving is walked with a stack, not recursion (numba's cache cannot hold recursion)."""
+    """``x[lo:lo + n]`` (n >= 1) summed in ``x``'s dtype as numpy's ``add.reduce`` sums a run along
+    its inner loop: blocks of at most 128 values (:func:`_block_sum`), halved above that and the
+    halves added. The halving is walked with a stack, not recursion (numba's cache cannot hold
+    recursion)."""
     if n <= 128:
         return _block_sum(x, lo, n)
     s_lo = np.empty(64, dtype=np.int64)
@@ -75,10 +82,70 @@ def pairwise_sum(x: np.ndarray, lo: int, n: int):
 
 
 @njit(cache=True, nogil=True)
-def _segment_sum(x: np.ndarray, lo: int, hi: int, column: int) -> np.float32:
-    """``x[lo:hi, column]`` summed as numpy's ``add.reduceat`` sums a float32 window segment:
-    the first value plus the others in numpy's pairwise order."""
-    return x[lo, column] + pairwise_sum(x[:, column], lo + 1, hi - lo - 1)
+def _segment_sums(X: np.ndarray, lo: int, hi: int, out: np.ndarray, parts: np.ndarray) -> None:
+    """``out[c] = X[lo:hi, c].sum()`` for every channel as numpy's ``add.reduceat`` sums a float32
+    window segment: the first row plus the others in numpy's pairwise order (plus 0 when there are
+    none). The loops run over the channels innermost, so that they vectorise; ``parts`` is
+    scratch space of shape (8, channels)."""
+    ch = X.shape[1]
+    m = hi - lo - 1  # values after the first
+    if m > 128:  # long segments: channel by channel (rare)
+        for c in range(ch):
+            out[c] = X[lo, c] + pairwise_sum(X[:, c], lo + 1, m)
+        return
+    if m == 0:
+        for c in range(ch):
+            out[c] = _plus_zero(X[lo, c])
+        return
+    if m < 8:
+        for c in range(ch):
+            out[c] = _plus_zero(X[lo + 1, c])
+        for i in range(lo + 2, hi):
+            for c in range(ch):
+                out[c] = out[c] + X[i, c]
+    else:
+        for j in range(8):
+            for c in range(ch):
+                parts[j, c] = X[lo + 1 + j, c]
+        i = 8
+        while i < m - m % 8:
+            for j in range(8):
+                for c in range(ch):
+                    parts[j, c] = parts[j, c] + X[lo + 1 + i + j, c]
+            i += 8
+        for c in range(ch):
+            out[c] = ((parts[0, c] + parts[1, c]) + (parts[2, c] + parts[3, c])) + (
+                (parts[4, c] + parts[5, c]) + (parts[6, c] + parts[7, c]))
+        while i < m:
+            for c in range(ch):
+                out[c] = out[c] + X[lo + 1 + i, c]
+            i += 1
+    for c in range(ch):
+        out[c] = X[lo, c] + out[c]
+
+
+@njit(cache=True, nogil=True)
+def _std_rows(V: np.ndarray, lo: int, hi: int, total: np.ndarray, out: np.ndarray) -> None:
+    """``out[c] = V[lo:hi, c].std()`` as numpy computes it over a window view whose channels are
+    the inner loop: sums row after row, the mean, then the squared deviations row after row."""
+    ch = V.shape[1]
+    n = np.float32(hi - lo)
+    for c in range(ch):
+        total[c] = V[lo, c]
+    for i in range(lo + 1, hi):
+        for c in range(ch):
+            total[c] = total[c] + V[i, c]
+    for c in range(ch):
+        total[c] = total[c] / n
+    for c in range(ch):
+        d = V[lo, c] - total[c]
+        out[c] = d * d
+    for i in range(lo + 1, hi):
+        for c in range(ch):
+            d = V[i, c] - total[c]
+            out[c] = out[c] + d * d
+    for c in range(ch):
+        out[c] = np.sqrt(out[c] / n)
 
 
 @njit(cache=True, nogil=True)
@@ -86,43 +153,28 @@ def window_features(X: np.ndarray, w: int, bounds: np.ndarray, step: int, stats:
     """Per window of ``w`` rows of ``X`` (every ``step`` rows): the mean of each segment
     ``bounds[j]:bounds[j+1]`` per channel, then (``stats``) each channel's standard deviation and
     that of its row-to-row increments; in float32, bit for bit numpy's ``add.reduceat`` / ``std``
-    over the window view (what this replaced), in one pass without the view's temporaries."""
+    over the window view (what this replaced), without the view's temporaries."""
     n_rows, ch = X.shape
     n = (n_rows - w) // step + 1
     k = bounds.size - 1
     out = np.empty((n, k * ch + (2 * ch if stats else 0)), dtype=np.float32)
-    diff = np.empty((max(w - 1, 1), ch), dtype=np.float32)
+    diff = np.empty((max(n_rows - 1, 1), ch), dtype=np.float32)  # row-to-row increments, once
+    for i in range(n_rows - 1):
+        for c in range(ch):
+            diff[i, c] = X[i + 1, c] - X[i, c]
+    parts = np.empty((8, ch), dtype=np.float32)
+    sums = np.empty(ch, dtype=np.float32)
+    total = np.empty(ch, dtype=np.float32)
     for r in range(n):
         s = r * step
-        for c in range(ch):
-            for j in range(k):
-                length = np.float32(bounds[j + 1] - bounds[j])
-                out[r, j * ch + c] = _segment_sum(X, s + bounds[j], s + bounds[j + 1], c) / length
-        if not stats:
-            continue
-        for c in range(ch):  # numpy's std over the window axis: sums row after row
-            total = X[s, c]
-            for i in range(1, w):
-                total = total + X[s + i, c]
-            mean = total / np.float32(w)
-            d = X[s, c] - mean
-            var = d * d
-            for i in range(1, w):
-                d = X[s + i, c] - mean
-                var = var + d * d
-            out[r, k * ch + c] = np.sqrt(var / np.float32(w))
-            for i in range(w - 1):
-                diff[i, c] = X[s + i + 1, c] - X[s + i, c]
-            total = diff[0, c]
-            for i in range(1, w - 1):
-                total = total + diff[i, c]
-            mean = total / np.float32(w - 1)
-            d = diff[0, c] - mean
-            var = d * d
-            for i in range(1, w - 1):
-                d = diff[i, c] - mean
-                var = var + d * d
-            out[r, (k + 1) * ch + c] = np.sqrt(var / np.float32(w - 1))
+        for j in range(k):
+            _segment_sums(X, s + bounds[j], s + bounds[j + 1], sums, parts)
+            length = np.float32(bounds[j + 1] - bounds[j])
+            for c in range(ch):
+                out[r, j * ch + c] = sums[c] / length
+        if stats:
+            _std_rows(X, s, s + w, total, out[r, k * ch : (k + 1) * ch])
+            _std_rows(diff, s, s + w - 1, total, out[r, (k + 1) * ch :])
     return out
 
 

@@ -103,15 +103,18 @@ class _GOADModel(_DeepODGOAD):
     def transform(self, X: np.ndarray) -> torch.Tensor:
         """Every affine transformation of every row, (rows, trans_dim, n_trans) float32.
 
-        One float64 matrix product with the transformations side by side: the same values as
-        DeepOD's one product per transformation (each entry is the same dot product), 2x faster.
+        One float32 matrix product with the transformations side by side. DeepOD multiplies in
+        float64, one product per transformation, and rounds the result to float32 for its network;
+        the float32 product agrees with that to float32 rounding (relative ~1e-6) and is ~7x
+        faster, which makes it most of GOAD's scoring time saved. Training keeps DeepOD's products.
         """
         weights = self.__dict__.get("_stacked_weights")
         if weights is None:  # (features, n_trans * trans_dim), transformation-major columns
-            weights = np.ascontiguousarray(np.transpose(self.affine_weights, (1, 0, 2)).reshape(X.shape[1], -1))
+            weights = np.transpose(self.affine_weights, (1, 0, 2)).reshape(X.shape[1], -1)
+            weights = np.ascontiguousarray(weights, dtype=np.float32)
             self.__dict__["_stacked_weights"] = weights
-        x_trans = (np.asarray(X, dtype=np.float64) @ weights).reshape(X.shape[0], self.n_trans, -1)
-        return torch.from_numpy(x_trans.transpose(0, 2, 1)).float()
+        x_trans = (np.asarray(X, dtype=np.float32) @ weights).reshape(X.shape[0], self.n_trans, -1)
+        return torch.from_numpy(np.ascontiguousarray(x_trans.transpose(0, 2, 1)))
 
 
 def _model_scores(model: BaseDeepAD, X: np.ndarray, batch_size: int) -> np.ndarray:

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from run_fixtures import plugin, write_dataset
 
-from scart_bench.benchmark import runner
+from scart_bench.benchmark import flight_cache, runner
 from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.flight_cache import (
     CacheInvalid,
@@ -209,3 +209,17 @@ def test_a_job_falls_back_to_the_dataset_when_the_cache_is_unusable(dataset, tmp
                           cache=str(cache.folder), cache_key=index["key"]))
     assert res.status == "OK" and sum(reads.values()) == len(splits.train) + len(splits.scored)
     assert "flight cache not used" in capsys.readouterr().err
+
+
+def test_a_cache_read_by_worker_processes_is_the_same_cache(dataset, tmp_path, monkeypatch):
+    """Large runs read their flights in worker processes; the cache they write is byte for byte the
+    one read in this process."""
+    monkeypatch.setattr(flight_cache, "PARALLEL_READ_MIN", 0)
+    ids = Splits.from_manifest(open_dataset(dataset).manifest).scored
+    one = build_cache(tmp_path / "one", cache_key("fp"), ids, flight_cache.DatasetReader(dataset))
+    two = build_cache(tmp_path / "two", cache_key("fp"), ids, flight_cache.DatasetReader(dataset), workers=2)
+    files = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert files == sorted(p.name for p in (tmp_path / "two").iterdir())
+    for name in files:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
+    _same_table(one.flight(ids[0]), two.flight(ids[0]))
