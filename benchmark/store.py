@@ -204,8 +204,10 @@ class RunStore:
     def write_truth(self, truth: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
         ids = list(truth)
         lengths = [len(truth[f][0]) for f in ids]
+        # the ids as codes: a repeated string array of 12 M rows (the paper run) took 6.5 GB
+        codes = np.repeat(np.arange(len(ids), dtype=np.int64), lengths)
         df = pd.DataFrame({
-            "flight_id": pd.Categorical(np.repeat(ids, lengths), categories=ids),
+            "flight_id": pd.Categorical.from_codes(codes, categories=ids),
             "Timestamp": np.concatenate([np.asarray(truth[f][0], dtype=np.int64) for f in ids]) if ids else [],
             "Is_Anomaly": np.concatenate([np.asarray(truth[f][1], dtype=np.int8) for f in ids]) if ids else [],
         })

@@ -33,25 +33,50 @@ from scart_bench.benchmark.cli import main as cli_main
 from scart_bench.benchmark.cli_run import PROFILES
 
 
-class TreeMemory:
-    """Samples the RSS sum of this process and its descendants in a thread; keeps the peak overall and
-    per phase (``phase(name)`` starts a new one)."""
+def _role(p: psutil.Process) -> str:
+    """What a process of the tree is, from its command line: a job, a spawned worker (reader), other."""
+    try:
+        cmd = p.cmdline()
+    except (psutil.NoSuchProcess, psutil.AccessDenied):
+        return "gone"
+    text = " ".join(cmd)
+    if "scart_bench.benchmark.executors" in text:
+        return "job"
+    if "spawn_main" in text or "multiprocessing" in text:
+        return "spawned"
+    return "other"
 
-    def __init__(self, period_s: float = 0.2):
+
+class TreeMemory:
+    """Samples the PSS sum of this process and its descendants in a thread; keeps the peak overall and
+    per phase (``phase(name)`` starts a new one), and, with ``log``, a timeline: one CSV row per
+    process and sample (seconds, phase, pid, role, PSS MiB), to see what makes up a peak."""
+
+    def __init__(self, period_s: float = 0.2, log: Path | None = None):
         self.period_s, self.peak, self.phase_peak = period_s, 0, {}
         self.current: str | None = None
+        self._log = open(log, "w", encoding="utf-8") if log else None  # noqa: SIM115 (closed in __exit__)
+        if self._log:
+            self._log.write("seconds,phase,pid,role,pss_mib\n")
+        self._t0 = time.perf_counter()
+        self._roles: dict[int, str] = {}
         self._stop = threading.Event()
         self._me = psutil.Process()
         self._thread = threading.Thread(target=self._loop, daemon=True, name="rss-sampler")
 
     def sample(self) -> int:
         total = 0
+        t = time.perf_counter() - self._t0
         for p in [self._me, *self._me.children(recursive=True)]:
             try:  # PSS: pages shared between processes (the jobs map one flight cache) count once
                 info = p.memory_full_info()
-                total += getattr(info, "pss", info.rss)
+                pss = getattr(info, "pss", info.rss)
             except (psutil.NoSuchProcess, psutil.AccessDenied):
-                pass
+                continue
+            total += pss
+            if self._log:
+                role = self._roles.get(p.pid) or self._roles.setdefault(p.pid, "main" if p is self._me else _role(p))
+                self._log.write(f"{t:.2f},{self.current},{p.pid},{role},{pss / 2**20:.1f}\n")
         self.peak = max(self.peak, total)
         if self.current is not None:
             self.phase_peak[self.current] = max(self.phase_peak.get(self.current, 0), total)
@@ -73,6 +98,8 @@ class TreeMemory:
         self._stop.set()
         self._thread.join()
         self.sample()
+        if self._log:
+            self._log.close()
 
 
 def _timed(module, name: str, seconds: dict[str, float], key: str):
@@ -101,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--executor", choices=("local", "dask"), default="local")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-figures", action="store_true", help="report tables only")
+    p.add_argument("--memory-log", type=Path, help="write the memory timeline (CSV: seconds, phase, pid, role, PSS MiB)")
     args = p.parse_args(argv)
 
     from scart_bench.generator.generate import generate_dataset
@@ -109,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     seconds: dict[str, float] = {}
     tmp = None
     t_start = time.perf_counter()
-    with TreeMemory() as mem:
+    with TreeMemory(log=args.memory_log) as mem:
         dataset = args.dataset
         if dataset is None:
             mem.phase("generate")

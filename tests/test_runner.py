@@ -418,3 +418,24 @@ def test_costliest_jobs_start_first_and_tables_keep_the_order(dataset, tmp_path,
     assert started.index("tsbitmaps") < started.index("statistical")
     assert pd.read_csv(out / "results.csv")["detector"].tolist() == chosen
     assert pd.read_csv(out / "metrics.csv")["detector"].tolist() == chosen
+
+
+def test_the_runs_labels_read_back_as_written(tmp_path):
+    """truth.parquet keeps every scored flight's timestamps and labels, in order, under its id
+    (long ids, as the paper profile's, flights of one row, and no flights at all)."""
+    rng = np.random.default_rng(3)
+    ids = [f"csv-paper-sinusoid-imu-L3-d30-{'x' * 90}-{k}" for k in (7, 2, 11)] + ["normal-0", "one-row"]
+    truth = {fid: (np.cumsum(rng.integers(1, 9000, n)).astype(np.int64), (rng.random(n) < 0.3).astype(np.int8))
+             for fid, n in zip(ids, (2665, 40, 3001, 1200, 1))}
+    store = RunStore(tmp_path / "run")
+    store.path.mkdir()
+    store.write_truth(truth)
+    back = store.read_truth()
+    assert list(back) == ids
+    for fid in ids:
+        np.testing.assert_array_equal(back[fid][0], truth[fid][0])
+        np.testing.assert_array_equal(back[fid][1], truth[fid][1])
+    empty = RunStore(tmp_path / "empty")
+    empty.path.mkdir()
+    empty.write_truth({})
+    assert empty.read_truth() == {}
