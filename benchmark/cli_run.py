@@ -80,9 +80,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_score(args: argparse.Namespace) -> int:
+    from scart_bench.benchmark.errors import UsageError
     from scart_bench.benchmark.runner import score_run
 
-    metrics = score_run(args.run)
+    if args.jobs is not None and args.jobs < 1:
+        raise UsageError(f"scart-bench score --jobs {args.jobs}: expected a whole number >= 1")
+    metrics = score_run(args.run, processes=args.jobs)
     _print_table(Path(args.run), metrics)
     return 0
 
@@ -128,4 +131,7 @@ def register(sub) -> None:
 
     s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores")
     s.add_argument("run", type=Path, metavar="RUN", help="a run folder (runs/<name>)")
+    s.add_argument("--jobs", type=int, metavar="N",
+                   help="detectors scored at a time, each in its own process (default: the run's --jobs); "
+                        "the tables are the same for any N")
     s.set_defaults(func=cmd_score)

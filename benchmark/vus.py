@@ -13,7 +13,8 @@ field's tables; ``tests/test_vus.py`` cross-checks them against that package.
   the border widths ``w = 0 .. window``. Vectorised here with sorted cumulative sums (one pass
   per width), the reference loops over thresholds and ranges.
 - :func:`auc_pr`: average precision (``sklearn.metrics.average_precision_score``, in array code);
-  :func:`row_roc_auc`: row-level ROC-AUC.
+  :func:`row_roc_auc`: row-level ROC-AUC; :func:`row_metrics`: ROC-AUC, AUC-PR and VUS of one
+  series from one sort of its scores (the run's tables use it: 12 M pooled rows at paper scale).
 - :func:`r_prf`: range-based precision / recall / F1 of binary predictions (Tatbul et al. 2018
   as TSB-AD parameterises it): recall with alpha 0.2 (existence reward), precision with alpha 0,
   flat positional bias, reciprocal cardinality; ranges are inclusive row ranges.
@@ -55,9 +56,13 @@ def _count_at_least(sorted_scores: np.ndarray, thresholds: np.ndarray) -> np.nda
 def _border_distances(n: int, seq: np.ndarray, in_seq: np.ndarray, reach: int):
     """Rows outside the ranges within ``reach`` rows of one; per row, the distance to the end of
     the range before it, to the start of the range after it, and the smaller of the distances to
-    the second range before and after it (``reach + 1`` when farther or absent)."""
+    the second range before and after it (``reach + 1`` when farther or absent). Only the rows
+    within ``reach`` of a range are looked at (a long series with few ranges costs nothing)."""
     far, r = reach + 1, len(seq)
-    rows = np.arange(n)
+    offsets = np.arange(1, reach + 1)
+    near = np.concatenate([(seq[:, 0:1] - offsets).ravel(), (seq[:, 1:2] + offsets).ravel()])
+    rows = np.unique(near[(near >= 0) & (near < n)])
+    rows = rows[~in_seq[rows]]
     k = np.searchsorted(seq[:, 1], rows, side="left") - 1  # last range ending before the row
     j = np.searchsorted(seq[:, 0], rows, side="right")  # first range starting after the row
 
@@ -68,8 +73,7 @@ def _border_distances(n: int, seq: np.ndarray, in_seq: np.ndarray, reach: int):
     d_next = gap(j < r, seq[np.clip(j, 0, r - 1), 0] - rows)
     d_second = np.minimum(gap(k >= 1, rows - seq[np.clip(k - 1, 0, r - 1), 1]),
                           gap(j + 1 < r, seq[np.clip(j + 1, 0, r - 1), 0] - rows))
-    keep = np.flatnonzero(~in_seq & (np.minimum(d_prev, d_next) <= reach))
-    return keep, d_prev[keep], d_next[keep], d_second[keep]
+    return rows, d_prev, d_next, d_second
 
 
 def _reach_max(score: np.ndarray, starts: np.ndarray, step: int, reach: int) -> np.ndarray:
@@ -100,14 +104,20 @@ def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
     seq = _ranges(label)
     if n == 0 or len(seq) == 0:
         return float("nan"), float("nan")
-    window = int(window)
+    return _vus_sorted(label, score, np.sort(score), np.sort(score[label.astype(bool)]), seq, int(window),
+                       n_thresholds)
+
+
+def _vus_sorted(label: np.ndarray, score: np.ndarray, ascending: np.ndarray, true_ascending: np.ndarray,
+                seq: np.ndarray, window: int, n_thresholds: int) -> tuple[float, float]:
+    """:func:`vus` given the sorted scores of all rows and of the anomalous rows, and the ranges."""
+    n = label.size
     reach = window // 2
     in_seq = label.astype(bool)
     p_total = float(label.sum())
-    ascending = np.sort(score)
     thresholds = ascending[::-1][np.linspace(0, n - 1, n_thresholds).astype(int)]
     n_pred = _count_at_least(ascending, thresholds).astype(np.float64)
-    true_at = _count_at_least(np.sort(score[in_seq]), thresholds).astype(np.float64)
+    true_at = _count_at_least(true_ascending, thresholds).astype(np.float64)
     # border rows sorted by score; for every width the weights of those at or above each threshold
     rows, d_prev, d_next, d_second = _border_distances(n, seq, in_seq, reach)
     order = np.argsort(score[rows], kind="stable")
@@ -115,15 +125,16 @@ def vus(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
     above = np.searchsorted(score[rows][order], thresholds, side="left")
     widths = np.arange(window + 1)
     border_at = np.zeros((window + 1, n_thresholds))
-    for lo in range(0, window + 1, 16):  # blocks of widths bound the memory on long series
-        w = widths[lo : lo + 16, None].astype(np.float64)
-        h = widths[lo : lo + 16, None] // 2
+    block = max(1, min(window + 1, 1_000_000 // max(len(rows), 1)))  # blocks of widths bound the memory
+    for lo in range(0, window + 1, block):
+        w = widths[lo : lo + block, None].astype(np.float64)
+        h = widths[lo : lo + block, None] // 2
         with np.errstate(divide="ignore", invalid="ignore"):
             weight = (np.where(d_prev <= h, np.sqrt(1 - d_prev / w), 0.0)
                       + np.where(d_next <= h, np.sqrt(1 - d_next / w), 0.0)
                       + (d_second <= h))  # a second range as near: two borders, weight 1
         csum = np.hstack([np.zeros((len(w), 1)), np.cumsum(np.minimum(weight, 1.0), axis=1)])
-        border_at[lo : lo + 16] = csum[:, -1:] - csum[:, above]
+        border_at[lo : lo + block] = csum[:, -1:] - csum[:, above]
     # existence: per width, the merged widened ranges whose largest score reaches the threshold
     inner = np.maximum.reduceat(np.append(score, -np.inf), np.column_stack([seq[:, 0], seq[:, 1] + 1]).ravel())[::2]
     left = _reach_max(score, seq[:, 0], -1, reach)
@@ -161,12 +172,34 @@ def average_precision(labels: np.ndarray, scores: np.ndarray) -> float:
         raise ValueError(f"average_precision: {y.size} labels for {s.size} scores")
     if not y.any():
         return float("nan")
-    order = np.argsort(-s, kind="mergesort")
-    cuts = np.append(np.flatnonzero(np.diff(s[order])), y.size - 1)  # the last row of each distinct score
-    tps = np.cumsum(y[order])[cuts]
-    precision = tps / (cuts + 1.0)
+    return _average_precision_sorted(np.sort(s), np.sort(s[y != 0]))
+
+
+def _average_precision_sorted(ascending: np.ndarray, true_ascending: np.ndarray) -> float:
+    """Average precision from the sorted scores of all rows and of the positive rows: at each
+    distinct score, highest first, the rows at or above it and the positives among them (counts,
+    so the sum is the same whatever sort produced them)."""
+    n = ascending.size
+    first = np.flatnonzero(np.r_[True, ascending[1:] != ascending[:-1]])  # first row of each distinct score
+    above = (n - first)[::-1].astype(np.float64)  # rows at or above each distinct score, highest first
+    tps = (true_ascending.size - np.searchsorted(true_ascending, ascending[first], side="left"))[::-1]
+    tps = tps.astype(np.float64)
+    precision = tps / above
     recall = tps / tps[-1]
     return float(np.sum(np.diff(recall, prepend=0.0) * precision))
+
+
+def roc_auc_from_sorted(ascending: np.ndarray, true_ascending: np.ndarray) -> float:
+    """ROC-AUC as Mann-Whitney U with average ranks, from the sorted scores of all rows and of the
+    positive rows: twice a positive's average rank is (rows below) + (rows at or below) + 1, summed
+    in integers, so ties count half and the value is exact to one rounding."""
+    n_pos = true_ascending.size
+    n_neg = ascending.size - n_pos
+    if n_pos == 0 or n_neg == 0:
+        return float("nan")
+    twice = int(np.searchsorted(ascending, true_ascending, side="left").sum()
+                + np.searchsorted(ascending, true_ascending, side="right").sum()) + n_pos
+    return (twice - n_pos * (n_pos + 1)) / (2 * n_pos * n_neg)
 
 
 def auc_pr(labels: np.ndarray, scores: np.ndarray) -> float:
@@ -182,29 +215,51 @@ def row_roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
     return float(roc_auc_score(y, np.asarray(scores, dtype=np.float64).reshape(-1)))
 
 
-def _overlap_reward(real: np.ndarray, pred: np.ndarray, hits: np.ndarray) -> np.ndarray:
-    """Per real range: covered fraction (flat bias) times 1 / number of predicted ranges touching it."""
-    csum = np.r_[0, np.cumsum(hits)]
-    covered = (csum[real[:, 1] + 1] - csum[real[:, 0]]) / (real[:, 1] - real[:, 0] + 1)
-    if len(pred) == 0:
-        return np.zeros(len(real))
-    touching = ((pred[None, :, 0] <= real[:, None, 1]) & (pred[None, :, 1] >= real[:, None, 0])).sum(axis=1)
-    return np.where(touching > 0, covered / np.maximum(touching, 1), 0.0)
+def row_metrics(labels: np.ndarray, scores: np.ndarray, window: int = VUS_WINDOW,
+                n_thresholds: int = VUS_THRESHOLDS) -> dict[str, float]:
+    """Row ROC-AUC, AUC-PR, VUS-ROC and VUS-PR of one series from one sort of its scores (the
+    values of :func:`row_roc_auc`, :func:`auc_pr` and :func:`vus`; NaN where those are)."""
+    label = np.asarray(labels).reshape(-1).astype(np.int64)
+    score = np.asarray(scores, dtype=np.float64).reshape(-1)
+    if label.shape != score.shape:
+        raise ValueError(f"row_metrics: {label.size} labels for {score.size} scores")
+    if label.size and (label.min() < 0 or label.max() > 1):
+        raise ValueError("row_metrics: labels must be 0 or 1")
+    ascending = np.sort(score)
+    true_ascending = np.sort(score[label == 1])
+    out = {"roc_auc": roc_auc_from_sorted(ascending, true_ascending), "auc_pr": float("nan"),
+           "vus_roc": float("nan"), "vus_pr": float("nan")}
+    if true_ascending.size:
+        out["auc_pr"] = _average_precision_sorted(ascending, true_ascending)
+        seq = _ranges(label)
+        if len(seq):
+            out["vus_roc"], out["vus_pr"] = _vus_sorted(label, score, ascending, true_ascending, seq, int(window),
+                                                        n_thresholds)
+    return out
 
 
 def _range_recall(label: np.ndarray, pred: np.ndarray, alpha: float) -> float:
+    """Per range of ``label``: ``alpha`` for being hit at all plus ``1 - alpha`` times the covered
+    fraction (flat bias) over the number of ``pred`` ranges touching it (reciprocal cardinality);
+    averaged over the ranges. Counts from one cumulative sum, so a long series costs two passes."""
     real, predicted = _ranges(label), _ranges(pred)
     if len(real) == 0:
         return 0.0
-    existence = np.array([pred[a : b + 1].any() for a, b in real], dtype=np.float64)
-    overlap = _overlap_reward(real, predicted, pred.astype(np.int64))
+    csum = np.r_[0, np.cumsum(pred != 0, dtype=np.int64)]
+    hit_rows = csum[real[:, 1] + 1] - csum[real[:, 0]]
+    existence = (hit_rows > 0).astype(np.float64)
+    covered = hit_rows / (real[:, 1] - real[:, 0] + 1)
+    # ranges are sorted and disjoint: those touching [a, b] start at or before b and do not end before a
+    touching = (np.searchsorted(predicted[:, 0], real[:, 1], side="right")
+                - np.searchsorted(predicted[:, 1], real[:, 0], side="left"))
+    overlap = np.where(touching > 0, covered / np.maximum(touching, 1), 0.0)
     return float((alpha * existence.sum() + (1 - alpha) * overlap.sum()) / len(real))
 
 
 def r_prf(labels: np.ndarray, predictions: np.ndarray) -> tuple[float, float, float]:
     """TSB-AD's range-based (precision, recall, F1) of 0/1 predictions against 0/1 labels."""
-    y = np.asarray(labels).reshape(-1).astype(np.int64)
-    p = np.asarray(predictions).reshape(-1).astype(np.int64)
+    y = np.asarray(labels).reshape(-1)
+    p = np.asarray(predictions).reshape(-1)
     if y.shape != p.shape:
         raise ValueError(f"r_prf: {y.size} labels for {p.size} predictions")
     recall = _range_recall(y, p, 0.2)

@@ -136,6 +136,17 @@ def test_score_recomputes_from_saved_scores(reference_run, tmp_path, capsys):
     assert out.splitlines()[0].startswith("| Detector | TP Simulation (in window) | TP CSV (in window) | TN No Attack")
 
 
+def test_score_gives_the_same_tables_in_one_process_or_several(reference_run, tmp_path):
+    """The reference run scored its two detectors in two processes (its --jobs); one process
+    writes the same files byte for byte."""
+    run = tmp_path / "copy"
+    shutil.copytree(reference_run, run)
+    assert main(["score", str(run), "--jobs", "1"]) == 0
+    for name in ("metrics.csv", "metrics.md", "breakdown.csv", "flight_scores.csv"):
+        assert (run / name).read_bytes() == (reference_run / name).read_bytes(), name
+    assert main(["score", str(run), "--jobs", "0"]) == 2
+
+
 def test_saved_nan_scores_make_the_job_an_error(reference_run, tmp_path):
     from scart_bench.benchmark.store import atomic_write_bytes, npz_bytes
 

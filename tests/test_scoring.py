@@ -370,3 +370,23 @@ def test_markdown_table_shows_status_not_zeros():
                         "Median delay (s) | Status |")
     assert lines[2] == "| good | 50.0 % [9-91] | 100.0 % | 100.0 % | 0.750 | n/a | OK |"
     assert lines[3] == "| bad | TIMEOUT | TIMEOUT | TIMEOUT | TIMEOUT | TIMEOUT | TIMEOUT |"
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_row_metrics_from_one_sort_equal_the_separate_definitions(seed):
+    """A long series with a few short attacks (most rows far from any range) and tied scores:
+    the pooled row metrics equal scikit-learn's ROC-AUC and AP and this module's VUS."""
+    from sklearn.metrics import average_precision_score
+
+    from scart_bench.benchmark.vus import row_metrics, vus
+
+    rng = np.random.default_rng(seed)
+    y = np.zeros(30_000, dtype=np.int8)
+    for start in rng.choice(29_000, size=3, replace=False):
+        y[start : start + rng.integers(5, 400)] = 1
+    s = np.round(rng.standard_normal(y.size) * 4) / 4 + y * rng.random()
+    got = row_metrics(y, s)
+    assert got["roc_auc"] == pytest.approx(roc_auc_score(y, s), abs=1e-12)
+    assert got["auc_pr"] == pytest.approx(average_precision_score(y, s), abs=1e-12)
+    assert (got["vus_roc"], got["vus_pr"]) == vus(y, s)
+    assert np.isnan(row_metrics(np.zeros(50), rng.random(50))["vus_pr"])
