@@ -112,9 +112,12 @@ def atomic_write_csv(path: Path, df: pd.DataFrame) -> None:
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    """A compressed .npz (readable by numpy.load) with one entry per key, any key string."""
+    """A compressed .npz (readable by numpy.load) with one entry per key, any key string.
+
+    Deflate level 1: at paper scale (12 M float64 scores) 1.1 s and 40.7 MB per detector against
+    4.7 s and 39.8 MB at the default level 6, in the run's main process while jobs wait to start."""
     buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
         for key, arr in arrays.items():
             with zf.open(f"{key}.npy", "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.asarray(arr), allow_pickle=False)
