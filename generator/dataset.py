@@ -542,12 +542,18 @@ def _write_paper(root: Path, fmt: str, record: FlightRecord) -> None:
 def _write_compact(root: Path, record: FlightRecord) -> None:
     windows = [list(w) for w in record.windows]
     for view, topics in _views(record):
-        reuse = {}
-        if view == "simulator":  # a topic the attack did not touch is the navigator's: stored once
-            reuse = {name: "navigator" for name, df in topics.items()
-                     if name in record.navigator and df.equals(record.navigator[name])}
+        reuse, shared = {}, {}
+        if view == "simulator":  # what the attack did not touch is the navigator's: stored once
+            for name, df in topics.items():
+                same = compact.shared_fields(df, record.navigator[name]) if name in record.navigator else None
+                if same is None:
+                    continue
+                if same == list(df.columns) == list(record.navigator[name].columns):
+                    reuse[name] = "navigator"
+                elif same:
+                    shared[name] = ("navigator", same)
         tmp = root / f".{view}.parquet.tmp"
-        compact.write_view(tmp, topics, windows, reuse)
+        compact.write_view(tmp, topics, windows, reuse, shared)
         os.replace(tmp, root / f"{view}.parquet")
 
 

@@ -119,3 +119,63 @@ def test_a_newer_or_foreign_view_file_is_refused_by_name(both_layouts, tmp_path)
     pd.DataFrame({"x": [1.0]}).to_parquet(view)
     with pytest.raises(DatasetError, match=r"normal-0001/navigator\.parquet: not a scart-bench flight view"):
         open_dataset(target).flight("normal-0001")
+
+
+def test_a_simulator_topic_stores_only_the_fields_the_attack_changed(both_layouts, tmp_path):
+    """Fields equal bit for bit to the navigator's (same rows) are kept once; the rest, a field
+    whose zeros turned into -0.0 included, are stored, and every value reads back exactly."""
+    import shutil
+
+    from scart_bench.generator.dataset import flight_record
+
+    ds = open_dataset(both_layouts["compact"])
+    nav = {t: ds.topic("normal-0000", t) for t in ds.topics("normal-0000")}
+    sim = {t: ds.topic("normal-0000", t, "simulator") for t in ds.topics("normal-0000", "simulator")}
+    sim["attitude"] = sim["attitude"].copy()
+    sim["attitude"]["roll"] += 0.1  # an attack on one field
+    zero = nav["attitude"]["yawspeed"].to_numpy().copy()
+    zero[::7] = 0.0
+    nav["attitude"] = nav["attitude"].assign(yawspeed=zero)
+    sim["attitude"]["yawspeed"] = np.where(zero == 0.0, -0.0, zero)  # equal under ==, not in bits
+    sim["highres_imu"] = sim["highres_imu"].iloc[::2].reset_index(drop=True)  # other rows: stored whole
+    target = tmp_path / "ds"
+    shutil.copytree(both_layouts["compact"], target)
+    append_flights(target, [flight_record("extra-1", nav, sim, {"mode": "simulation", "split": "test"}, {})])
+    again = open_dataset(target)
+    path = again.flight_dir("extra-1") / "simulator.parquet"
+    meta = json.loads(pq.read_schema(path).metadata[META_KEY])
+    spans = {s["name"]: s for s in meta["stored"]}
+    assert set(spans["attitude"]["shared"]["columns"]) == {"pitch", "yaw", "rollspeed", "pitchspeed"}
+    assert "shared" not in spans["highres_imu"] and "global_position_int" in meta["reuse"]
+    for view, written in (("navigator", nav), ("simulator", sim)):
+        for topic, df in written.items():
+            got = again.topic("extra-1", topic, view)
+            assert list(got.columns) == list(df.columns) and len(got) == len(df)
+            for col in df.columns:
+                a, b = df[col], got[col]
+                if float32_safe(topic, col):
+                    a, b = a.to_numpy(np.float32), b.to_numpy(np.float32)
+                    assert a.tobytes() == b.tobytes(), (view, topic, col)
+                else:
+                    pd.testing.assert_series_equal(a, b, check_exact=True, check_names=False)
+    # what a detector reads: the views' combined tables differ exactly where the attack changed them
+    a, b = again.flight("extra-1", "navigator"), again.flight("extra-1", "simulator")
+    assert not np.array_equal(a["attitude.roll"], b["attitude.roll"], equal_nan=True)
+    np.testing.assert_array_equal(a["attitude.pitch"], b["attitude.pitch"])
+
+
+def test_version_1_view_files_still_read(both_layouts, tmp_path):
+    """Datasets written before field sharing (layout version 1) read as before."""
+    import shutil
+
+    target = tmp_path / "ds"
+    shutil.copytree(both_layouts["compact"], target)
+    before = open_dataset(target).flight("normal-0001", "simulator")
+    for view in ("navigator", "simulator"):
+        path = target / "flights" / "normal-0001" / f"{view}.parquet"
+        table = pq.read_table(path)
+        meta = json.loads(table.schema.metadata[META_KEY])
+        assert not any("shared" in s for s in meta["stored"])
+        meta["version"] = 1
+        pq.write_table(table.replace_schema_metadata({META_KEY: json.dumps(meta).encode()}), path)
+    pd.testing.assert_frame_equal(open_dataset(target).flight("normal-0001", "simulator"), before)
