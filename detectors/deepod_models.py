@@ -67,6 +67,9 @@ except ImportError as exc:  # one clear line instead of a traceback, for every D
 #: Floor of a feature's training spread, in units of the channel's standard deviation: keeps
 #: features that barely vary in training (a still channel's noise level) from exploding.
 _MIN_FEATURE_SCALE = 0.01
+#: Windows per step of GOAD's distance computation: 32 x 32 x 32 x 8 float32 (1 MB) stays in a
+#: core's cache.
+_DISTANCE_CHUNK = 32
 
 # -- DeepOD models made causal and reproducible ------------------------------------------------
 
@@ -99,6 +102,31 @@ class _GOADModel(_DeepODGOAD):
             return super().inference_prepare(X)
         self.net.eval()
         return DataLoader(self.transform(X), batch_size=self.batch_size, shuffle=False)
+
+    def inference_forward(self, batch_x, net, criterion):
+        """DeepOD's GOAD score of a batch, bit for bit, about 6x faster on a CPU.
+
+        DeepOD squares the gaps between every transformation's representation and every centre
+        as one (batch, n_trans, n_trans, rep) tensor: 16 MB at 512 windows, which leaves the
+        core's cache, so the step is memory-bound and was most of GOAD's scoring. Here the same
+        tensor operations run on ``_DISTANCE_CHUNK`` windows at a time (each window's score
+        depends on its own rows only). The network's classification head is skipped: its output
+        is not used for scoring, only its first step, which DeepOD applies in place to the
+        representation (a LeakyReLU), is kept.
+        """
+        head_act = net.head[0]
+        if not isinstance(head_act, torch.nn.LeakyReLU):  # another DeepOD network: its own code
+            return super().inference_forward(batch_x, net, criterion)
+        rep = head_act(net.enc(batch_x.float().to(self.device))).permute(0, 2, 1)
+        scores = []
+        for lo in range(0, rep.shape[0], _DISTANCE_CHUNK):
+            diffs = rep[lo : lo + _DISTANCE_CHUNK].unsqueeze(2) - self.rep_means
+            diffs = (diffs * diffs).sum(-1)  # DeepOD: ** 2, the same product
+            diffs = torch.max(diffs, self.eps * torch.ones_like(diffs))
+            logp = torch.nn.functional.log_softmax(-diffs, dim=2)
+            s = -torch.diagonal(logp, 0, 1, 2)  # contiguous first, as DeepOD sums it
+            scores.append(s.sum(1))
+        return rep, torch.cat(scores)
 
     def transform(self, X: np.ndarray) -> torch.Tensor:
         """Every affine transformation of every row, (rows, trans_dim, n_trans) float32.
