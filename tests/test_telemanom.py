@@ -164,6 +164,21 @@ def test_causal(fitted):
     assert abs(tail[-1] - full[k - 1]) <= 0.05 * abs(full[k - 1]) + 1e-6
 
 
+def test_forecasts_do_not_depend_on_how_many_windows_one_lstm_call_takes(fitted, monkeypatch):
+    """Scoring forecasts 256 windows per LSTM call (it fits a core's cache); the scores are the
+    ones of 1,024-window calls and of one window per call, bit for bit, and a row's score does not
+    depend on how many rows follow it (a short last call is padded)."""
+    from scart_bench.detectors import telemanom
+
+    flight = make_flight(108, attack=ATTACK)
+    ours = fitted.score(flight)
+    for k in (1, 2, 3, 257, 1283):
+        assert np.array_equal(fitted.score(flight.iloc[:k]), ours[:k]), k
+    for chunk in (1024, 1):
+        monkeypatch.setattr(telemanom, "_PREDICT_CHUNK", chunk)
+        assert np.array_equal(fitted.score(flight), ours), chunk
+
+
 def test_pickle_round_trip(fitted):
     flight = make_flight(107, attack=ATTACK)
     clone = pickle.loads(pickle.dumps(fitted))
