@@ -429,7 +429,7 @@ class GOAD(_DeepODDetector):
     """
 
     name = "goad"
-    relative_cost = 45.0  # us per row, paper flights (scheduling hint)
+    relative_cost = 20.0  # us per row, paper flights (scheduling hint)
     description = "GOAD (Bergman & Hoshen 2020) on flattened windows: transformation-classification error"
     _model_class = _GOADModel
     _model_defaults = {"n_trans": 32}
