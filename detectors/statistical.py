@@ -99,7 +99,7 @@ class Statistical(Detector):
     """
 
     name = "statistical"
-    relative_cost = 7.0  # us per row, paper flights (scheduling hint)
+    relative_cost = 3.6  # us per row, paper flights (scheduling hint)
     description = "mean / std / variance / moving-average thresholds; alarm when several are exceeded at once"
     has_alarms = True
 

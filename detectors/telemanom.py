@@ -390,7 +390,7 @@ class Telemanom(Detector):
     """
 
     name = "telemanom"
-    relative_cost = 30.0  # us per row, paper flights (scheduling hint)
+    relative_cost = 20.0  # us per row, paper flights (scheduling hint)
     description = "LSTM forecaster with nonparametric dynamic thresholding (Hundman et al. 2018)"
     has_alarms = True
 

@@ -89,7 +89,7 @@ class TSBitmaps(Detector):
     """
 
     name = "tsbitmaps"
-    relative_cost = 30.0  # us per row, paper flights (scheduling hint)
+    relative_cost = 7.0  # us per row, paper flights (scheduling hint)
     description = "time-series bitmaps (Wei et al. 2005): SAX subword bitmaps of lag vs lead window"
 
     def __init__(
