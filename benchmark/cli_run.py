@@ -62,7 +62,29 @@ def run_config(args: argparse.Namespace):
             value = _patterns(value)
         given[key] = [value] if option == "detectors" else list(value) if option == "plugin" else value
     given["params"] = merge_params(cfg.params, parse_params(args.param or []))
+    given["protocol"] = protocol_options(cfg.protocol, args)
     return dataclasses.replace(cfg, **given)
+
+
+def protocol_options(protocol, args: argparse.Namespace):
+    """The run's protocol with ``--alpha``, ``--burn-in`` and ``--threshold`` applied."""
+    import dataclasses
+
+    from scart_bench.benchmark.protocol import ProtocolError
+    from scart_bench.errors import RunError
+
+    try:
+        if getattr(args, "alpha", None) is not None:
+            protocol = dataclasses.replace(
+                protocol, flight_rule=dataclasses.replace(protocol.flight_rule, kind="conformal", alpha=args.alpha),
+                row_rule=dataclasses.replace(protocol.row_rule, kind="conformal", alpha=args.alpha))
+        if getattr(args, "burn_in", None) is not None:
+            protocol = dataclasses.replace(protocol, burn_in_s=args.burn_in)
+        if getattr(args, "threshold", None) is not None:
+            protocol = dataclasses.replace(protocol, alarm_rule=args.threshold)
+    except ProtocolError as exc:
+        raise RunError(f"--alpha / --burn-in / --threshold: {exc}") from None
+    return protocol
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -121,12 +143,21 @@ def register(sub) -> None:
     r.add_argument("--features", action="append", metavar="GLOB,...",
                    help="use only these columns as features, e.g. 'vehicle_gps_position.*' (repeatable; default: "
                         "the feature rule: every topic.field column in all training flights that is not a "
-                        "timestamp, counter, id or reset counter and not constant)")
+                        "timestamp, counter, id, reset counter or control/state flag (armed, mode, mission item) and "
+                        "not constant)")
     r.add_argument("--exclude", action="append", metavar="GLOB,...",
                    help="drop these columns from the features, e.g. 'battery_status.*' (repeatable)")
     r.add_argument("--device", choices=("auto", "cpu", "cuda"),
                    help="torch device of the detectors that take one (deepsvdd, rdp, rca, goad, neutral, "
                         "telemanom): auto (default: cuda when available, else cpu), cpu or cuda")
+    r.add_argument("--alpha", type=float, metavar="RATE",
+                   help="target per-flight false-alarm rate of every detector's threshold (default 0.05): the "
+                        "conformal order statistic of the validation flights' scores")
+    r.add_argument("--burn-in", type=float, metavar="SECONDS", dest="burn_in",
+                   help="seconds after arming in which rows neither calibrate nor alarm (default 5)")
+    r.add_argument("--threshold", choices=("calibrated", "own"),
+                   help="calibrated (default): score > the calibrated threshold; own: each detector's own alarm "
+                        "rule where it has one (Telemanom's dynamic threshold, Statistical's vote)")
     r.set_defaults(func=cmd_run)
 
     s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores")

@@ -18,9 +18,13 @@ over it::
     n_trans = 64
     epochs = 5
 
-    [protocol.flight_rule]                   # threshold rules (see scart_bench.benchmark.protocol)
-    kind = "max"
-    margin = 0.05
+    [protocol]                               # the operating point (see scart_bench.benchmark.protocol)
+    alpha = 0.05                             # target per-flight false-alarm rate (conformal threshold)
+    burn_in_s = 5.0                          # after arming: rows neither calibrate nor alarm
+    end_transient_s = 2.0                    # an alarm this soon after the attack's end is "at the end"
+    alarm_rule = "calibrated"                # or "own": the detector's own alarm rule where it has one
+    [protocol.flight_rule]                   # or the rules in full (kind conformal / max / quantile)
+    kind = "conformal"
 
 A finished run's ``config.json`` holds the same data under ``"run"``; ``--config RUN/config.json``
 reruns it (the file is read as data: nothing in it is imported or executed).
@@ -139,6 +143,9 @@ def read_run_file(path: str | Path) -> dict:
         if not isinstance(data, dict) or not isinstance(data.get("run"), dict):
             raise RunError(f"--config {p}: a run folder's config.json with a \"run\" entry was expected")
         data = data["run"]
+        if isinstance(data.get("protocol"), dict):
+            # a run folder made before protocol v2 had no burn-in and no end transient: rerun it as it was
+            data = {**data, "protocol": {"burn_in_s": 0.0, "end_transient_s": 0.0, **data["protocol"]}}
     else:
         try:
             data = tomllib.loads(text)
@@ -194,24 +201,39 @@ def _checked(p: Path, data: dict) -> dict:
 
 
 def protocol_from(p: Path, data: object) -> Protocol:
-    """A Protocol from a run file's ``[protocol]`` table (missing rules keep their defaults)."""
+    """A Protocol from a run file's ``[protocol]`` table (missing keys keep their defaults)."""
+    keys = ("flight_rule", "row_rule", "alpha", "burn_in_s", "end_transient_s", "alarm_rule")
     if not isinstance(data, dict):
-        raise RunError(f"--config {p}: protocol: expected a table with flight_rule and/or row_rule")
-    unknown = [k for k in data if k not in ("flight_rule", "row_rule")]
+        raise RunError(f"--config {p}: protocol: expected a table with {', '.join(keys)}")
+    unknown = [k for k in data if k not in keys]
     if unknown:
-        raise RunError(f"--config {p}: protocol: unknown key(s) {unknown}; expected flight_rule, row_rule")
+        raise RunError(f"--config {p}: protocol: unknown key(s) {unknown}; expected {', '.join(keys)}")
     rules = {}
     for key in ("flight_rule", "row_rule"):
         value = data.get(key, {})
         if not isinstance(value, dict):
-            raise RunError(f"--config {p}: protocol.{key}: expected a table (kind, margin, q)")
+            raise RunError(f"--config {p}: protocol.{key}: expected a table (kind, margin, q, alpha)")
+        if "alpha" in data and "alpha" not in value:
+            value = {**value, "alpha": data["alpha"]}
         try:
             rules[key] = ThresholdRule(**value)
         except TypeError as exc:
-            raise RunError(f"--config {p}: protocol.{key}: {exc}; expected keys kind, margin, q") from exc
+            raise RunError(f"--config {p}: protocol.{key}: {exc}; expected keys kind, margin, q, alpha") from exc
         except ProtocolError as exc:
             raise RunError(f"--config {p}: protocol.{key}: {exc}") from exc
-    return Protocol(rules["flight_rule"], rules["row_rule"])
+    extra = {}
+    for key in ("burn_in_s", "end_transient_s"):
+        if key in data:
+            v = data[key]
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise RunError(f"--config {p}: protocol.{key} = {v!r}: expected a number of seconds >= 0")
+            extra[key] = float(v)
+    if "alarm_rule" in data:
+        extra["alarm_rule"] = data["alarm_rule"]
+    try:
+        return Protocol(rules["flight_rule"], rules["row_rule"], **extra)
+    except ProtocolError as exc:
+        raise RunError(f"--config {p}: protocol: {exc}") from exc
 
 
 def merge_params(base: dict[str, dict], extra: dict[str, dict]) -> dict[str, dict]:

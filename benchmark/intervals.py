@@ -3,6 +3,8 @@
 - :func:`wilson`: the 95 % Wilson score interval of a binomial rate ``k / n`` (Wilson 1927). It
   stays inside [0, 1] and is sensible for the small counts of a benchmark table (11 attacked
   flights make a rate move in 9 % steps); the normal-approximation interval is not.
+- :func:`design_interval` with :func:`cluster_weights`: the interval of a rate under clustering and
+  the threshold's own uncertainty (see :mod:`scart_bench.benchmark.scoring`'s ``PaperTable``).
 - :func:`bootstrap_auc`: a percentile bootstrap interval of a two-sample score (ROC-AUC, AUC-PR)
   over flights: normal and attacked flights are resampled with replacement separately, so every
   resample has both classes. Seeded, so the same scores always give the same interval.
@@ -60,3 +62,56 @@ def bootstrap_auc(metric: Callable[[np.ndarray, np.ndarray], float], normal: np.
     tail = (1.0 - level) / 2.0
     lo, hi = np.quantile(values, [tail, 1.0 - tail])
     return float(lo), float(hi)
+
+
+def cluster_weights(clusters: np.ndarray, strata: np.ndarray, n_boot: int,
+                    rng: np.random.Generator) -> np.ndarray:
+    """``(n_boot, n)`` bootstrap weights: how often each item's cluster was drawn when the clusters
+    of every stratum are resampled with replacement (as many as the stratum has)."""
+    clusters = np.asarray(clusters).reshape(-1)
+    strata = np.asarray(strata).reshape(-1)
+    codes, inv = np.unique(clusters.astype(str), return_inverse=True)
+    counts = np.zeros((n_boot, codes.size))
+    for s in np.unique(strata.astype(str)):
+        members = np.unique(inv[strata.astype(str) == s])
+        draws = rng.integers(0, members.size, size=(n_boot, members.size))
+        flat = (draws + np.arange(n_boot)[:, None] * members.size).ravel()
+        counts[:, members] = np.bincount(flat, minlength=n_boot * members.size).reshape(n_boot, members.size)
+    return counts[:, inv]
+
+
+def design_effect(k: float, n: float, boot: np.ndarray) -> float:
+    """Kish's design effect of a rate ``k / n`` from its bootstrap replicates: ``var(boot)`` over
+    the binomial variance ``p (1 - p) / n``; NaN when the rate is 0 or 1 (no spread to measure)."""
+    b = np.asarray(boot, dtype=np.float64)
+    b = b[np.isfinite(b)]
+    p = k / n if n > 0 else float("nan")
+    if not (0.0 < p < 1.0) or b.size < 2:
+        return float("nan")
+    return float(b.var()) / (p * (1.0 - p) / n)
+
+
+def design_interval(k: float, n: float, boot: np.ndarray, n_eff_fallback: float, z: float = Z95,
+                    level: float = 0.95) -> tuple[float, float]:
+    """The interval of a rate ``k / n`` from its bootstrap replicates ``boot`` (clusters and the
+    threshold resampled): the hull of the percentile interval and the Wilson interval at the
+    bootstrap's effective sample size ``n_eff = n / deff`` (:func:`design_effect`; at most ``n``).
+    When the rate is 0 or 1 the bootstrap has no spread to measure the design effect from, and
+    ``n_eff = n_eff_fallback`` (the caller's estimate from a rate of the same flights, or the number
+    of independent units). NaN when ``n`` is 0."""
+    if n <= 0:
+        return float("nan"), float("nan")
+    p = k / n
+    b = np.asarray(boot, dtype=np.float64)
+    b = b[np.isfinite(b)]
+    var = float(b.var()) if b.size > 1 else 0.0
+    if 0.0 < p < 1.0 and var > 0.0:
+        n_eff = min(float(n), p * (1.0 - p) / var)
+    else:
+        n_eff = min(float(n), float(max(n_eff_fallback, 1.0)))
+    w_lo, w_hi = wilson(p * n_eff, n_eff, z)
+    if b.size == 0:
+        return w_lo, w_hi
+    tail = (1.0 - level) / 2.0
+    b_lo, b_hi = np.quantile(b, [tail, 1.0 - tail])
+    return float(min(w_lo, b_lo)), float(max(w_hi, b_hi))

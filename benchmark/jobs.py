@@ -31,6 +31,9 @@ class JobSpec:
     #: None, or a cache this worker cannot read, means the flights are read from the dataset.
     cache: str | None = None
     cache_key: dict | None = None
+    #: Also return the detector's own row alarms (``Detector.alarms``) where it has them
+    #: (the protocol's alarm rule "own").
+    own_alarms: bool = False
 
 
 @dataclass
@@ -43,6 +46,8 @@ class JobResult:
     score_seconds: float = float("nan")
     rows_scored: int = 0
     scores: dict[str, np.ndarray] | None = None
+    #: the detector's own row alarms per flight (JobSpec.own_alarms and a detector that has them)
+    alarms: dict[str, np.ndarray] | None = None
     max_rss_mb: float = float("nan")
     wall_seconds: float = float("nan")
     log: str = ""
@@ -118,12 +123,20 @@ def run_job(spec: JobSpec) -> JobResult:
         fit_s = time.perf_counter() - t0
         del train
         scores: dict[str, np.ndarray] = {}
+        own = bool(spec.own_alarms and getattr(det, "has_alarms", False))
+        alarms: dict[str, np.ndarray] | None = {} if own else None
         score_s, rows = 0.0, 0
         for fid in spec.scored:
             flight = ds.flight(fid)
             t0 = time.perf_counter()
             s = det.score(flight)
             score_s += time.perf_counter() - t0
+            if alarms is not None:
+                a = np.asarray(det.alarms(flight), dtype=bool).reshape(-1)
+                if a.shape[0] != len(flight):
+                    return JobResult("ERROR", f"returned {a.shape[0]} own alarms for the {len(flight)} rows of "
+                                     f"flight {fid}", fit_s, score_s, rows, max_rss_mb=_max_rss_mb())
+                alarms[fid] = a
             s = np.asarray(s, dtype=np.float64).reshape(-1)
             if s.shape[0] != len(flight):
                 return JobResult("ERROR", f"returned {s.shape[0]} scores for the {len(flight)} rows of flight {fid}",
@@ -134,7 +147,7 @@ def run_job(spec: JobSpec) -> JobResult:
                                  f"(first at row {bad[0]})", fit_s, score_s, rows, max_rss_mb=_max_rss_mb())
             scores[fid] = s
             rows += s.shape[0]
-        return JobResult("OK", "", fit_s, score_s, rows, scores, max_rss_mb=_max_rss_mb())
+        return JobResult("OK", "", fit_s, score_s, rows, scores, alarms, max_rss_mb=_max_rss_mb())
     except Exception as exc:  # a detector failure is a status row, never a crash of the run
         traceback.print_exc()
         return JobResult("ERROR", f"{type(exc).__name__}: {exc}".strip(), fit_s, score_s,

@@ -1,11 +1,12 @@
-"""The evaluation protocol: which flights train, calibrate and test a detector, and the thresholds.
+"""The evaluation protocol: which flights train, calibrate and test a detector, and the operating point.
 
 Roles, from the dataset manifest:
 
 - ``train``: normal flights with split "train"; the only flights a detector is fitted on.
 - ``validation``: normal flights with split "validation"; the only flights thresholds are
   calibrated on.
-- ``test_normal``: normal flights with split "test" (held out: the TN rate).
+- ``test_normal``: normal flights with split "test" (held out: the TN rate and the measured
+  false-alarm rate).
 - ``test_attacked``: every attacked flight (mode "simulation" or "csv"; their split must be
   "test") whose attack changed something: the TP rates.
 - ``no_effect``: attacked flights marked ``no_effect`` in the manifest (the attack changed no
@@ -17,17 +18,31 @@ A csv-mode flight replaying a train or validation flight (``source_flight``) is 
 detector would have seen the very rows it is asked to flag, and its threshold would be calibrated
 on them.
 
-Thresholds (a flight is flagged, a row alarms, when its score is strictly above the threshold):
+The operating point (protocol v2, the default):
 
-- flight level: ``max`` rule on the validation flight scores (flight score = max row score,
-  :func:`scart_bench.detectors.base.flight_score`): ``t = m + margin * |m|`` where ``m`` is the largest
-  validation flight score; with the default margin 0.05 this is ``m * 1.05`` for positive scores.
-  No validation flight is flagged, and a test flight must beat every validation flight by 5 %.
-- row level (point-wise, range-based, delay and false-alarm metrics): the same ``max`` rule on
-  the validation row scores. Since the flight score is the maximum row score, both thresholds are
-  the same number by default, so "a flight is flagged" and "a flight has at least one row alarm"
-  agree, and delays and false alarms describe the operating point of the paper's table.
-  ``ThresholdRule("quantile", q=0.999)`` gives the alternative 99.9th-percentile rule.
+- **Burn-in.** Rows from a flight's arming to ``burn_in_s`` (default 5 s) after it neither
+  calibrate a threshold nor raise an alarm, on every flight and for every detector alike: the
+  arming step and the motors' spin-up are the largest transients of a normal flight and would
+  otherwise set every threshold. The arming time is read from the flight itself
+  (:func:`arming_time_us`: the first row where an ``armed`` field is set, or PX4's
+  ``arming_state`` is ARMED); a flight without one (a log that starts armed) is armed at its
+  first row.
+- **Flight score** = the largest score over the counted rows.
+- **Threshold**: the conformal order statistic of the validation flights' scores for a target
+  per-flight false-alarm rate ``alpha`` (default 0.05): with ``n`` validation flights the
+  threshold is the ``k``-th smallest, ``k = ceil((n + 1) (1 - alpha))``. For a new normal flight
+  exchangeable with the validation flights, P(flight score > threshold) = 1 - k / (n + 1) <= alpha
+  (Vovk et al. 2005; Angelopoulos & Bates 2021), whatever the detector. With fewer than
+  ``1 / alpha - 1`` validation flights no order statistic reaches alpha: the threshold is then
+  the largest validation score, its rate ``1 / (n + 1)``, and the summary says so.
+- **Rows** alarm when their score is above the same number (``row_rule`` conformal: calibrated on
+  the same flight scores), so that "a flight is flagged" and "a flight has a row alarm" agree.
+- ``alarm_rule = "own"`` uses each detector's own alarm rule where it has one
+  (``Detector.alarms``, e.g. Telemanom's nonparametric dynamic threshold) instead of the common
+  threshold; detectors without one keep the calibrated threshold.
+
+Protocol v1 (run folders made before it) is ``ThresholdRule("max", margin=0.05)`` without burn-in:
+``Protocol.from_dict`` reads a v1 folder's rules as they were, so old runs score as before.
 
 Scores of test or attacked flights never enter a threshold: :meth:`Protocol.thresholds` takes
 only validation scores.
@@ -35,6 +50,7 @@ only validation scores.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -45,7 +61,7 @@ from scart_bench.errors import ScartBenchError
 
 __all__ = [
     "ATTACK_MODES", "NORMAL_MODE", "ROLES", "Protocol", "ProtocolError", "Splits",
-    "ThresholdRule", "flight_score",
+    "ThresholdRule", "arming_time_us", "conformal_rank", "counted_rows", "flight_score",
 ]
 
 NORMAL_MODE = "normal"
@@ -141,25 +157,55 @@ def no_effect_mask(manifest: pd.DataFrame) -> pd.Series:
     return text.isin(("true", "1", "1.0", "yes"))
 
 
+#: Default target per-flight false-alarm rate of the operating point.
+DEFAULT_ALPHA = 0.05
+#: Default burn-in after arming (seconds) in which rows neither calibrate nor alarm.
+DEFAULT_BURN_IN_S = 5.0
+#: Default end transient (seconds after the last attacked row) in which an alarm counts as "at the end".
+DEFAULT_END_TRANSIENT_S = 2.0
+#: Values of ``Protocol.alarm_rule``.
+ALARM_RULES = ("calibrated", "own")
+#: Rules calibrated on the validation flights' scores (one value per flight).
+FLIGHT_KINDS = ("conformal",)
+
+
+def conformal_rank(n: int, alpha: float) -> int:
+    """The 1-based rank ``k = ceil((n + 1) (1 - alpha))`` of the conformal threshold among ``n``
+    validation flight scores (may exceed ``n``: no order statistic reaches ``alpha``)."""
+    # a tiny tolerance keeps exact products such as 101 * 0.95 = 95.95 from rounding up twice
+    return int(math.ceil((n + 1) * (1.0 - alpha) - 1e-9))
+
+
+def conformal_rate(n: int, alpha: float) -> float:
+    """The false-alarm rate the conformal threshold guarantees for a new flight: ``1 - k / (n + 1)``."""
+    k = min(conformal_rank(n, alpha), n)
+    return 1.0 - k / (n + 1.0)
+
+
 @dataclass(frozen=True)
 class ThresholdRule:
     """How a threshold is derived from validation scores.
 
-    ``kind="max"``: ``m + margin * |m|`` with ``m`` the largest value. ``kind="quantile"``: the
-    ``q`` quantile (linear interpolation) plus ``margin * |quantile|``.
+    ``kind="conformal"``: the ``k``-th smallest validation *flight* score,
+    ``k = ceil((n + 1) (1 - alpha))`` (the largest when ``k > n``); ``margin`` is not used.
+    ``kind="max"``: ``m + margin * |m|`` with ``m`` the largest value (protocol v1).
+    ``kind="quantile"``: the ``q`` quantile (linear interpolation) plus ``margin * |quantile|``.
     """
 
-    kind: str = "max"
+    kind: str = "conformal"
     margin: float = 0.05
     q: float = 0.999
+    alpha: float = DEFAULT_ALPHA
 
     def __post_init__(self) -> None:
-        if self.kind not in ("max", "quantile"):
-            raise ProtocolError(f"threshold rule {self.kind!r}: expected 'max' or 'quantile'")
+        if self.kind not in ("conformal", "max", "quantile"):
+            raise ProtocolError(f"threshold rule {self.kind!r}: expected 'conformal', 'max' or 'quantile'")
         if not (0.0 <= self.q <= 1.0):
             raise ProtocolError(f"threshold quantile {self.q}: expected 0 <= q <= 1")
         if self.margin < 0:
             raise ProtocolError(f"threshold margin {self.margin}: expected >= 0")
+        if not (0.0 < self.alpha < 1.0):
+            raise ProtocolError(f"threshold alpha {self.alpha}: expected a false-alarm rate 0 < alpha < 1")
 
     def calibrate(self, values: np.ndarray) -> float:
         """The threshold for these validation values (all must be finite)."""
@@ -168,41 +214,146 @@ class ThresholdRule:
             raise ProtocolError("cannot calibrate a threshold on zero validation scores")
         if not np.all(np.isfinite(v)):
             raise ProtocolError("validation scores contain NaN or inf; a threshold cannot be calibrated")
+        if self.kind == "conformal":
+            k = min(conformal_rank(v.size, self.alpha), v.size)
+            return float(np.partition(v, k - 1)[k - 1])
         base = float(v.max()) if self.kind == "max" else float(np.quantile(v, self.q))
         return base + self.margin * abs(base)
 
+    def calibrate_many(self, flight_scores: np.ndarray) -> np.ndarray | None:
+        """The thresholds of many resampled sets of validation *flight* scores at once (one set per
+        row of ``flight_scores``); None for the quantile rule, which needs the rows themselves."""
+        v = np.asarray(flight_scores, dtype=np.float64)
+        if self.kind == "quantile":
+            return None
+        if self.kind == "conformal":
+            k = min(conformal_rank(v.shape[1], self.alpha), v.shape[1])
+            return np.partition(v, k - 1, axis=1)[:, k - 1]
+        base = v.max(axis=1)
+        return base + self.margin * np.abs(base)
+
+    def attainable(self, n: int) -> bool:
+        """Whether ``n`` validation flights reach ``alpha`` (conformal rule; other rules: True)."""
+        return self.kind != "conformal" or conformal_rank(n, self.alpha) <= n
+
     def describe(self) -> str:
+        if self.kind == "conformal":
+            return (f"conformal order statistic of the validation flight scores for a per-flight "
+                    f"false-alarm rate alpha = {self.alpha:g} (k = ceil((n + 1)(1 - alpha)))")
         if self.kind == "max":
             return f"max of validation scores + {self.margin:g} x |max|"
         return f"{self.q:g} quantile of validation scores + {self.margin:g} x |quantile|"
 
 
+def arming_time_us(flight: pd.DataFrame) -> tuple[int, str]:
+    """When a flight was armed (its ``Timestamp``, microseconds) and the column that says so.
+
+    The first row where a field named ``armed`` is set (>= 0.5: the navigator's arm request on
+    generated flights, ``actuator_armed.armed`` in PX4 logs) or ``arming_state`` is 2 (PX4's
+    ARMING_STATE_ARMED); a flight with neither (a log recorded while armed, PX4's default) is armed
+    at its first row (``"first row"``).
+    """
+    ts = flight["Timestamp"].to_numpy(np.int64) if "Timestamp" in flight.columns else np.zeros(0, np.int64)
+    first = int(ts[0]) if ts.size else 0
+    for col in flight.columns:
+        if not isinstance(col, str) or "." not in col:
+            continue
+        field_name = col.rpartition(".")[2]
+        if field_name not in ("armed", "arming_state"):
+            continue
+        v = pd.to_numeric(flight[col], errors="coerce").to_numpy(np.float64)
+        on = (v >= 0.5) if field_name == "armed" else (v == 2.0)
+        hit = np.flatnonzero(on)
+        if hit.size:
+            return int(ts[hit[0]]), col
+    return first, "first row"
+
+
+def counted_rows(timestamps: np.ndarray, armed_us: float | None, burn_in_s: float) -> np.ndarray:
+    """Rows that calibrate and alarm: all but those in ``[armed, armed + burn_in)``."""
+    ts = np.asarray(timestamps, dtype=np.int64).reshape(-1)
+    if burn_in_s <= 0 or ts.size == 0:
+        return np.ones(ts.shape, dtype=bool)
+    arm = int(ts[0]) if armed_us is None or pd.isna(armed_us) else int(armed_us)
+    return ~((ts >= arm) & (ts < arm + int(round(burn_in_s * 1e6))))
+
+
+def counted_max(scores: np.ndarray, counted: np.ndarray) -> float:
+    """The flight score: the largest score over the counted rows (the smallest score of the
+    flight when no row is counted: such a flight is never flagged)."""
+    s = np.asarray(scores, dtype=np.float64).reshape(-1)
+    if s.size == 0:
+        return float("-inf")
+    c = np.asarray(counted, dtype=bool).reshape(-1)
+    return float(s[c].max()) if c.any() else float(s.min())
+
+
 @dataclass(frozen=True)
 class Protocol:
-    """Threshold rules of a run (flight level for the paper's table, row level for the rest)."""
+    """The operating point of a run: threshold rules (flight level for the paper's table, row level
+    for the rest), the burn-in after arming, the end transient and which alarm rule is used."""
 
     flight_rule: ThresholdRule = field(default_factory=ThresholdRule)
     row_rule: ThresholdRule = field(default_factory=ThresholdRule)
+    burn_in_s: float = DEFAULT_BURN_IN_S
+    end_transient_s: float = DEFAULT_END_TRANSIENT_S
+    alarm_rule: str = "calibrated"
 
-    def thresholds(self, validation_scores: dict[str, np.ndarray]) -> tuple[float, float]:
-        """(flight threshold, row threshold) from the per-row scores of the validation flights."""
+    def __post_init__(self) -> None:
+        for name in ("burn_in_s", "end_transient_s"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v >= 0):
+                raise ProtocolError(f"{name} {v!r}: expected a number of seconds >= 0")
+        if self.alarm_rule not in ALARM_RULES:
+            raise ProtocolError(f"alarm rule {self.alarm_rule!r}: expected one of {', '.join(ALARM_RULES)}")
+
+    @property
+    def alpha(self) -> float | None:
+        """The target per-flight false-alarm rate (None for the v1 rules, which state none)."""
+        return self.flight_rule.alpha if self.flight_rule.kind == "conformal" else None
+
+    def thresholds(self, validation_scores: dict[str, np.ndarray],
+                   counted: dict[str, np.ndarray] | None = None) -> tuple[float, float]:
+        """(flight threshold, row threshold) from the per-row scores of the validation flights;
+        ``counted`` (flight id -> bool mask) leaves the burn-in rows out."""
         if not validation_scores:
             raise ProtocolError("no validation flight scores to calibrate thresholds on")
-        flights = np.array([flight_score(s) for s in validation_scores.values()])
-        rows = np.concatenate([np.asarray(s, dtype=np.float64) for s in validation_scores.values()])
-        return self.flight_rule.calibrate(flights), self.row_rule.calibrate(rows)
+        masks = {f: (counted[f] if counted is not None and f in counted else
+                     np.ones(np.asarray(s).shape[0], dtype=bool)) for f, s in validation_scores.items()}
+        flights = np.array([counted_max(s, masks[f]) for f, s in validation_scores.items()])
+        t_flight = self.flight_rule.calibrate(flights)
+        if self.row_rule.kind in FLIGHT_KINDS:
+            return t_flight, self.row_rule.calibrate(flights)
+        rows = np.concatenate([np.asarray(s, dtype=np.float64)[masks[f]] for f, s in validation_scores.items()])
+        return t_flight, self.row_rule.calibrate(rows)
 
     def rules(self) -> dict:
-        """The two rules as plain data (what makes two runs' thresholds comparable)."""
-        return {"flight_rule": asdict(self.flight_rule), "row_rule": asdict(self.row_rule)}
+        """The rules as plain data (what makes two runs' thresholds comparable)."""
+        return {"flight_rule": asdict(self.flight_rule), "row_rule": asdict(self.row_rule),
+                "burn_in_s": float(self.burn_in_s), "end_transient_s": float(self.end_transient_s),
+                "alarm_rule": self.alarm_rule}
 
     def to_dict(self) -> dict:
         return {**self.rules(),
-                "flight_score": "max row score",
+                "flight_score": "max row score outside the burn-in" if self.burn_in_s else "max row score",
                 "flight_threshold": self.flight_rule.describe() + " (validation flight scores)",
-                "row_threshold": self.row_rule.describe() + " (validation row scores)",
+                "row_threshold": self.row_rule.describe() + (
+                    " (the same validation flight scores)" if self.row_rule.kind in FLIGHT_KINDS
+                    else " (validation row scores)"),
+                "burn_in": (f"rows from arming to {self.burn_in_s:g} s after it neither calibrate nor alarm"
+                            if self.burn_in_s else "none"),
+                "end_transient": f"{self.end_transient_s:g} s after the last attacked row",
+                "alarms": ("each detector's own alarm rule where it has one, else the calibrated threshold"
+                           if self.alarm_rule == "own" else "score > the calibrated threshold"),
                 "decision": "flagged / alarm when score > threshold"}
 
     @classmethod
     def from_dict(cls, d: dict) -> Protocol:
-        return cls(ThresholdRule(**d["flight_rule"]), ThresholdRule(**d["row_rule"]))
+        """A protocol from ``rules()`` / ``to_dict()`` data; keys missing from a v1 run folder keep
+        v1's meaning (no burn-in, no end transient, calibrated thresholds)."""
+        def rule(x: dict) -> ThresholdRule:
+            return ThresholdRule(**{k: x[k] for k in ("kind", "margin", "q", "alpha") if k in x})
+
+        return cls(rule(d["flight_rule"]), rule(d["row_rule"]), burn_in_s=float(d.get("burn_in_s", 0.0)),
+                   end_transient_s=float(d.get("end_transient_s", 0.0)),
+                   alarm_rule=str(d.get("alarm_rule", "calibrated")))

@@ -17,10 +17,13 @@ from scart_bench.benchmark.scoring import (
     DEFAULT_METRICS,
     DETECTION_RULE,
     EXTRA_COLUMNS,
+    INTERVAL_METHOD,
+    NEAR_ARMING_S,
     PAPER_COLUMNS,
     ScoreError,
     breakdown,
     build_evaluation,
+    calibration_table,
     compute_metrics,
     markdown_table,
     rate_summary,
@@ -75,16 +78,18 @@ class _RunScores:
         self.flights = self.store.read_flights()
         self.truth = self.store.read_truth()
 
-    def detector(self, res: dict) -> tuple[dict, pd.DataFrame | None, pd.DataFrame | None]:
-        """One detector's metrics row, breakdown and flight scores from its saved scores."""
+    def detector(self, res: dict) -> tuple[dict, pd.DataFrame | None, pd.DataFrame | None, pd.DataFrame | None]:
+        """One detector's metrics row, breakdown, flight scores and calibration table from its saved
+        scores."""
         row = {"detector": res["detector"], "status": res["status"], "message": res["message"]}
-        bd = fs = None
+        bd = fs = cal = None
         if res["status"] == "OK":
             try:
                 scores = self.store.read_scores(res["detector"])
+                alarms = self.store.read_alarms(res["detector"]) if self.protocol.alarm_rule == "own" else None
                 ev = build_evaluation(res["detector"], self.flights, self.truth, scores, self.protocol,
                                       fit_seconds=res["fit_s"], score_seconds=res["score_s"],
-                                      rows_scored=int(res["rows"]))
+                                      rows_scored=int(res["rows"]), alarms=alarms)
             except (ScoreError, OSError, ValueError) as exc:
                 row.update(status="ERROR", message=f"saved scores unusable: {exc}")
             else:
@@ -92,8 +97,10 @@ class _RunScores:
                 bd = breakdown(ev)
                 fs = ev.flights[list(FLIGHT_SCORE_COLUMNS)].copy()
                 fs.insert(0, "detector", res["detector"])
+                cal = calibration_table(ev)
+                cal.insert(0, "detector", res["detector"])
         row.update(fit_s=res["fit_s"], score_s=res["score_s"], rows=res["rows"])
-        return row, bd, fs
+        return row, bd, fs, cal
 
 
 _WORKER_RUN: _RunScores | None = None
@@ -104,7 +111,7 @@ def _worker_start(path: str) -> None:
     _WORKER_RUN = _RunScores(path)
 
 
-def _worker_detector(res: dict) -> tuple[dict, pd.DataFrame | None, pd.DataFrame | None]:
+def _worker_detector(res: dict) -> tuple[dict, pd.DataFrame | None, pd.DataFrame | None, pd.DataFrame | None]:
     assert _WORKER_RUN is not None
     return _WORKER_RUN.detector(res)
 
@@ -139,9 +146,10 @@ def score_run(path: str | Path, write: bool = True, processes: int | None = None
     else:
         run = _RunScores(store.path)
         done = [run.detector(r) for r in todo]
-    metric_rows = [row for row, _, _ in done]
-    breakdowns = [bd for _, bd, _ in done if bd is not None]
-    flight_scores = [fs for _, _, fs in done if fs is not None]
+    metric_rows = [row for row, _, _, _ in done]
+    breakdowns = [bd for _, bd, _, _ in done if bd is not None]
+    flight_scores = [fs for _, _, fs, _ in done if fs is not None]
+    calibrations = [cal for _, _, _, cal in done if cal is not None]
     columns = ["detector", "status", "message", *(c for m in DEFAULT_METRICS for c in m.columns),
                "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
     metrics = pd.DataFrame(metric_rows, columns=columns)
@@ -153,11 +161,16 @@ def score_run(path: str | Path, write: bool = True, processes: int | None = None
         fs = pd.concat(flight_scores, ignore_index=True) if flight_scores else pd.DataFrame(
             columns=["detector", *FLIGHT_SCORE_COLUMNS])
         store.write_table("flight_scores.csv", fs)
+        cal = pd.concat(calibrations, ignore_index=True) if calibrations else pd.DataFrame(
+            columns=["detector", "flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
+                     "sets_threshold"])
+        store.write_table("calibration.csv", cal)
     return metrics
 
 
 #: Columns of flight_scores.csv after ``detector``.
-FLIGHT_SCORE_COLUMNS = ("flight_id", "role", "mode", "score", "flagged", "outcome", "delay_s", "late_delay_s")
+FLIGHT_SCORE_COLUMNS = ("flight_id", "role", "mode", "score", "flagged", "outcome", "delay_s", "late_delay_s",
+                        "alarm_before_onset", "cluster")
 
 
 def breakdown_columns() -> pd.DataFrame:
@@ -183,8 +196,23 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
               f"- flight score: {proto.get('flight_score')}",
               f"- flight threshold: {proto.get('flight_threshold')}",
               f"- row threshold: {proto.get('row_threshold')}",
+              f"- burn-in: {proto.get('burn_in', 'none')}",
+              f"- alarms: {proto.get('alarms', 'score > the calibrated threshold')}",
+              f"- end transient: {proto.get('end_transient', 'none')}",
               f"- decision: {proto.get('decision')}",
-              f"- {DETECTION_RULE}", ""]
+              f"- {DETECTION_RULE}",
+              f"- {INTERVAL_METHOD}", ""]
+    ok = metrics[metrics["status"] == "OK"] if "status" in metrics else metrics.iloc[:0]
+    if len(ok) and "threshold_after_arming_s" in ok.columns:
+        near = ok[pd.to_numeric(ok["threshold_after_arming_s"], errors="coerce") < NEAR_ARMING_S]
+        lines += ["## Where the thresholds come from", "",
+                  f"- {len(near)} of {len(ok)} detectors' thresholds are set by a row within {NEAR_ARMING_S:g} s "
+                  "after arming" + (f" ({', '.join(near['detector'].astype(str))})" if len(near) else "") + "; "
+                  "per detector and validation flight, calibration.csv says when each maximum occurred.",
+                  *(f"- **{r['detector']}**: threshold set {float(r['threshold_after_arming_s']):.1f} s after arming; "
+                    f"{int(r['val_raw_max_in_burn_in'])} of {int(r['n_validation'])} validation maxima fell in the "
+                    f"burn-in and were left out" for _, r in ok.iterrows()
+                    if not pd.isna(r.get("threshold_after_arming_s"))), ""]
     return "\n".join(lines)
 
 

@@ -45,7 +45,7 @@ from scart_bench.benchmark.flight_cache import (
     remove_cache,
 )
 from scart_bench.benchmark.jobs import JobResult, JobSpec
-from scart_bench.benchmark.protocol import ROLES, Splits, assign_roles
+from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign_roles
 from scart_bench.benchmark.results import paper_table, score_run, write_results
 from scart_bench.benchmark.selection import DetectorChoice, load_plugins, resolve_detectors, with_params
 from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
@@ -136,12 +136,14 @@ class RunOutcome:
     skipped: list[str]
 
 
-def _truth(ds, flight_ids) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    out = {}
+def _truth(ds, flight_ids) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, tuple[int, str]]]:
+    """Labels (timestamps, Is_Anomaly) and arming time of every scored flight, each read once."""
+    out, arming = {}, {}
     for fid in flight_ids:
         f = ds.flight(fid)
         out[fid] = (f["Timestamp"].to_numpy(np.int64), f["Is_Anomaly"].to_numpy(np.int8))
-    return out
+        arming[fid] = arming_time_us(f)
+    return out, arming
 
 
 def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note,
@@ -274,13 +276,16 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         readers = min(int(cfg.jobs), os.cpu_count() or 1) if cfg.executor == "local" else 1
         cache = (_flight_cache(store, ds, key, [*splits.train, *splits.scored], progress.note, readers)
                  if len(skipped) < len(chosen) else None)
-        if not store.has_truth():
-            store.write_truth(_truth(cache or ds, splits.scored))
+        if not store.has_truth() or not store.has_arming():
+            truth, arming = _truth(cache or ds, splits.scored)
+            store.write_truth(truth)
+            store.write_arming(arming)
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
         specs = [JobSpec(c.name, c.source, c.overrides(cfg.seed), tuple(p.source for p in plugins.values()),
                          str(ds.path.resolve()), splits.train, splits.scored, threads,
                          tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
-                         str(cache.folder.resolve()) if cache else None, key if cache else None)
+                         str(cache.folder.resolve()) if cache else None, key if cache else None,
+                         cfg.protocol.alarm_rule == "own")
                  for c in chosen if c.name not in skipped]
         # costliest first (a scheduling hint only: tables keep the detectors' order)
         cost = {c.name: float(getattr(c.cls, "relative_cost", 10.0)) for c in chosen}
@@ -292,7 +297,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         def on_done(spec: JobSpec, res: JobResult) -> None:
             params = {"detector": spec.detector, **settings[spec.detector], "key": keys[spec.detector]}
             store.finish_job(spec.detector, _status(spec, res), json_safe(params),
-                             res.scores if res.status == "OK" else None, res.log)
+                             res.scores if res.status == "OK" else None, res.log,
+                             res.alarms if res.status == "OK" else None)
             statuses.append(res.status)
             progress.done(spec.detector, res)
 

@@ -56,10 +56,17 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.intervals import bootstrap_auc, wilson
-from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol
+from scart_bench.benchmark.intervals import (
+    BOOTSTRAP_SEED,
+    N_BOOTSTRAP,
+    bootstrap_auc,
+    cluster_weights,
+    design_effect,
+    design_interval,
+    wilson,
+)
+from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol, counted_max, counted_rows
 from scart_bench.benchmark.vus import VUS_WINDOW, average_precision, r_prf, roc_auc_from_sorted, row_metrics
-from scart_bench.detectors.base import flight_score
 from scart_bench.errors import ScartBenchError
 
 #: Columns of metrics.csv that measure time, not detection quality (they differ between runs).
@@ -185,7 +192,13 @@ class FlightRows:
     timestamp: np.ndarray  # int64, microseconds
     label: np.ndarray      # int8, Is_Anomaly
     score: np.ndarray      # float64
-    alarm: np.ndarray      # bool, score > row threshold
+    alarm: np.ndarray      # bool: score > row threshold (or the detector's own alarm), outside the burn-in
+    counted: np.ndarray | None = None  # bool: outside the burn-in after arming (None: every row)
+
+    @property
+    def kept(self) -> np.ndarray:
+        """The counted rows' mask (every row when the protocol has no burn-in)."""
+        return np.ones(self.score.shape, dtype=bool) if self.counted is None else self.counted
 
 
 @dataclass(frozen=True)
@@ -193,7 +206,8 @@ class Evaluation:
     """Everything the metrics need about one detector in one run.
 
     ``flights`` is indexed by flight_id, one row per scored flight (validation and test), with
-    the manifest columns plus ``role``, ``score`` (flight score) and ``flagged``.
+    the manifest columns plus ``role``, ``score`` (flight score), ``flagged``, ``cluster`` and the
+    outcome columns of :func:`flight_outcomes`.
     """
 
     detector: str
@@ -204,6 +218,9 @@ class Evaluation:
     fit_seconds: float = float("nan")
     score_seconds: float = float("nan")
     rows_scored: int = 0
+    protocol: Protocol | None = None
+    #: "calibrated" (score > threshold) or "own" (the detector's own alarm rule)
+    alarm_source: str = "calibrated"
 
     def test(self, role: str | None = None, mode: str | None = None) -> pd.DataFrame:
         """Test flights, optionally of one role (test_normal / test_attacked) and mode."""
@@ -215,18 +232,7 @@ class Evaluation:
         return f
 
 
-def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, tuple[np.ndarray, np.ndarray]],
-                     scores: Mapping[str, np.ndarray], protocol: Protocol, *, fit_seconds: float = float("nan"),
-                     score_seconds: float = float("nan"), rows_scored: int = 0) -> Evaluation:
-    """Check one detector's scores against the run's flights and apply the protocol's thresholds.
-
-    ``flights``: the run's flight table (flight_id, role, mode, ...); ``truth``: flight_id ->
-    (timestamps, labels); ``scores``: flight_id -> per-row scores. Raises ScoreError for a
-    missing flight, a length mismatch or a NaN/inf score.
-    """
-    scored = flights[flights["role"].isin(("validation", "test_normal", "test_attacked"))].copy()
-    scored["flight_id"] = scored["flight_id"].astype(str)
-    scored = scored.set_index("flight_id", drop=False)
+def _checked_scores(detector: str, scored: pd.DataFrame, truth, scores) -> dict[str, np.ndarray]:
     checked: dict[str, np.ndarray] = {}
     for fid in scored.index:
         if fid not in scores:
@@ -241,34 +247,121 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
         if bad:
             raise ScoreError(f"{detector}: {bad} NaN/inf score(s) on flight {fid}")
         checked[fid] = s
+    return checked
+
+
+def flight_clusters(flights: pd.DataFrame) -> pd.Series:
+    """Cluster of each flight for the intervals: flights that are not independent share one.
+
+    csv-mode copies of one source recording (``source_flight``) are one cluster, and so are the
+    flights of one attack configuration flown in both modes (``scenario_id`` in simulation and csv
+    mode): the union of both relations (connected components). Every other flight is its own.
+    """
+    ids = flights["flight_id"].astype(str).tolist() if "flight_id" in flights.columns else [
+        str(i) for i in flights.index]
+    parent = list(range(len(ids)))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def join(keys: pd.Series) -> None:
+        first: dict[str, int] = {}
+        for i, k in enumerate(keys.tolist()):
+            if k is None or (isinstance(k, float) and math.isnan(k)) or k is pd.NA or k == "":
+                continue
+            if k in first:
+                a, b = find(first[k]), find(i)
+                if a != b:
+                    parent[b] = a
+            else:
+                first[k] = i
+
+    attacked = flights["mode"].astype(str).isin(ATTACK_MODES) if "mode" in flights.columns else pd.Series(
+        False, index=flights.index)
+    if "source_flight" in flights.columns:
+        src = flights["source_flight"].astype(object).where(flights["source_flight"].notna(), None)
+        join(src.where(attacked, None).map(lambda v: None if v is None else f"source:{v}"))
+    if "scenario_id" in flights.columns:
+        sc = flights["scenario_id"].astype(object).where(flights["scenario_id"].notna(), None)
+        join(sc.where(attacked, None).map(lambda v: None if v is None else f"config:{v}"))
+    roots = [ids[find(i)] for i in range(len(ids))]
+    return pd.Series(roots, index=flights.index, name="cluster")
+
+
+def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                     scores: Mapping[str, np.ndarray], protocol: Protocol, *, fit_seconds: float = float("nan"),
+                     score_seconds: float = float("nan"), rows_scored: int = 0,
+                     alarms: Mapping[str, np.ndarray] | None = None) -> Evaluation:
+    """Check one detector's scores against the run's flights and apply the protocol's operating point.
+
+    ``flights``: the run's flight table (flight_id, role, mode, ..., ``armed_us`` when known);
+    ``truth``: flight_id -> (timestamps, labels); ``scores``: flight_id -> per-row scores;
+    ``alarms``: flight_id -> the detector's own row alarms (used when the protocol's alarm rule is
+    ``own``). Raises ScoreError for a missing flight, a length mismatch or a NaN/inf score.
+    """
+    scored = flights[flights["role"].isin(("validation", "test_normal", "test_attacked"))].copy()
+    scored["flight_id"] = scored["flight_id"].astype(str)
+    scored = scored.set_index("flight_id", drop=False)
+    checked = _checked_scores(detector, scored, truth, scores)
+    armed = (pd.to_numeric(scored["armed_us"], errors="coerce") if "armed_us" in scored.columns
+             else pd.Series(np.nan, index=scored.index))
+    counted = {fid: counted_rows(truth[fid][0], armed[fid], protocol.burn_in_s) for fid in scored.index}
     validation = {fid: checked[fid] for fid in scored.index[scored["role"] == "validation"]}
-    t_flight, t_row = protocol.thresholds(validation)
-    scored["score"] = [flight_score(checked[fid]) for fid in scored.index]
-    scored["flagged"] = scored["score"] > t_flight
-    rows = {
-        fid: FlightRows(np.asarray(truth[fid][0], dtype=np.int64), np.asarray(truth[fid][1], dtype=np.int8),
-                        checked[fid], checked[fid] > t_row)
-        for fid in scored.index
-    }
-    outcomes = flight_outcomes(scored, rows)
+    t_flight, t_row = protocol.thresholds(validation, counted)
+    own = protocol.alarm_rule == "own" and alarms is not None
+    if own:
+        for fid in scored.index:
+            a = np.asarray(alarms.get(fid, np.zeros(0)), dtype=bool).reshape(-1)
+            if a.shape != checked[fid].shape:
+                raise ScoreError(f"{detector}: {a.shape[0]} own alarms for the {checked[fid].shape[0]} rows of "
+                                 f"flight {fid}")
+    scored["score"] = [counted_max(checked[fid], counted[fid]) for fid in scored.index]
+    rows = {}
+    for fid in scored.index:
+        alarm = (np.asarray(alarms[fid], dtype=bool).reshape(-1) if own else checked[fid] > t_row) & counted[fid]
+        rows[fid] = FlightRows(np.asarray(truth[fid][0], dtype=np.int64), np.asarray(truth[fid][1], dtype=np.int8),
+                               checked[fid], alarm, counted[fid])
+    scored["flagged"] = ([bool(rows[f].alarm.any()) for f in scored.index] if own
+                         else (scored["score"] > t_flight).to_numpy())
+    scored["cluster"] = flight_clusters(scored).to_numpy()
+    outcomes = flight_outcomes(scored, rows, protocol.end_transient_s, own)
     for col in outcomes.columns:
         scored[col] = outcomes[col]
+    if own:
+        t_flight = t_row = float("nan")
     return Evaluation(detector, scored, rows, t_flight, t_row, float(fit_seconds), float(score_seconds),
-                      int(rows_scored))
+                      int(rows_scored), protocol, "own" if own else "calibrated")
 
 
-OUTCOMES = ("detected", "late", "missed")
+OUTCOMES = ("detected", "at_end", "late", "missed")
+#: Per attacked flight, the largest counted score (own rule: 1.0 where a row alarms, else 0.0) in
+#: each part of the flight: before onset, inside the windows, in the end transient, after it.
+ZONES = ("pre_max", "window_max", "end_max", "after_max")
 
 
-def flight_outcomes(flights: pd.DataFrame, rows: Mapping[str, FlightRows]) -> pd.DataFrame:
-    """Per attacked flight: ``outcome`` (detected / late / missed), ``delay_s`` (onset to the first
-    alarm inside the window) and ``late_delay_s`` (end of the window to the first alarm after it).
+def _zone_max(values: np.ndarray, mask: np.ndarray) -> float:
+    return float(values[mask].max()) if mask.any() else float("-inf")
+
+
+def flight_outcomes(flights: pd.DataFrame, rows: Mapping[str, FlightRows],
+                    end_transient_s: float = 0.0, own: bool = False) -> pd.DataFrame:
+    """Per attacked flight: ``outcome`` (detected / at_end / late / missed), ``delay_s`` (onset to
+    the first alarm inside the window), ``late_delay_s`` (end of the window to the first alarm
+    after it, at_end and late flights), ``alarm_before_onset`` (a row alarm before the attack
+    started: a false alarm) and the zone maxima :data:`ZONES` the intervals re-threshold.
 
     Inside the window = rows labelled ``Is_Anomaly`` (the event log's ``[start, end)`` windows);
     a flight without labelled rows uses the manifest's ``[attack_start_us, attack_end_us)``.
+    *At the end*: no alarm inside, a first alarm within ``end_transient_s`` after the end (the
+    attacked value snapping back is the attack's own effect); *late*: a first alarm after that.
     Normal flights get an empty outcome.
     """
-    out = pd.DataFrame({"outcome": "", "delay_s": np.nan, "late_delay_s": np.nan}, index=flights.index)
+    out = pd.DataFrame({"outcome": "", "delay_s": np.nan, "late_delay_s": np.nan, "alarm_before_onset": False,
+                        **dict.fromkeys(ZONES, np.nan)}, index=flights.index)
+    transient = int(round(end_transient_s * 1e6))
     for fid, row in flights.iterrows():
         if row.get("role") != "test_attacked":
             continue
@@ -281,17 +374,26 @@ def flight_outcomes(flights: pd.DataFrame, rows: Mapping[str, FlightRows]) -> pd
         inside = fr.label.astype(bool)
         if not inside.any():
             inside = (fr.timestamp >= start) & (fr.timestamp < (end if end is not None else np.iinfo(np.int64).max))
+        if end is None:
+            end = int(fr.timestamp[np.flatnonzero(inside)[-1]]) + 1 if inside.any() else start
+        kept = fr.kept
+        level = fr.alarm.astype(np.float64) if own else fr.score
+        zones = {"pre_max": kept & (fr.timestamp < start), "window_max": kept & inside,
+                 "end_max": kept & ~inside & (fr.timestamp >= end) & (fr.timestamp < end + transient),
+                 "after_max": kept & ~inside & (fr.timestamp >= end + transient)}
+        for z, m in zones.items():
+            out.at[fid, z] = _zone_max(level, m)
+        out.at[fid, "alarm_before_onset"] = bool((fr.alarm & zones["pre_max"]).any())
         hit = np.flatnonzero(fr.alarm & inside)
         if hit.size:
             out.at[fid, "outcome"] = "detected"
             out.at[fid, "delay_s"] = max(float(fr.timestamp[hit[0]] - start), 0.0) / 1e6
             continue
-        if end is None:
-            end = int(fr.timestamp[np.flatnonzero(inside)[-1]]) + 1 if inside.any() else start
-        after = np.flatnonzero(fr.alarm & (fr.timestamp >= end))
+        after = np.flatnonzero(fr.alarm & ~inside & (fr.timestamp >= end))
         if after.size:
-            out.at[fid, "outcome"] = "late"
-            out.at[fid, "late_delay_s"] = float(fr.timestamp[after[0]] - end) / 1e6
+            first = int(fr.timestamp[after[0]])
+            out.at[fid, "outcome"] = "at_end" if first < end + transient else "late"
+            out.at[fid, "late_delay_s"] = float(first - end) / 1e6
         else:
             out.at[fid, "outcome"] = "missed"
     return out
@@ -321,48 +423,151 @@ def _rate(flags: pd.Series) -> float:
     return float(flags.mean()) if len(flags) else float("nan")
 
 
-def _rate_with_interval(name: str, flags: pd.Series) -> dict[str, float]:
-    """``{name, name_lo, name_hi}``: the rate of True and its 95 % Wilson interval."""
-    lo, hi = wilson(int(flags.sum()), len(flags))
-    return {name: _rate(flags), f"{name}_lo": lo, f"{name}_hi": hi}
+#: The rates of the paper's table and beside it (each with ``_lo`` / ``_hi`` and ``_wilson_lo`` /
+#: ``_wilson_hi`` columns). ``tp_*``: in-window detection (the headline); ``tp_end_*``: in the
+#: window or in the end transient; ``fa_before_onset_*``: attacked flights with a false alarm
+#: before the attack started; ``far_no_attack``: held-out normal flights flagged (1 - TN).
+RATES = ("tp_simulation", "tp_csv", "tn_no_attack", "tp_end_simulation", "tp_end_csv", "late_simulation",
+         "late_csv", "flagged_simulation", "flagged_csv", "fa_before_onset_simulation", "fa_before_onset_csv",
+         "far_no_attack")
+#: Replicates of the cluster bootstrap behind every rate's interval.
+RATE_BOOTSTRAP = N_BOOTSTRAP
 
 
-#: The rates of the paper's table and beside it (each with ``_lo`` / ``_hi`` columns).
-RATES = ("tp_simulation", "tp_csv", "tn_no_attack", "late_simulation", "late_csv", "flagged_simulation",
-         "flagged_csv")
+def _levels(ev: Evaluation, f: pd.DataFrame, col: str) -> np.ndarray:
+    """Per-flight values compared with a threshold: a zone maximum, or the flight score (own alarm
+    rule: 1.0 when flagged)."""
+    if col == "score" and ev.alarm_source == "own":
+        return f["flagged"].astype(bool).to_numpy(np.float64)
+    return f[col].to_numpy(np.float64)
+
+
+def _indicator(ev: Evaluation, name: str, f: pd.DataFrame, t_row: np.ndarray, t_flight: np.ndarray) -> np.ndarray:
+    """``(B, n)`` booleans: whether each flight of ``f`` counts for rate ``name`` at each pair of
+    thresholds (row, flight)."""
+    tr, tf = t_row[:, None], t_flight[:, None]
+    if name.startswith("tp_end_"):
+        return np.maximum(_levels(ev, f, "window_max"), _levels(ev, f, "end_max"))[None, :] > tr
+    if name.startswith("tp_"):
+        return _levels(ev, f, "window_max")[None, :] > tr
+    if name.startswith("late_"):
+        caught = np.maximum(_levels(ev, f, "window_max"), _levels(ev, f, "end_max"))[None, :] > tr
+        return ~caught & (_levels(ev, f, "after_max")[None, :] > tr)
+    if name.startswith("flagged_") or name == "far_no_attack":
+        return _levels(ev, f, "score")[None, :] > tf
+    if name == "tn_no_attack":
+        return ~(_levels(ev, f, "score")[None, :] > tf)
+    if name.startswith("fa_before_onset_"):
+        return _levels(ev, f, "pre_max")[None, :] > tr
+    raise KeyError(name)
+
+
+def _resampled_thresholds(ev: Evaluation, rng: np.random.Generator, n_boot: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and flight thresholds re-calibrated on validation flights resampled with replacement
+    (the threshold's own uncertainty); fixed where the rule cannot be (own alarms: 0.5 on 0/1)."""
+    if ev.alarm_source == "own":
+        return np.full(n_boot, 0.5), np.full(n_boot, 0.5)
+    val = ev.flights.loc[ev.flights["role"] == "validation", "score"].to_numpy(np.float64)
+    fixed = (np.full(n_boot, ev.row_threshold), np.full(n_boot, ev.flight_threshold))
+    if ev.protocol is None or val.size == 0:
+        return fixed
+    sample = val[rng.integers(0, val.size, size=(n_boot, val.size))]
+    tf = ev.protocol.flight_rule.calibrate_many(sample)
+    tr = ev.protocol.row_rule.calibrate_many(sample)
+    return (fixed[0] if tr is None else tr), (fixed[1] if tf is None else tf)
+
+
+def _independent_units(f: pd.DataFrame) -> int:
+    """How many independent units a group of flights holds: csv copies of one source recording
+    count once."""
+    if "source_flight" not in f.columns or not len(f):
+        return len(f)
+    src = f["source_flight"].astype(object).where(f["source_flight"].notna(), None)
+    units = [s if (m == "csv" and s) else fid for fid, m, s in zip(f.index, f["mode"].astype(str), src)]
+    return len(set(units))
 
 
 class PaperTable(Metric):
     """The paper's table with the in-window rule (TP = detected inside the attack window), the
-    late and flagged-anywhere rates beside it, every rate with its Wilson interval and count."""
+    end-transient, late, flagged-anywhere and false-alarm rates beside it.
+
+    Every rate has its count (``n_*``), its Wilson interval (``*_wilson_lo`` / ``*_wilson_hi``, as
+    if every flight were independent and the threshold known) and its interval (``*_lo`` /
+    ``*_hi``) from a cluster bootstrap: clusters (:func:`flight_clusters`: csv copies of one
+    recording, one configuration in both modes) are resampled within normal and attacked flights,
+    and each replicate re-calibrates the threshold on validation flights resampled with
+    replacement; the interval is the hull of the percentile interval and the Wilson interval at
+    the bootstrap's effective sample size (:func:`~scart_bench.benchmark.intervals.design_interval`).
+    """
 
     name = "paper"
-    columns = (*(f"{r}{s}" for r in RATES for s in ("", "_lo", "_hi")), "n_simulation", "n_csv", "n_no_attack")
+    columns = (*(f"{r}{s}" for r in RATES for s in ("", "_lo", "_hi", "_wilson_lo", "_wilson_hi")),
+               "n_simulation", "n_csv", "n_no_attack", "n_units_csv", "n_validation", "alpha",
+               "alpha_attainable", "detected_after_fa_simulation", "detected_after_fa_csv")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
         out: dict[str, float] = {}
         attacked = {m: ev.test("test_attacked", m) for m in ATTACK_MODES}
-        normal = ev.test("test_normal")["flagged"].astype(bool)
-        parts = {"tp_simulation": attacked["simulation"]["outcome"] == "detected",
-                 "tp_csv": attacked["csv"]["outcome"] == "detected",
-                 "tn_no_attack": ~normal,
-                 "late_simulation": attacked["simulation"]["outcome"] == "late",
-                 "late_csv": attacked["csv"]["outcome"] == "late",
-                 "flagged_simulation": attacked["simulation"]["flagged"].astype(bool),
-                 "flagged_csv": attacked["csv"]["flagged"].astype(bool)}
+        normal = ev.test("test_normal")
+        groups = {**{f"{k}_{m}": attacked[m] for k in ("tp", "tp_end", "late", "flagged", "fa_before_onset")
+                     for m in ATTACK_MODES}, "tn_no_attack": normal, "far_no_attack": normal}
+        test = ev.test()
+        rng = np.random.default_rng(BOOTSTRAP_SEED)
+        t_row, t_flight = _resampled_thresholds(ev, rng, RATE_BOOTSTRAP)
+        weights = (cluster_weights(test["cluster"].astype(str).to_numpy() if "cluster" in test.columns
+                                   else test.index.to_numpy(), test["role"].to_numpy(), RATE_BOOTSTRAP, rng)
+                   if len(test) else np.zeros((RATE_BOOTSTRAP, 0)))
+        position = {fid: i for i, fid in enumerate(test.index)}
+        point_t = np.array([0.5 if ev.alarm_source == "own" else ev.row_threshold])
+        point_f = np.array([0.5 if ev.alarm_source == "own" else ev.flight_threshold])
+        deff: dict[str, float] = {}  # per group of flights: the design effect of its headline rate
         for name in RATES:
-            out.update(_rate_with_interval(name, parts[name]))
-        out.update(n_simulation=len(attacked["simulation"]), n_csv=len(attacked["csv"]), n_no_attack=len(normal))
+            f = groups[name]
+            n = len(f)
+            if n == 0:
+                out.update({name: float("nan"), **{f"{name}{s}": float("nan")
+                                                   for s in ("_lo", "_hi", "_wilson_lo", "_wilson_hi")}})
+                continue
+            k = float(_indicator(ev, name, f, point_t, point_f)[0].sum())
+            w = weights[:, [position[i] for i in f.index]]
+            hits = (w * _indicator(ev, name, f, t_row, t_flight)).sum(axis=1)
+            total = w.sum(axis=1)
+            boot = np.divide(hits, total, out=np.full(total.shape, np.nan), where=total > 0)
+            group = name.rpartition("_")[2] if name.endswith(ATTACK_MODES) else "normal"
+            d = design_effect(k, n, boot)
+            if group not in deff and math.isfinite(d):
+                deff[group] = d
+            # a rate of 0 or 100 % has no spread of its own: the design effect of the same flights'
+            # first rate with one, never fewer units than the independent ones
+            units = _independent_units(f)
+            fallback = max(units, n / max(deff[group], 1.0)) if group in deff else units
+            out[name] = k / n
+            out[f"{name}_lo"], out[f"{name}_hi"] = design_interval(k, n, boot, fallback)
+            out[f"{name}_wilson_lo"], out[f"{name}_wilson_hi"] = wilson(k, n)
+        n_val = int((ev.flights["role"] == "validation").sum())
+        alpha = ev.protocol.alpha if ev.protocol is not None and ev.alarm_source == "calibrated" else None
+        out.update(n_simulation=len(attacked["simulation"]), n_csv=len(attacked["csv"]), n_no_attack=len(normal),
+                   n_units_csv=_independent_units(attacked["csv"]), n_validation=n_val,
+                   alpha=float("nan") if alpha is None else alpha,
+                   alpha_attainable=float("nan") if alpha is None else float(
+                       ev.protocol.flight_rule.attainable(n_val)))
+        for m in ATTACK_MODES:
+            a = attacked[m]
+            out[f"detected_after_fa_{m}"] = int(((a["outcome"] == "detected") & a["alarm_before_onset"].astype(bool))
+                                                .sum()) if len(a) else 0
         return out
 
 
 class FlightROCAUC(Metric):
     """Threshold-free flight-level ROC-AUC and AUC-PR (average precision): held-out normal vs
-    attacked flights, with seeded bootstrap 95 % intervals; ROC-AUC per mode too."""
+    attacked flights, with seeded bootstrap 95 % intervals; ROC-AUC per mode too. ``auc_pr_prior``
+    is the AUC-PR of a detector that ranks at random (the share of attacked flights), and
+    ``auc_pr_lift`` the AUC-PR over it: with many more attacked than normal flights an AUC-PR near
+    1 says little by itself."""
 
     name = "roc_auc"
-    columns = ("roc_auc", "roc_auc_lo", "roc_auc_hi", "auc_pr", "auc_pr_lo", "auc_pr_hi",
-               *(f"roc_auc_{m}" for m in ATTACK_MODES))
+    columns = ("roc_auc", "roc_auc_lo", "roc_auc_hi", "auc_pr", "auc_pr_lo", "auc_pr_hi", "auc_pr_prior",
+               "auc_pr_lift", *(f"roc_auc_{m}" for m in ATTACK_MODES))
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
         normal = ev.test("test_normal")["score"].to_numpy(np.float64)
@@ -373,6 +578,8 @@ class FlightROCAUC(Metric):
         out["roc_auc_lo"], out["roc_auc_hi"] = bootstrap_auc(roc_auc, normal, attacked)
         out["auc_pr"] = average_precision(labels, np.r_[normal, attacked]) if both else float("nan")
         out["auc_pr_lo"], out["auc_pr_hi"] = bootstrap_auc(average_precision, normal, attacked)
+        out["auc_pr_prior"] = attacked.size / labels.size if both else float("nan")
+        out["auc_pr_lift"] = out["auc_pr"] / out["auc_pr_prior"] if both else float("nan")
         for m in ATTACK_MODES:
             a = ev.test("test_attacked", m)["score"].to_numpy(np.float64)
             out[f"roc_auc_{m}"] = roc_auc(np.r_[np.zeros(normal.size), np.ones(a.size)], np.r_[normal, a])
@@ -394,13 +601,15 @@ class ThresholdFree(Metric):
         ids = ev.test().index
         if len(ids) == 0:
             return dict.fromkeys(self.columns, float("nan"))
-        pooled = row_metrics(np.concatenate([ev.rows[f].label for f in ids]),
-                             np.concatenate([ev.rows[f].score for f in ids]), self.window)
+        # the burn-in rows leave the row metrics too (rows[f].kept), as they leave calibration and alarms
+        pooled = row_metrics(np.concatenate([ev.rows[f].label[ev.rows[f].kept] for f in ids]),
+                             np.concatenate([ev.rows[f].score[ev.rows[f].kept] for f in ids]), self.window)
         out = {"row_roc_auc": pooled["roc_auc"], "row_auc_pr": pooled["auc_pr"], "vus_roc": pooled["vus_roc"],
                "vus_pr": pooled["vus_pr"]}
         per = [(m["auc_pr"], m["vus_roc"], m["vus_pr"])
-               for m in (row_metrics(ev.rows[f].label, ev.rows[f].score, self.window)
-                         for f in ev.test("test_attacked").index if ev.rows[f].label.any())]
+               for m in (row_metrics(ev.rows[f].label[ev.rows[f].kept], ev.rows[f].score[ev.rows[f].kept],
+                                     self.window)
+                         for f in ev.test("test_attacked").index if ev.rows[f].label[ev.rows[f].kept].any())]
         per_a = np.array(per, dtype=np.float64).reshape(-1, 3)
         means = per_a.mean(axis=0) if len(per_a) else np.full(3, np.nan)
         out.update(flight_mean_auc_pr=means[0], flight_mean_vus_roc=means[1], flight_mean_vus_pr=means[2])
@@ -503,11 +712,57 @@ class FalseAlarmRate(Metric):
     def compute(self, ev: Evaluation) -> dict[str, float]:
         events, seconds = 0, 0.0
         for fid, row in ev.test("test_normal").iterrows():
-            events += alarm_events(ev.rows[fid].alarm)
-            seconds += _duration_s(row, ev.rows[fid])
+            fr = ev.rows[fid]
+            events += alarm_events(fr.alarm)
+            # the burn-in's share of the flight is not watched: its time is not counted either
+            seconds += _duration_s(row, fr) * (float(fr.kept.mean()) if fr.kept.size else 1.0)
         hours = seconds / 3600.0
         return {"false_alarms_per_hour": events / hours if hours > 0 else float("nan"),
                 "normal_test_hours": hours}
+
+
+def calibration_table(ev: Evaluation) -> pd.DataFrame:
+    """Per validation flight: its flight score, when in the flight its maximum occurred (seconds
+    after arming, over the counted rows and over all rows) and whether it sets the threshold."""
+    val = ev.flights[ev.flights["role"] == "validation"]
+    armed = (pd.to_numeric(val["armed_us"], errors="coerce") if "armed_us" in val.columns
+             else pd.Series(np.nan, index=val.index))
+    rows = []
+    for fid in val.index:
+        fr = ev.rows[fid]
+        arm = float(fr.timestamp[0]) if pd.isna(armed[fid]) else float(armed[fid])
+        kept = fr.kept
+        at = fr.timestamp[np.flatnonzero(kept)[np.argmax(fr.score[kept])]] if kept.any() else fr.timestamp[0]
+        raw = fr.timestamp[int(np.argmax(fr.score))]
+        rows.append({"flight_id": fid, "score": float(val.at[fid, "score"]), "max_after_arming_s": (at - arm) / 1e6,
+                     "raw_max_after_arming_s": (raw - arm) / 1e6,
+                     "sets_threshold": bool(math.isfinite(ev.flight_threshold)
+                                            and float(val.at[fid, "score"]) == ev.flight_threshold)})
+    return pd.DataFrame(rows, columns=["flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
+                                       "sets_threshold"])
+
+
+#: Seconds after arming within which a validation maximum counts as "near arming" in the summary.
+NEAR_ARMING_S = 10.0
+
+
+class CalibrationPoint(Metric):
+    """Where the threshold comes from: seconds after arming of the validation row that sets it,
+    how many validation maxima sit within :data:`NEAR_ARMING_S` of arming (over the counted
+    rows), and how many of the raw maxima (all rows) the burn-in took out."""
+
+    name = "calibration"
+    columns = ("threshold_after_arming_s", "val_max_near_arming", "val_raw_max_in_burn_in")
+
+    def compute(self, ev: Evaluation) -> dict[str, float]:
+        cal = calibration_table(ev)
+        sets = cal[cal["sets_threshold"]]
+        burn_in = ev.protocol.burn_in_s if ev.protocol is not None else 0.0
+        raw = cal["raw_max_after_arming_s"]
+        return {"threshold_after_arming_s": float(sets["max_after_arming_s"].iloc[0]) if len(sets) else float("nan"),
+                "val_max_near_arming": int(((cal["max_after_arming_s"] >= 0)
+                                            & (cal["max_after_arming_s"] < NEAR_ARMING_S)).sum()),
+                "val_raw_max_in_burn_in": int(((raw >= 0) & (raw < burn_in)).sum()) if burn_in > 0 else 0}
 
 
 class ScoringLatency(Metric):
@@ -524,7 +779,7 @@ class ScoringLatency(Metric):
 #: The metrics of metrics.csv, in column order.
 DEFAULT_METRICS: tuple[Metric, ...] = (
     PaperTable(), FlightROCAUC(), ThresholdFree(), PointwisePRF(), RangePRF(), TatbulZeroPRF(), DetectionDelay(),
-    FalseAlarmRate(), ScoringLatency(),
+    FalseAlarmRate(), CalibrationPoint(), ScoringLatency(),
 )
 
 
@@ -608,14 +863,20 @@ def breakdown(ev: Evaluation, dimensions: tuple[str, ...] = BREAKDOWN_DIMENSIONS
 # -- tables -----------------------------------------------------------------------------------
 
 #: (header, metrics column, format) of the printed table. ``pct_ci``: a percentage with its
-#: interval from ``<column>_lo`` / ``<column>_hi``; ``fN_ci``: N decimals with its interval.
+#: interval from ``<column>_lo`` / ``<column>_hi``; ``fN_ci``: N decimals with its interval;
+#: ``prior``: AUC-PR with its interval and the AUC-PR of a random ranking.
 PAPER_COLUMNS = (("TP Simulation (in window)", "tp_simulation", "pct_ci"),
                  ("TP CSV (in window)", "tp_csv", "pct_ci"),
                  ("TN No Attack", "tn_no_attack", "pct_ci"),
+                 ("False alarms, normal", "far_no_attack", "pct_ci"),
+                 ("TP Sim (window + end)", "tp_end_simulation", "pct_ci"),
+                 ("TP CSV (window + end)", "tp_end_csv", "pct_ci"),
                  ("Late Sim", "late_simulation", "pct_ci"), ("Late CSV", "late_csv", "pct_ci"),
+                 ("FA before onset Sim", "fa_before_onset_simulation", "pct_ci"),
+                 ("FA before onset CSV", "fa_before_onset_csv", "pct_ci"),
                  ("Flagged anywhere Sim", "flagged_simulation", "pct_ci"),
                  ("Flagged anywhere CSV", "flagged_csv", "pct_ci"),
-                 ("ROC-AUC", "roc_auc", "f3_ci"), ("AUC-PR", "auc_pr", "f3_ci"),
+                 ("ROC-AUC", "roc_auc", "f3_ci"), ("AUC-PR (prior)", "auc_pr", "prior"),
                  ("Median delay (s)", "delay_median_s", "f2"))
 EXTRA_COLUMNS = (("VUS-PR", "vus_pr", "f3"), ("VUS-ROC", "vus_roc", "f3"), ("Row AUC-PR", "row_auc_pr", "f3"),
                  ("Row ROC-AUC", "row_roc_auc", "f3"),
@@ -649,6 +910,10 @@ def format_value(value, kind: str, lo=None, hi=None) -> str:
 
 
 def _cell(row, key: str, kind: str) -> str:
+    if kind == "prior":
+        text = format_value(row.get(key), "f3_ci", row.get(f"{key}_lo"), row.get(f"{key}_hi"))
+        prior = row.get(f"{key}_prior")
+        return text if _nan(prior) or text == "n/a" else f"{text} ({float(prior):.3f})"
     return format_value(row.get(key), kind, row.get(f"{key}_lo"), row.get(f"{key}_hi"))
 
 
@@ -667,26 +932,75 @@ def markdown_table(metrics: pd.DataFrame, columns=PAPER_COLUMNS, status: bool = 
 
 
 DETECTION_RULE = (
-    "detection rule: an attacked flight is detected (TP) when at least one row alarms inside an attack window "
-    "[start, end) of its event log; late when its only alarms come at or after the end of the window (delay "
-    "counted from the end); missed otherwise. 'Flagged anywhere' (flight score above the flight threshold, any "
-    "row) is the paper's lenient rule, shown beside it. TN: held-out normal test flights not flagged. Rates show "
-    "their 95 % Wilson interval, ROC-AUC and AUC-PR a seeded bootstrap interval over flights. Attacked flights "
+    "detection rule: an attacked flight is detected (TP, the headline) when at least one row alarms inside an "
+    "attack window [start, end) of its event log; 'window + end' also counts a first alarm within the end "
+    "transient after the window (the attacked value snapping back is the attack's own effect); late when its "
+    "first alarm comes after that; missed otherwise. 'Flagged anywhere' (flight score above the flight "
+    "threshold, any row) is the paper's lenient rule, shown beside it. 'FA before onset': attacked flights with "
+    "a row alarm before the attack started (false alarms the TN column does not see). TN: held-out normal test "
+    "flights not flagged; 'False alarms, normal' = 1 - TN, to compare with the target alpha. Attacked flights "
     "whose attack changed nothing (no_effect) are excluded from every rate.")
+
+#: How the rates' intervals are computed (metrics.md, the README).
+INTERVAL_METHOD = (
+    "intervals: 95 %, cluster bootstrap (1,000 seeded replicates): csv copies of one source recording and the "
+    "flights of one configuration flown in both modes form one cluster; clusters are resampled within normal "
+    "and within attacked flights, and every replicate re-calibrates the threshold on validation flights resampled "
+    "with replacement (the threshold's own uncertainty). The interval shown is the hull of the bootstrap's "
+    "percentile interval and the Wilson interval at its effective sample size (at the number of independent "
+    "units when a rate is 0 or 100 %); the plain Wilson interval is in metrics.csv (*_wilson_lo/_hi). ROC-AUC "
+    "and AUC-PR: bootstrap over flights; AUC-PR in brackets after it is the prior (a random ranking).")
 
 
 def rate_summary(metrics: pd.DataFrame, no_effect: list[str] = ()) -> list[str]:
-    """Markdown lines: how many flights each rate rests on, and the attacked flights left out."""
+    """Markdown lines: how many flights each rate rests on, the operating point (target alpha
+    against the measured false-alarm rate, per detector), and the attacked flights left out."""
     ok = metrics[metrics["status"] == "OK"] if "status" in metrics else metrics.iloc[:0]
     lines = ["## Flights behind each rate", ""]
     if len(ok):
         r = ok.iloc[0]
+        units = r.get("n_units_csv")
         lines.append(f"- TP / late / flagged Simulation: {int(r['n_simulation'])} attacked simulation-mode test "
-                     f"flights; TP / late / flagged CSV: {int(r['n_csv'])} csv-mode flights; TN No Attack: "
-                     f"{int(r['n_no_attack'])} held-out normal test flights.")
+                     f"flights; TP / late / flagged CSV: {int(r['n_csv'])} csv-mode flights"
+                     + ("" if _nan(units) else f" replaying {int(units)} source recordings")
+                     + f"; TN No Attack: {int(r['n_no_attack'])} held-out normal test flights"
+                     + ("" if _nan(r.get("n_validation")) else
+                        f"; thresholds calibrated on {int(r['n_validation'])} validation normal flights") + ".")
+        lines += ["", "## Operating point", ""]
+        for _, d in ok.iterrows():
+            lines.append("- " + operating_point_line(d))
     no_effect = list(no_effect)
     shown = ", ".join(no_effect[:20]) + (" ..." if len(no_effect) > 20 else "")
     lines.append(f"- attacked flights whose attack changed nothing (no_effect, excluded from every rate): "
                  f"{len(no_effect)}" + (f": {shown}" if no_effect else ""))
     lines.append("")
     return lines
+
+
+def operating_point_line(d) -> str:
+    """One detector's operating point in words: its target alpha, the measured false-alarm rate on
+    held-out normal flights with its interval, and whether the interval holds alpha."""
+    far, lo, hi = d.get("far_no_attack"), d.get("far_no_attack_lo"), d.get("far_no_attack_hi")
+    measured = format_value(far, "pct_ci", lo, hi)
+    alpha = d.get("alpha")
+    if _nan(alpha):
+        text = f"**{d['detector']}**: its own alarm rule (no target rate); false alarms on normal flights {measured}"
+    else:
+        text = (f"**{d['detector']}**: target alpha {100 * float(alpha):g} % per flight; measured on held-out "
+                f"normal flights {measured}")
+        if not _nan(d.get("alpha_attainable")) and not bool(d.get("alpha_attainable")):
+            text += (f" (**alpha not attainable** with {int(d['n_validation'])} validation flights: the threshold "
+                     "is the largest validation score)")
+        elif not _nan(lo) and not _nan(hi) and not (float(lo) <= float(alpha) <= float(hi)):
+            text += " (**the interval does not contain alpha**)"
+    fa = [f"{m} {format_value(d.get(f'fa_before_onset_{m}'), 'pct')}" for m in ATTACK_MODES
+          if not _nan(d.get(f"fa_before_onset_{m}"))]
+    if fa:
+        text += "; attacked flights with a false alarm before onset: " + ", ".join(fa)
+    after = [int(d.get(f"detected_after_fa_{m}") or 0) for m in ATTACK_MODES]
+    if any(after):
+        text += (f" ({after[0]} simulation / {after[1]} csv detections follow such a false alarm)")
+    fph = d.get("false_alarms_per_hour")
+    if not _nan(fph):
+        text += f"; {float(fph):.2f} false alarm events per flight-hour"
+    return text + "."

@@ -6,9 +6,12 @@
 <run>/flights.csv              the dataset's manifest rows with a ``role`` column (train /
                                validation / test_normal / test_attacked / no_effect / csv_source)
 <run>/truth.parquet            flight_id, Timestamp, Is_Anomaly for every scored flight
+<run>/arming.csv               flight_id, armed_us, armed_by: when each scored flight was armed
+                               (the burn-in's start; benchmark.protocol.arming_time_us)
 <run>/jobs/<detector>/params.json   detector name, class, source spec, params, job key
 <run>/jobs/<detector>/scores.npz    one float64 array of per-row scores per flight_id
                                     (validation + test flights; written only for OK jobs)
+<run>/jobs/<detector>/alarms.npz    the detector's own row alarms per flight_id (alarm rule "own" only)
 <run>/jobs/<detector>/log.txt       the worker's stdout/stderr (traceback on error)
 <run>/jobs/<detector>/status.json   written last: status OK / ERROR / TIMEOUT, message, timings
 <run>/results.csv              one row per job: status, message, timings, rows
@@ -17,7 +20,11 @@
 <run>/breakdown.csv            TP rate (in window, Wilson interval), late and flagged counts per
                                action / target / injection point / kind / detectability bin (and mode)
 <run>/flight_scores.csv        detector, flight_id, role, mode, score, flagged (anywhere), outcome
-                               (detected / late / missed), delay_s, late_delay_s
+                               (detected / at_end / late / missed), delay_s, late_delay_s,
+                               alarm_before_onset, cluster
+<run>/calibration.csv          per detector and validation flight: its score, when its maximum
+                               occurred (after arming, with and without the burn-in) and whether
+                               it sets the threshold
 <run>/cache/flights/           the run's flight cache (benchmark.flight_cache): every flight read
                                once, shared by the jobs; removed when every job of the invocation
                                finished OK, kept (and reused) while one is left to --resume
@@ -194,12 +201,31 @@ class RunStore:
         atomic_write_csv(self.path / "flights.csv", flights)
 
     def read_flights(self) -> pd.DataFrame:
+        """flights.csv, with ``armed_us`` / ``armed_by`` from arming.csv when the run has it."""
         df = pd.read_csv(self.path / "flights.csv", dtype={"flight_id": str, "scenario_id": "string"},
                          keep_default_na=True)
         for col in ("attack_start_us", "attack_end_us"):
             if col in df.columns:
                 df[col] = df[col].astype("Int64")
+        arming = self.read_arming()
+        if arming is not None:
+            df = df.drop(columns=[c for c in ("armed_us", "armed_by") if c in df.columns]).merge(
+                arming, on="flight_id", how="left")
         return df
+
+    def has_arming(self) -> bool:
+        return (self.path / "arming.csv").exists()
+
+    def write_arming(self, arming: dict[str, tuple[int, str]]) -> None:
+        """arming.csv: flight id -> (armed_us, the column that said so)."""
+        atomic_write_csv(self.path / "arming.csv", pd.DataFrame(
+            [(f, int(t), str(by)) for f, (t, by) in arming.items()], columns=["flight_id", "armed_us", "armed_by"]))
+
+    def read_arming(self) -> pd.DataFrame | None:
+        path = self.path / "arming.csv"
+        if not path.is_file():
+            return None
+        return pd.read_csv(path, dtype={"flight_id": str, "armed_us": "Int64", "armed_by": str})
 
     def has_truth(self) -> bool:
         return (self.path / "truth.parquet").exists()
@@ -256,6 +282,11 @@ class RunStore:
     def read_scores(self, detector: str) -> dict[str, np.ndarray]:
         return read_npz(self.job_dir(detector) / "scores.npz")
 
+    def read_alarms(self, detector: str) -> dict[str, np.ndarray] | None:
+        """The detector's own row alarms (alarm rule "own"), None when the job saved none."""
+        path = self.job_dir(detector) / "alarms.npz"
+        return {k: v.astype(bool) for k, v in read_npz(path).items()} if path.is_file() else None
+
     def start_job(self, detector: str) -> None:
         """Mark a job as not complete: remove its status.json before anything else is written."""
         d = self.job_dir(detector)
@@ -263,7 +294,7 @@ class RunStore:
         (d / "status.json").unlink(missing_ok=True)
 
     def finish_job(self, detector: str, status: dict, params: dict, scores: dict[str, np.ndarray] | None,
-                   log: str = "") -> None:
+                   log: str = "", alarms: dict[str, np.ndarray] | None = None) -> None:
         """Write a finished job: scores (OK only), params, log, then status.json last."""
         if status.get("status") not in STATUSES:
             raise ValueError(f"job status {status.get('status')!r}: expected one of {STATUSES}")
@@ -273,6 +304,10 @@ class RunStore:
             atomic_write_bytes(d / "scores.npz", npz_bytes(scores))
         else:
             (d / "scores.npz").unlink(missing_ok=True)
+        if scores is not None and alarms is not None:
+            atomic_write_bytes(d / "alarms.npz", npz_bytes({k: np.asarray(v, dtype=np.int8) for k, v in alarms.items()}))
+        else:
+            (d / "alarms.npz").unlink(missing_ok=True)
         atomic_write_json(d / "params.json", params)
         atomic_write_text(d / "log.txt", log)
         atomic_write_json(d / "status.json", status)

@@ -34,9 +34,23 @@ NON_FEATURE_FIELDS = re.compile(
 )
 
 
+#: Control and state flags (matched on the field name): what the vehicle or its operator *decided*
+#: (armed, arming and navigation state, flight mode, the current mission item, landed and in-air
+#: flags), not what a sensor or estimator *measured*. They change in steps at arming, take-off and
+#: every waypoint of every normal flight (the arm request's 0 -> 1 step is a 7-sd jump), so a
+#: detector that uses them learns the mission's script; attacks on the control link show in the
+#: measured state they change. A run can still use them: ``--features`` names columns outright.
+CONTROL_STATE_FIELDS = re.compile(
+    r"^armed$|^arming_state$|^nav_state|^main_state$|(^|_)mode$|^flight_mode|^seq$|^mission_seq$|"
+    r"^current_seq$|^landed$|^maybe_landed$|^ground_contact$|^in_air$|^freefall$|^failsafe"
+)
+
+
 def is_feature_name(column: str) -> bool:
-    """False for a ``topic.field`` column whose field is a timestamp, counter, id or reset counter."""
-    return not NON_FEATURE_FIELDS.search(column.partition(".")[2])
+    """False for a ``topic.field`` column whose field is a timestamp, counter, id or reset counter,
+    or a control or state flag (:data:`CONTROL_STATE_FIELDS`)."""
+    name = column.partition(".")[2]
+    return not (NON_FEATURE_FIELDS.search(name) or CONTROL_STATE_FIELDS.search(name))
 
 
 def feature_columns(flights: list[pd.DataFrame], include: list[str] | None = None,
@@ -44,8 +58,9 @@ def feature_columns(flights: list[pd.DataFrame], include: list[str] | None = Non
     """The feature rule: which columns of the training flights a detector uses, and why others not.
 
     A feature is a ``topic.field`` column present in every training flight that is not a
-    timestamp, counter, id or reset counter (:data:`NON_FEATURE_FIELDS`) and is not constant
-    over the training flights (constant or all missing; +/-inf counts as missing).
+    timestamp, counter, id or reset counter (:data:`NON_FEATURE_FIELDS`), not a control or state
+    flag (:data:`CONTROL_STATE_FIELDS`: armed, modes, mission item) and is not constant over the
+    training flights (constant or all missing; +/-inf counts as missing).
     ``include`` (glob patterns, e.g. ``vehicle_gps_position.*``) keeps only matching columns and
     overrides the name rule; ``exclude`` drops matching columns. Returns (features, dropped) with
     ``dropped`` mapping each reason to its columns.
@@ -58,7 +73,10 @@ def feature_columns(flights: list[pd.DataFrame], include: list[str] | None = Non
         dropped["not in --features"] = [c for c in common if c not in keep]
     else:
         keep = [c for c in common if is_feature_name(c)]
-        dropped["timestamp, counter, id or reset"] = [c for c in common if c not in keep]
+        dropped["timestamp, counter, id or reset"] = [
+            c for c in common if NON_FEATURE_FIELDS.search(c.partition(".")[2])]
+        dropped["control or state flag"] = [
+            c for c in common if c not in keep and not NON_FEATURE_FIELDS.search(c.partition(".")[2])]
     if exclude:
         dropped["--exclude"] = [c for c in keep if any(fnmatch.fnmatchcase(c, p) for p in exclude)]
         keep = [c for c in keep if c not in dropped["--exclude"]]

@@ -12,8 +12,10 @@ the number of those runs. A detector missing from a run, or whose job failed the
 nothing to the mean: it is shown by its status in that run (``missing``, ``ERROR``, ``TIMEOUT``,
 ``UNFINISHED``), never as zero.
 
-Intervals: every rate (TP, late, flagged anywhere, TN) carries the 95 % Wilson interval of the
-flights pooled over the OK runs (``<rate>_lo`` / ``<rate>_hi``, resting on ``<rate>_n`` flights);
+Intervals: every rate (TP, late, flagged anywhere, TN) carries, for a single run, that run's own
+interval (protocol v2: a cluster bootstrap that re-calibrates the threshold), and over several runs
+the 95 % Wilson interval of the flights pooled over the OK runs (``<rate>_lo`` / ``<rate>_hi``,
+resting on ``<rate>_n`` flights);
 ROC-AUC and AUC-PR carry the run's bootstrap interval when the detector finished OK in one run
 (with several runs their spread is the standard deviation).
 
@@ -116,17 +118,24 @@ def _per_run(run: RunResults) -> pd.DataFrame:
 
 def _extra_keys() -> list[str]:
     """Per-run columns read besides METRICS: flight counts and bootstrap bounds."""
-    return sorted(set(RATE_COUNTS.values())) + [f"{k}_{b}" for k in BOOTSTRAPPED for b in ("lo", "hi")]
+    return (sorted(set(RATE_COUNTS.values())) + [f"{k}_{b}" for k in BOOTSTRAPPED for b in ("lo", "hi")]
+            + [f"{r}_{b}" for r in RATE_COUNTS for b in ("lo", "hi", "wilson_lo")])
 
 
 def _intervals(ok: pd.DataFrame) -> dict:
-    """Wilson intervals of the rates over the flights of the OK runs; bootstrap intervals of a single run."""
+    """Rate intervals: a single run's own (protocol v2: cluster bootstrap with the threshold's
+    uncertainty), else Wilson intervals over the flights of the OK runs pooled; bootstrap intervals
+    of a single run for the threshold-free scores."""
     out: dict = {}
     for rate, n_col in RATE_COUNTS.items():
         pairs = ok[[rate, n_col]].dropna()
         n = float(pairs[n_col].sum())
         k = float(np.round(pairs[rate] * pairs[n_col]).sum())
-        out[f"{rate}_lo"], out[f"{rate}_hi"] = wilson(k, n) if n > 0 else (np.nan, np.nan)
+        own = len(ok) == 1 and pd.notna(ok[f"{rate}_wilson_lo"].iloc[0]) and pd.notna(ok[f"{rate}_lo"].iloc[0])
+        if own:
+            out[f"{rate}_lo"], out[f"{rate}_hi"] = float(ok[f"{rate}_lo"].iloc[0]), float(ok[f"{rate}_hi"].iloc[0])
+        else:
+            out[f"{rate}_lo"], out[f"{rate}_hi"] = wilson(k, n) if n > 0 else (np.nan, np.nan)
         out[f"{rate}_n"] = int(n)
     for key in BOOTSTRAPPED:
         one = len(ok) == 1
