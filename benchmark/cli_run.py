@@ -34,7 +34,7 @@ def _patterns(values: list[str] | None) -> list[str] | None:
 #: run option -> the RunConfig field it sets (the run file uses the field names)
 _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
-            "timeout": "timeout", "seed": "seed", "plugin": "plugins", "features": "features",
+            "timeout": "timeout", "seed": "seed", "features": "features",
             "exclude": "exclude", "device": "device"}
 
 
@@ -60,10 +60,27 @@ def run_config(args: argparse.Namespace):
             continue
         if option in ("features", "exclude"):
             value = _patterns(value)
-        given[key] = [value] if option == "detectors" else list(value) if option == "plugin" else value
+        given[key] = [value] if option == "detectors" else value
     given["params"] = merge_params(cfg.params, parse_params(args.param or []))
     given["protocol"] = protocol_options(cfg.protocol, args)
+    given["plugins"] = _trusted_plugins(cfg.plugins, list(args.plugin or []), args)
     return dataclasses.replace(cfg, **given)
+
+
+def _trusted_plugins(from_file: list[str], from_command_line: list[str], args: argparse.Namespace) -> list[str]:
+    """The plugins to load: those named on the command line, plus a run file's only with
+    ``--trust-plugins``. A run file (or a shared run folder's config.json) is data: importing a
+    plugin it names would run that file's code, so it is refused, naming the plugin and the flag."""
+    from scart_bench.benchmark.selection import _absolute_plugin
+    from scart_bench.errors import RunError
+
+    named = {_absolute_plugin(p) for p in from_command_line}
+    untrusted = [p for p in from_file if _absolute_plugin(p) not in named]
+    if untrusted and not getattr(args, "trust_plugins", False):
+        raise RunError(f"--config {args.config}: it names the plugin {untrusted[0]!r}, whose code would run when "
+                       "it is imported; a run file is read as data only. Load it with --plugin "
+                       f"{untrusted[0]} (or pass --trust-plugins to load every plugin the file names)")
+    return list(dict.fromkeys([*from_command_line, *untrusted]))
 
 
 def protocol_options(protocol, args: argparse.Namespace):
@@ -150,11 +167,14 @@ def register(sub) -> None:
     r.add_argument("--device", choices=("auto", "cpu", "cuda"),
                    help="torch device of the detectors that take one (deepsvdd, rdp, rca, goad, neutral, "
                         "telemanom): auto (default: cuda when available, else cpu), cpu or cuda")
+    r.add_argument("--trust-plugins", action="store_true", dest="trust_plugins",
+                   help="also load the plugins a --config file names (by default only --plugin options are "
+                        "imported: a run file is data)")
     r.add_argument("--alpha", type=float, metavar="RATE",
                    help="target per-flight false-alarm rate of every detector's threshold (default 0.05): the "
                         "conformal order statistic of the validation flights' scores")
     r.add_argument("--burn-in", type=float, metavar="SECONDS", dest="burn_in",
-                   help="seconds after arming in which rows neither calibrate nor alarm (default 5)")
+                   help="seconds after arming in which rows neither calibrate nor alarm (default 8)")
     r.add_argument("--threshold", choices=("calibrated", "own"),
                    help="calibrated (default): score > the calibrated threshold; own: each detector's own alarm "
                         "rule where it has one (Telemanom's dynamic threshold, Statistical's vote)")

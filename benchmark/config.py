@@ -20,14 +20,15 @@ over it::
 
     [protocol]                               # the operating point (see scart_bench.benchmark.protocol)
     alpha = 0.05                             # target per-flight false-alarm rate (conformal threshold)
-    burn_in_s = 5.0                          # after arming: rows neither calibrate nor alarm
+    burn_in_s = 8.0                          # after arming: rows neither calibrate nor alarm
     end_transient_s = 2.0                    # an alarm this soon after the attack's end is "at the end"
     alarm_rule = "calibrated"                # or "own": the detector's own alarm rule where it has one
     [protocol.flight_rule]                   # or the rules in full (kind conformal / max / quantile)
     kind = "conformal"
 
 A finished run's ``config.json`` holds the same data under ``"run"``; ``--config RUN/config.json``
-reruns it (the file is read as data: nothing in it is imported or executed).
+reruns it (the file is read as data: nothing in it is imported or executed; the plugins it names are
+loaded only when the command line names them with ``--plugin`` or passes ``--trust-plugins``).
 """
 
 from __future__ import annotations

@@ -140,7 +140,7 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     The run folder is read as data: the detector is resolved by name among the built-ins, installed
     plugins and the ``plugins`` given now (``--plugin``), never from a file the run folder names.
     """
-    from scart_bench.benchmark.protocol import Protocol
+    from scart_bench.benchmark.protocol import Protocol, counted_rows
     from scart_bench.benchmark.store import RunStore
     from scart_bench.detectors import registry
     from scart_bench.detectors.base import DetectorError
@@ -182,7 +182,12 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     if missing:
         raise RunError(f"--run {run}: detector {name} has no saved scores for validation flight {missing[0]}")
     protocol = Protocol.from_dict(config["protocol"])
-    _, row_threshold = protocol.thresholds({fid: np.asarray(scores[fid]) for fid in validation})
+    # the run's own operating point: its validation flights without their burn-in after arming
+    truth = store.read_truth() if protocol.burn_in_s else {}
+    armed = flights.set_index("flight_id")["armed_us"] if "armed_us" in flights.columns else {}
+    counted = {fid: counted_rows(truth[fid][0], armed.get(fid), protocol.burn_in_s)
+               for fid in validation if fid in truth}
+    _, row_threshold = protocol.thresholds({fid: np.asarray(scores[fid]) for fid in validation}, counted)
     log(f"proxy: {name} fitted in {time.perf_counter() - t0:.1f} s; row threshold {row_threshold:.4g} "
         f"({protocol.row_rule.describe()})")
     return StreamMonitor(det, row_threshold, name=name, log=log)

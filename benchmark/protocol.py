@@ -20,7 +20,7 @@ on them.
 
 The operating point (protocol v2, the default):
 
-- **Burn-in.** Rows from a flight's arming to ``burn_in_s`` (default 5 s) after it neither
+- **Burn-in.** Rows from a flight's arming to ``burn_in_s`` (default 8 s) after it neither
   calibrate a threshold nor raise an alarm, on every flight and for every detector alike: the
   arming step and the motors' spin-up are the largest transients of a normal flight and would
   otherwise set every threshold. The arming time is read from the flight itself
@@ -160,7 +160,7 @@ def no_effect_mask(manifest: pd.DataFrame) -> pd.Series:
 #: Default target per-flight false-alarm rate of the operating point.
 DEFAULT_ALPHA = 0.05
 #: Default burn-in after arming (seconds) in which rows neither calibrate nor alarm.
-DEFAULT_BURN_IN_S = 5.0
+DEFAULT_BURN_IN_S = 8.0
 #: Default end transient (seconds after the last attacked row) in which an alarm counts as "at the end".
 DEFAULT_END_TRANSIENT_S = 2.0
 #: Values of ``Protocol.alarm_rule``.

@@ -20,7 +20,7 @@ from run_fixtures import ATTACKS, plugin, write_dataset
 from sklearn.metrics import roc_auc_score
 
 from scart_bench.benchmark.cli import main
-from scart_bench.benchmark.scoring import TIMING_COLUMNS
+from scart_bench.benchmark.scoring import DEFAULT_METRICS, TIMING_COLUMNS
 from scart_bench.benchmark.store import RunStore, read_npz
 
 ZS, DIFF = plugin("ZScore"), plugin("Diff")
@@ -80,17 +80,12 @@ def test_run_folder_layout(reference_run, dataset):
     assert len(scores) == 12 and all(s.dtype == np.float64 and s.shape == (1000,) for s in scores.values())
 
     metrics = pd.read_csv(reference_run / "metrics.csv")
-    rates = [f"{r}{s}" for r in ("tp_simulation", "tp_csv", "tn_no_attack", "late_simulation", "late_csv",
-                                 "flagged_simulation", "flagged_csv") for s in ("", "_lo", "_hi")]
     assert metrics.columns.tolist() == [
-        "detector", "status", "message", *rates, "n_simulation", "n_csv",
-        "n_no_attack", "roc_auc", "roc_auc_lo", "roc_auc_hi", "auc_pr", "auc_pr_lo", "auc_pr_hi",
-        "roc_auc_simulation", "roc_auc_csv", "row_roc_auc", "row_auc_pr", "vus_roc", "vus_pr", "flight_mean_auc_pr",
-        "flight_mean_vus_roc", "flight_mean_vus_pr", "point_precision", "point_recall",
-        "point_f1", "r_precision", "r_recall", "r_f1", "rt0_precision", "rt0_recall", "rt0_f1", "delay_median_s",
-        "delay_p90_s", "n_delay", "late_delay_median_s", "n_late",
-        "false_alarms_per_hour", "normal_test_hours", "latency_us_per_row", "flight_threshold", "row_threshold",
-        "fit_s", "score_s", "rows"]
+        "detector", "status", "message", *(c for m in DEFAULT_METRICS for c in m.columns), "flight_threshold",
+        "row_threshold", "fit_s", "score_s", "rows"]
+    for r in ("tp_simulation", "tp_csv", "tn_no_attack", "far_no_attack", "fa_before_onset_csv"):
+        assert {f"{r}_lo", f"{r}_hi", f"{r}_wilson_lo", f"{r}_wilson_hi"} <= set(metrics.columns)
+    assert {"auc_pr_prior", "alpha", "threshold_after_arming_s"} <= set(metrics.columns)
 
     results = pd.read_csv(reference_run / "results.csv")
     assert results["detector"].tolist() == ["zscore_test", "diff_test"]
@@ -100,19 +95,23 @@ def test_run_folder_layout(reference_run, dataset):
 def test_metrics_of_the_reference_run(reference_run):
     m = pd.read_csv(reference_run / "metrics.csv").set_index("detector")
     z = m.loc["zscore_test"]
-    # two of three attacks per mode are large; the third is far below the noise
-    assert (z["tp_simulation"], z["tp_csv"], z["tn_no_attack"]) == (2 / 3, 2 / 3, 1.0)
+    # two of three attacks per mode are large; the third is far below the noise. Three validation flights
+    # cannot reach alpha = 5 %: the threshold is their largest score, which two held-out flights beat
+    assert (z["tp_simulation"], z["tp_csv"], z["tn_no_attack"]) == (2 / 3, 2 / 3, 1 / 3)
+    assert z["alpha_attainable"] == 0.0 and z["n_validation"] == 3
     assert (z["n_simulation"], z["n_csv"], z["n_no_attack"]) == (3, 3, 3)
     assert z["delay_median_s"] == pytest.approx(0.0)
-    assert z["false_alarms_per_hour"] == 0.0 and z["latency_us_per_row"] > 0
+    assert z["false_alarms_per_hour"] > 0.0 and z["latency_us_per_row"] > 0
 
     fs = pd.read_csv(reference_run / "flight_scores.csv")
     for det in ("zscore_test", "diff_test"):
         test = fs[(fs["detector"] == det) & fs["role"].isin(["test_normal", "test_attacked"])]
         y = (test["role"] == "test_attacked").astype(int)
         assert m.loc[det, "roc_auc"] == pytest.approx(roc_auc_score(y, test["score"]))
-        flagged = test[test["role"] == "test_attacked"].set_index("flight_id")["flagged"]
-        assert flagged.loc[[a[0] for a in ATTACKS if a[4] < 0.1]].sum() == 0  # the invisible ones
+        attacked = test[test["role"] == "test_attacked"].set_index("flight_id")
+        invisible = [a[0] for a in ATTACKS if a[4] < 0.1]
+        # the invisible ones are flagged no more often than the held-out normal flights
+        assert attacked.loc[invisible, "flagged"].mean() <= test[test["role"] == "test_normal"]["flagged"].mean()
 
     bd = pd.read_csv(reference_run / "breakdown.csv")
     row = bd[(bd["detector"] == "zscore_test") & (bd["dimension"] == "action") & (bd["value"] == "bias")
@@ -120,7 +119,8 @@ def test_metrics_of_the_reference_run(reference_run):
     assert (row["n"], row["detected"]) == (4, 3)
 
     md = (reference_run / "metrics.md").read_text()
-    assert "| zscore_test | 66.7 % [21-94] | 66.7 % [21-94] | 100.0 % [44-100] |" in md
+    assert "| zscore_test | 66.7 % [0-100] | 66.7 % [0-100] | 33.3 % [0-100] |" in md
+    assert "alpha not attainable" in md
     assert "3 held-out normal test flights" in md and "no_effect, excluded from every rate): 0" in md
 
 
@@ -390,7 +390,7 @@ def test_console_script(reference_run, tmp_path):
     shutil.copytree(reference_run, run)
     done = subprocess.run([str(exe), "score", str(run)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert "| zscore_test | 66.7 % [21-94] | 66.7 % [21-94] | 100.0 % [44-100] |" in done.stdout
+    assert "| zscore_test | 66.7 % [0-100] | 66.7 % [0-100] | 33.3 % [0-100] |" in done.stdout
     bad = subprocess.run([str(exe), "run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(tmp_path),
                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2
