@@ -126,6 +126,12 @@ def cmd_score(args: argparse.Namespace) -> int:
         raise UsageError(f"scart-bench score --jobs {args.jobs}: expected a whole number >= 1")
     metrics = score_run(args.run, processes=args.jobs)
     _print_table(Path(args.run), metrics)
+    failed = metrics[metrics["status"] != "OK"]
+    if len(failed):  # as `run` does: tables that look complete must not hide a job without scores
+        names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
+        print(f"scart-bench score: {len(failed)} job(s) have no usable scores: {names}; their rows show the "
+              "status (rerun the run with --resume to finish them)", file=sys.stderr)
+        return EXIT_JOBS_FAILED
     return 0
 
 

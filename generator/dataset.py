@@ -24,6 +24,7 @@ any window), ``Anomaly_Ids`` (the active scenario ids, joined by "+", empty outs
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -54,7 +55,7 @@ MANIFEST_COLUMNS = (
     "split", "rows", "duration_s", "attack_start_us", "attack_end_us", "source_flight", "kind",
     "effect_rows", "effect_fields", "no_effect", "detectability",
     "impact_max_dev_m", "impact_final_dev_m", "impact_mission_completed", "impact_landing_dist_m",
-    "impact_crashed",
+    "impact_crashed", "checksum",
 )
 #: Simulator-view topics that are the vehicle's true state, not link messages (kept out of the
 #: combined tables): the flight's own and, for a simulation-mode attacked flight, its twin's.
@@ -511,11 +512,23 @@ def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper
         _write_paper(root, fmt, record)
     row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
     row["flight_id"] = record.flight_id
+    row["checksum"] = flight_checksum(root)
     row["rows"] = _most_frequent_rows({k: v for k, v in record.navigator.items() if k not in TRUTH_TOPICS})
     if record.windows:
         row["attack_start_us"] = int(min(w[0] for w in record.windows))
         row["attack_end_us"] = int(max(w[1] for w in record.windows))
     return row
+
+
+def flight_checksum(root: Path) -> str:
+    """A digest of every file of a flight folder (names and bytes, BLAKE2b-128): recorded in the
+    manifest when the flight is written, compared when it is read, so a changed byte is caught and
+    the dataset fingerprint (which covers the manifest) follows the contents."""
+    h = hashlib.blake2b(digest_size=16)
+    for f in sorted(p for p in root.rglob("*") if p.is_file()):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0")
+        h.update(f.read_bytes())
+    return "b2:" + h.hexdigest()
 
 
 def _most_frequent_rows(topics: dict[str, pd.DataFrame]) -> int:
@@ -587,8 +600,15 @@ class Dataset:
         missing = [c for c in ("flight_id", "mode", "split") if c not in self.manifest.columns]
         if missing:
             raise DatasetError(f"{self.path}/manifest: missing column(s) {missing}")
+        check_manifest(self.manifest, self.path / "manifest")
         info = self.path / "dataset.json"
-        self.info = json.loads(info.read_text()) if info.exists() else {}
+        try:
+            self.info = json.loads(info.read_text()) if info.exists() else {}
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise DatasetError(f"{info}: not valid JSON ({exc}); it holds the dataset's format and versions") from None
+        if not isinstance(self.info, dict):
+            raise DatasetError(f"{info}: expected a JSON object (format, layout, profile, seed, versions)")
+        self._verified: set[str] = set()
 
     def __len__(self) -> int:
         return len(self.manifest)
@@ -608,6 +628,7 @@ class Dataset:
             raise DatasetError(f"view {view!r}: expected one of {VIEWS}")
         if table not in TABLES:
             raise DatasetError(f"table {table!r}: expected one of {TABLES}")
+        self.verify(flight_id)
         if not self.is_compact(flight_id):
             return _read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}", columns)
         topics = read_view(self.flight_dir(flight_id), view, arrays=True)
@@ -620,6 +641,21 @@ class Dataset:
             raise DatasetError(f"{self.flight_dir(flight_id) / view}.parquet: no column(s) {missing}")
         return df[list(columns)]
 
+    def verify(self, flight_id: str) -> None:
+        """DatasetError naming the flight when its files differ from the checksum the manifest
+        recorded when it was written (datasets written before checksums: nothing to compare)."""
+        if flight_id in self._verified or "checksum" not in self.manifest.columns:
+            return
+        rows = self.manifest.loc[self.manifest["flight_id"].astype(str) == str(flight_id), "checksum"]
+        expected = rows.iloc[0] if len(rows) else None
+        if isinstance(expected, str) and expected:
+            got = flight_checksum(self.flight_dir(flight_id))
+            if got != expected:
+                raise DatasetError(f"{self.flight_dir(flight_id)}: flight {flight_id!r} changed since it was written "
+                                   f"(checksum {got}, the manifest recorded {expected}); its files are damaged or "
+                                   "were edited: regenerate it, or remove it from the dataset")
+        self._verified.add(flight_id)
+
     def _windows(self, flight_id: str, view: str) -> list[tuple]:
         meta = compact.read_meta(self.flight_dir(flight_id) / f"{view}.parquet")
         return [tuple(w) for w in meta.get("windows", [])]
@@ -631,6 +667,8 @@ class Dataset:
 
         for fid in flight_ids:
             root = self.flight_dir(fid)
+            if root.is_dir():
+                self.verify(fid)
             if self.is_compact(fid):
                 for name in dict.fromkeys(("navigator", view)):
                     try:
@@ -660,6 +698,7 @@ class Dataset:
         """One topic table of one flight (``view`` navigator, simulator or uorb)."""
         if view not in TOPIC_VIEWS:
             raise DatasetError(f"view {view!r}: expected one of {TOPIC_VIEWS}")
+        self.verify(flight_id)
         if not self.is_compact(flight_id):
             self._view_folder(flight_id, view)
             return _read_table(self.flight_dir(flight_id) / "sensors" / view / topic)
@@ -692,6 +731,33 @@ class Dataset:
 
     def config(self, flight_id: str) -> dict:
         return json.loads((self.flight_dir(flight_id) / "raw" / "config.json").read_text())
+
+
+def check_manifest(manifest: pd.DataFrame, where: Path) -> None:
+    """DatasetError naming the flight and the field when a manifest row cannot be right: an empty or
+    repeated flight id, or an attack window that ends before it starts or lies outside the flight."""
+    ids = manifest["flight_id"].astype(str)
+    if (ids.str.strip() == "").any() or manifest["flight_id"].isna().any():
+        raise DatasetError(f"{where}: a row has an empty flight_id")
+    dup = ids[ids.duplicated()]
+    if len(dup):
+        raise DatasetError(f"{where}: flight {dup.iloc[0]!r} is listed more than once")
+    if "attack_start_us" not in manifest.columns or "attack_end_us" not in manifest.columns:
+        return
+    start = pd.to_numeric(manifest["attack_start_us"], errors="coerce")
+    end = pd.to_numeric(manifest["attack_end_us"], errors="coerce")
+    bad = start.notna() & end.notna() & (end <= start)
+    if bad.any():
+        i = bad[bad].index[0]
+        raise DatasetError(f"{where}: flight {ids[i]!r} has attack_end_us {int(end[i])} <= attack_start_us "
+                           f"{int(start[i])}; expected start < end (an attack window [start, end) in µs)")
+    if "duration_s" in manifest.columns:
+        limit = pd.to_numeric(manifest["duration_s"], errors="coerce") * 1e6 + 1e6  # a second of slack
+        out = start.notna() & limit.notna() & ((start < 0) | (start > limit))
+        if out.any():
+            i = out[out].index[0]
+            raise DatasetError(f"{where}: flight {ids[i]!r} has attack_start_us {int(start[i])} outside the flight "
+                               f"(0 to {manifest['duration_s'][i]} s)")
 
 
 def read_view(flight_dir: Path, view: str, names: list[str] | None = None,

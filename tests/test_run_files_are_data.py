@@ -9,6 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from run_fixtures import plugin, write_dataset
 
@@ -92,3 +93,14 @@ def test_the_user_can_still_load_it_on_purpose(shared_run, tmp_path):
         assert main(["run", "--config", str(run / "config.json"), "--out", str(out), *extra]) == 0
         status = json.loads((out / "jobs/marker_test/status.json").read_text())
         assert status["status"] == "OK"
+
+
+def test_score_exits_3_when_a_job_has_no_scores(tmp_path):
+    """A run folder with an unfinished job scores the rest and says so by its exit status, as run does."""
+    ds = write_dataset(tmp_path / "ds")
+    run = tmp_path / "run"
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(ds), "--out", str(run)]) == 0
+    assert main(["score", str(run)]) == 0
+    (run / "jobs/zscore_test/status.json").unlink()  # as a killed run leaves it
+    assert main(["score", str(run)]) == 3
+    assert pd.read_csv(run / "metrics.csv").loc[0, "status"] == "UNFINISHED"

@@ -1,0 +1,66 @@
+"""Datasets that know their contents: a flipped byte, swapped attack windows and a broken
+dataset.json are caught and named, before a run uses them."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+from run_fixtures import plugin, write_dataset
+
+from scart_bench.benchmark.cli import main
+from scart_bench.generator.dataset import DatasetError, open_dataset
+
+ZS = plugin("ZScore")
+
+
+def _flip(path, offset: int = 2000) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def test_every_flight_records_its_checksum(tmp_path):
+    ds = open_dataset(write_dataset(tmp_path / "ds"))
+    assert ds.manifest["checksum"].str.match(r"^b2:[0-9a-f]{32}$").all()
+    ds.flight("normal-000")  # reads and verifies
+
+
+def test_one_flipped_byte_is_caught_with_the_flights_name(tmp_path):
+    root = write_dataset(tmp_path / "ds")
+    _flip(root / "flights" / "normal-005" / "navigator.parquet")
+    ds = open_dataset(root)
+    ds.flight("normal-000")
+    with pytest.raises(DatasetError, match="normal-005.*changed since it was written"):
+        ds.flight("normal-005")
+    with pytest.raises(DatasetError, match="normal-005"):
+        ds.check_flights(["normal-000", "normal-005"])
+
+
+def test_resume_refuses_a_dataset_whose_contents_changed(tmp_path, capsys):
+    root = write_dataset(tmp_path / "ds")
+    run = tmp_path / "run"
+    args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(root), "--out", str(run)]
+    assert main(args) == 0
+    before = (run / "metrics.csv").read_bytes()
+    _flip(root / "flights" / "sim-000" / "navigator.parquet")
+    capsys.readouterr()
+    assert main([*args, "--resume"]) == 2
+    assert "sim-000" in capsys.readouterr().err
+    assert (run / "metrics.csv").read_bytes() == before  # nothing of the run was touched
+
+
+def test_swapped_attack_windows_are_refused(tmp_path):
+    root = write_dataset(tmp_path / "ds")
+    m = pd.read_parquet(root / "manifest.parquet")
+    i = m.index[m["flight_id"] == "sim-001"][0]
+    m.loc[i, ["attack_start_us", "attack_end_us"]] = m.loc[i, ["attack_end_us", "attack_start_us"]].to_numpy()
+    m.to_parquet(root / "manifest.parquet", index=False)
+    with pytest.raises(DatasetError, match="sim-001.*attack_end_us .* <= attack_start_us"):
+        open_dataset(root)
+
+
+def test_a_broken_dataset_json_is_named(tmp_path):
+    root = write_dataset(tmp_path / "ds")
+    (root / "dataset.json").write_text("{not json")
+    with pytest.raises(DatasetError, match=r"dataset\.json: not valid JSON"):
+        open_dataset(root)
