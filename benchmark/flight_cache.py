@@ -30,6 +30,7 @@ cache serves every choice of columns.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
 import os
@@ -192,8 +193,11 @@ class _Builder:
         os.replace(tmp, self.folder / "index.json")  # written last: its presence means complete
 
     def abort(self) -> None:
+        """Close every file whatever closing raises (on a full disk the final flush fails too): the
+        caller removes the folder next, and must get to do so."""
         for fh in self.files.values():
-            fh.close()
+            with contextlib.suppress(OSError):
+                fh.close()
 
 
 class DatasetReader:
@@ -251,8 +255,10 @@ def build_cache(folder: str | Path, key: dict, flight_ids: Iterable[str],
         remove_cache(folder)
         os.replace(tmp, folder)
     except BaseException:
-        builder.abort()
-        shutil.rmtree(tmp, ignore_errors=True)
+        try:
+            builder.abort()
+        finally:  # a full disk must not leave the temp folder (all the free space) behind
+            shutil.rmtree(tmp, ignore_errors=True)
         raise
     return FlightCache(folder, key)
 

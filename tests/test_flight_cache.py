@@ -223,3 +223,54 @@ def test_a_cache_read_by_worker_processes_is_the_same_cache(dataset, tmp_path, m
     for name in files:
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name
     _same_table(one.flight(ids[0]), two.flight(ids[0]))
+
+
+class _FullDisk:
+    """A cache file on a disk that fills after ``room`` bytes: writes beyond it, and the flush that
+    closing does, fail with ENOSPC (as a real full disk does)."""
+
+    def __init__(self, path, mode, room: int):
+        self.fh = open(path, mode)  # noqa: SIM115 (closed by close)
+        self.room = room
+        self.pending = 0
+
+    def write(self, data: bytes) -> int:
+        import errno
+        import os
+
+        self.pending += len(data)
+        if self.pending > self.room:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return self.fh.write(data)
+
+    def flush(self) -> None:
+        self.fh.flush()
+
+    def fileno(self) -> int:
+        return self.fh.fileno()
+
+    def close(self) -> None:
+        import errno
+        import os
+
+        self.fh.close()
+        if self.pending > self.room:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_full_disk_leaves_no_temp_folder_and_resume_works_after(dataset, tmp_path, monkeypatch):
+    """The run's cache build fails on a full disk: the run goes on without it, no temporary folder is
+    left to hold the space, and once space is freed --resume builds the cache and finishes."""
+    real_open = open
+    monkeypatch.setattr(flight_cache, "open", lambda path, mode="r", *a, **k: _FullDisk(path, mode, 50_000),
+                        raising=False)
+    run = tmp_path / "run"
+    args = ["run", "--detectors", "zscore_test", "--plugin", plugin("ZScore"), "--dataset", str(dataset),
+            "--out", str(run)]
+    assert main(args) == 0  # the cache is an optimisation only: the job read the dataset
+    assert not list(run.glob("cache/.*"))  # no .flights.build-* left behind
+    monkeypatch.setattr(flight_cache, "open", real_open, raising=False)
+    (run / "jobs" / "zscore_test" / "status.json").unlink()  # an unfinished job to resume
+    assert main([*args, "--resume"]) == 0
+    assert json.loads((run / "jobs" / "zscore_test" / "status.json").read_text())["status"] == "OK"
+    assert not list(run.glob("cache/.*"))
