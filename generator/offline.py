@@ -16,6 +16,9 @@ import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+
 from scart_bench.generator.dataset import (
     DatasetError,
     DatasetWriter,
@@ -142,6 +145,22 @@ def auto_splits(ids: list[str], seed: int) -> list[str]:
     return out
 
 
+def non_finite_cells(tables: dict[str, pd.DataFrame]) -> dict[str, int]:
+    """NaN or +/-inf cells per ``topic.field`` column of a log's numeric fields (only those with any)."""
+    out: dict[str, int] = {}
+    for topic, df in tables.items():
+        for col in df.columns:
+            if col in ("Timestamp", "Index", "Is_Anomaly"):
+                continue
+            v = df[col]
+            if not pd.api.types.is_numeric_dtype(v):
+                continue
+            n = int((~np.isfinite(v.to_numpy(np.float64, na_value=np.nan))).sum())
+            if n:
+                out[f"{topic}.{col}"] = n
+    return out
+
+
 def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", topics: list[str] | None = None,
                 start_s: float | None = None, end_s: float | None = None, seed: int = 0, fmt: str = "parquet",
                 allow_corrupt: bool = False, say: Callable[[str], None] | None = None,
@@ -167,10 +186,15 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
                                "flight ids come from the log names and --start/--end")
     splits = auto_splits(ids, seed) if split == "auto" else [split] * len(ids)
     loaded = []
+    say = say or (lambda msg: None)
     for p in paths:  # read everything first: a bad log fails before anything is written
         tables = load_flight_file(p, topics, allow_corrupt=allow_corrupt, start_s=start_s, end_s=end_s)
         loaded.append(tables)
-    say = say or (lambda msg: None)
+        counts = non_finite_cells(tables)
+        if counts:
+            shown = ", ".join(f"{c} {n}" for c, n in list(counts.items())[:8]) + (" ..." if len(counts) > 8 else "")
+            say(f"import: warning: {p}: {sum(counts.values())} NaN/inf cell(s) in {len(counts)} column(s) ({shown}); "
+                "detectors treat them as missing values")
 
     def records() -> Iterator:
         for p, fid, sp, tables in zip(paths, ids, splits, loaded):

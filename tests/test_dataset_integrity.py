@@ -64,3 +64,22 @@ def test_a_broken_dataset_json_is_named(tmp_path):
     (root / "dataset.json").write_text("{not json")
     with pytest.raises(DatasetError, match=r"dataset\.json: not valid JSON"):
         open_dataset(root)
+
+
+def test_import_says_how_many_cells_are_not_finite(tmp_path, capsys):
+    """A log with NaN and inf cells imports (detectors treat them as missing) with one warning line
+    that counts them per column."""
+    import numpy as np
+
+    t = np.arange(200) * 20_000
+    df = pd.DataFrame({"timestamp": t, "attitude.roll": np.sin(t / 1e6), "attitude.pitch": 0.01 * np.cos(t / 1e6),
+                       "gps.alt": 488.0 + np.zeros(200)})
+    df.loc[[3, 4, 5], "attitude.roll"] = np.nan
+    df.loc[7, "gps.alt"] = np.inf
+    log = tmp_path / "flight.csv"
+    df.to_csv(log, index=False)
+    assert main(["import", str(log), "--out", str(tmp_path / "mine")]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "NaN/inf" in line]
+    assert len(lines) == 1 and "4 NaN/inf cell(s) in 2 column(s)" in lines[0]
+    assert "attitude.roll 3" in lines[0] and "gps.alt 1" in lines[0]
