@@ -273,6 +273,7 @@ def _read_csv_exact(path: Path, columns: list[str] | None) -> pd.DataFrame:
 def check_output_dir(out: Path, overwrite: bool = False) -> None:
     """Refuse an output folder that holds something other than a dataset, or is unwritable."""
     out = Path(out)
+    recover(out)
     if out.exists():
         if not out.is_dir():
             raise DatasetError(f"{out}: exists and is not a folder")
@@ -314,6 +315,31 @@ def dataset_lock(out: str | Path) -> FolderLock:
     return FolderLock(out.parent / f".{out.name}.lock", str(out))
 
 
+def recover(out: str | Path) -> None:
+    """Finish what a killed writer left beside ``out``: its partial folder is removed and, when it
+    was killed between its two renames (the old dataset moved aside, the new one not yet in place),
+    the old dataset is moved back. Does nothing while another process holds the dataset's lock."""
+    from scart_bench.locks import LockHeld
+
+    out = Path(out)
+    partial, old = out.parent / f".{out.name}.partial", out.parent / f".{out.name}.old"
+    if not (partial.exists() or old.exists()) or not out.parent.is_dir():
+        return
+    try:
+        lock = dataset_lock(out).acquire()
+    except (LockHeld, OSError):
+        return
+    try:
+        shutil.rmtree(partial, ignore_errors=True)
+        if old.exists():
+            if not out.exists() and is_dataset(old):
+                os.replace(old, out)
+            else:
+                shutil.rmtree(old, ignore_errors=True)
+    finally:
+        lock.release()
+
+
 @contextmanager
 def replacing(out: str | Path) -> Iterator[Path]:
     """Build a dataset in a hidden sibling folder and move it to ``out`` only once complete.
@@ -323,6 +349,7 @@ def replacing(out: str | Path) -> Iterator[Path]:
     partial folder. Holds :func:`dataset_lock` throughout.
     """
     out = Path(out)
+    recover(out)
     with dataset_lock(out):
         partial = out.parent / f".{out.name}.partial"
         old = out.parent / f".{out.name}.old"
@@ -586,6 +613,7 @@ class Dataset:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        recover(self.path)  # a writer killed mid-replace left its partial folder (or the old dataset aside)
         if not self.path.is_dir():
             raise DatasetError(f"{self.path}: no such dataset folder")
         if (self.path / "manifest.parquet").exists():

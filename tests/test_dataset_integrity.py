@@ -83,3 +83,25 @@ def test_import_says_how_many_cells_are_not_finite(tmp_path, capsys):
     lines = [line for line in err.splitlines() if "NaN/inf" in line]
     assert len(lines) == 1 and "4 NaN/inf cell(s) in 2 column(s)" in lines[0]
     assert "attitude.roll 3" in lines[0] and "gps.alt 1" in lines[0]
+
+
+def test_a_killed_overwrite_is_cleaned_up_by_the_next_command(tmp_path):
+    """A generate --overwrite killed mid-write leaves its hidden partial folder; killed between its two
+    renames, the old dataset sits aside. The next command on that folder removes the first and puts
+    the second back."""
+    from scart_bench.generator.dataset import check_output_dir
+
+    root = write_dataset(tmp_path / "ds")
+    partial = tmp_path / ".ds.partial"
+    partial.mkdir()
+    (partial / "half.parquet").write_bytes(b"x" * 1000)
+    assert len(open_dataset(root)) == 16 and not partial.exists()
+    old = tmp_path / ".ds.old"
+    root.rename(old)  # killed after moving the old dataset aside
+    partial.mkdir()
+    check_output_dir(root, overwrite=True)
+    assert is_complete(root) and not old.exists() and not partial.exists()
+
+
+def is_complete(path) -> bool:
+    return (path / "manifest.parquet").exists() and len(open_dataset(path)) == 16
