@@ -24,8 +24,30 @@ def _log(msg: str) -> None:
 
 
 def cmd_sitl(args: argparse.Namespace) -> int:
+    from scart_bench.generator.mavlink import parse_endpoint
+    from scart_bench.generator.sitl.endpoint import bind_udp
+
+    listen = parse_endpoint(args.listen, "--listen")
+    remote = parse_endpoint(args.remote, "--remote") if args.remote else None
+    _check_options(args)
+    sock = bind_udp(listen)  # before the slow imports: a datagram arriving meanwhile waits in the socket
     try:
-        from scart_bench.generator.mavlink.proxy import parse_endpoint
+        return _run(args, listen, remote, sock)
+    finally:
+        sock.close()
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    if args.scenario is not None and not Path(args.scenario).is_file():
+        raise UsageError(f"--scenario {args.scenario}: no such file")
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
+    if args.speed <= 0:
+        raise UsageError(f"--speed {args.speed}: expected a positive factor (1.0 = real time)")
+
+
+def _run(args: argparse.Namespace, listen, remote, sock) -> int:
+    try:
         from scart_bench.generator.sitl.server import SitlServer
     except ImportError as exc:
         raise UsageError(f"the sitl needs pymavlink, which is not installed: pip install scart-bench[mavlink] "
@@ -34,14 +56,6 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
     from scart_bench.generator.scart.scenario import load_scenarios
 
-    listen = parse_endpoint(args.listen, "--listen")
-    remote = parse_endpoint(args.remote, "--remote") if args.remote else None
-    if args.scenario is not None and not Path(args.scenario).is_file():
-        raise UsageError(f"--scenario {args.scenario}: no such file")
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
-    if args.speed <= 0:
-        raise UsageError(f"--speed {args.speed}: expected a positive factor (1.0 = real time)")
     record = Path(args.record) if args.record else None
     if record is not None and record.exists():
         if not record.is_dir():
@@ -52,7 +66,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
-    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log)
+    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock)
     stop = threading.Event()
 
     def on_signal(signum, frame):
