@@ -55,6 +55,7 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     from scart_bench.generator.dataset import is_dataset
     from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
     from scart_bench.generator.scart.scenario import load_scenarios
+    from scart_bench.generator.sitl.journal import Journal, recover
 
     record = Path(args.record) if args.record else None
     if record is not None and record.exists():
@@ -67,6 +68,11 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
     sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock)
+    fid = None
+    if record is not None:
+        recover(record, lambda rec: save_recording(rec, record, fmt=args.format), _log)
+        fid = args.flight_id or new_flight_id(record, prefix="sitl")
+        sitl.journal = Journal(record, fid, {"scenario_file": args.scenario}, args.split, _log)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -90,14 +96,22 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     _log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
     for s, e in sitl.windows():
         _log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
-    if record is not None and sitl.plant.step_index == 0:
+    if record is None:
+        return 0
+    if sitl.plant.step_index == 0:
+        sitl.journal.remove()
         _log("sitl: nothing to record: the simulation never ran (no client was heard in --lockstep)")
         return 0
-    if record is not None:
-        fid = args.flight_id or new_flight_id(record, prefix="sitl")
+    sitl.journal.flush(sitl)
+    try:
         path = save_recording(sitl.record(fid, {"scenario_file": args.scenario}, split=args.split), record,
                               fmt=args.format)
-        print(f"flight {fid} recorded in {record} ({path.name})")
+    except OSError:
+        _log(f"sitl: the flight could not be written into {record}; its journal {sitl.journal.folder} keeps it and "
+             f"the next `scart-bench sitl --record {record}` adds it as flight {fid}, marked incomplete")
+        raise
+    sitl.journal.remove()
+    print(f"flight {fid} recorded in {record} ({path.name})")
     return 0
 
 

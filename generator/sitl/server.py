@@ -145,6 +145,7 @@ class SitlServer:
             if self.scenarios else None
         self.points = self.layer.points if self.layer is not None else frozenset()
         self.recording = bool(record)
+        self.journal = None  # a generator.sitl.journal.Journal: the recording written as it flies
         self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
         self.stats = SitlStats()
         self.listen = listen
@@ -273,6 +274,8 @@ class SitlServer:
                 frames.append(self._status(name, t_us))
         frames.extend(self._outbox(t_us))
         self.missions.tick()
+        if self.journal is not None and self.journal.due(k, DT):
+            self.journal.flush(self)
         if frames:
             self._broadcast(b"".join(frames))
 
