@@ -9,6 +9,9 @@
                                                                   ^
     client(s) --COMMAND_LONG/INT, mission, params, offboard setpoints--'
 
+Missions are :mod:`~scart_bench.generator.sitl.missions`' protocol; what is refused, and with which
+answer, is :mod:`~scart_bench.generator.sitl.checks`'.
+
 One UDP socket (``listen``) speaks MAVLink 2 as system 1, component 1 (MAV_AUTOPILOT_PX4,
 MAV_TYPE_QUADROTOR). Telemetry goes to every address heard from (the last eight), and to
 ``remote`` if given (PX4's ``-o`` port); answers go to the sender. :meth:`SitlServer.serve`
