@@ -34,7 +34,7 @@ STATE = "state.json"
 
 def journal_root(dataset: str | Path) -> Path:
     """The folder beside dataset ``dataset`` that holds the journals of its sitl recordings."""
-    dataset = Path(dataset)
+    dataset = Path(dataset).resolve()  # ``--record .`` has no name to extend
     return dataset.with_name(dataset.name + SUFFIX)
 
 
