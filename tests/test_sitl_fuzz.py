@@ -135,3 +135,36 @@ def test_any_message_is_answered_or_ignored_quickly_and_never_moves_the_target_o
             assert time.perf_counter() - t0 < MAX_S_PER_MESSAGE, parsed
             _assert_targets_bounded(sitl)
     assert sitl.stats.errors == 0
+
+
+def _datagram(msg, cut: int, junk: bytes) -> bytes:
+    """A client's frame cut short and/or with junk around it (a noisy or hostile link)."""
+    frame = msg.pack(mavlink.MAVLink(None, srcSystem=255, srcComponent=190))
+    return junk + frame[:cut] + junk if cut else junk + frame
+
+
+@settings(max_examples=60, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(datagrams=st.lists(st.one_of(st.binary(max_size=280),
+                                    st.builds(_datagram, ANY_MESSAGE, st.integers(0, 60), st.binary(max_size=8))),
+                          min_size=1, max_size=4))
+def test_garbage_and_broken_frames_over_loopback_udp_are_dropped_and_the_vehicle_still_answers(flying, datagrams):
+    sitl, _, _ = flying
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.settimeout(2.0)
+        for data in datagrams:
+            client.sendto(data, sitl.address)
+        t0 = time.perf_counter()
+        sitl.advance(0.02)  # reads and handles them
+        assert time.perf_counter() - t0 < MAX_S_PER_MESSAGE * len(datagrams)
+        ping = mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                    mavlink.MAVLINK_MSG_ID_HEARTBEAT, 0, 0, 0, 0, 0, 0)
+        client.sendto(ping.pack(mavlink.MAVLink(None, srcSystem=255, srcComponent=190)), sitl.address)
+        sitl.advance(0.02)
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        got = []
+        while not any(m.get_type() == "COMMAND_ACK" for m in got):
+            got += parser.parse_buffer(client.recv(65535)) or []
+    assert sitl.stats.errors == 0
+    _assert_targets_bounded(sitl)

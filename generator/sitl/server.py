@@ -156,8 +156,6 @@ class SitlServer:
         self.peers: dict[tuple, float] = {}
         self.mav = mavlink.MAVLink(None, srcSystem=SYSTEM, srcComponent=COMPONENT)
         self.mav.robust_parsing = True
-        self.parser = mavlink.MAVLink(None)
-        self.parser.robust_parsing = True
         self.missions = MissionProtocol(self.commander, self._reply, self._outbox_now)
         self._handlers = {**self.missions.handlers(), **{name[4:].upper(): getattr(self, name)
                                                          for name in dir(self) if name.startswith("_on_")}}
@@ -397,11 +395,7 @@ class SitlServer:
                 self.peers[addr] = time.monotonic()
                 if len(self.peers) > MAX_PEERS:
                     del self.peers[next(iter(self.peers))]
-            try:
-                msgs = self.parser.parse_buffer(data) or []
-            except mavlink.MAVError:
-                msgs = []
-            for msg in msgs:
+            for msg in _frames(data):
                 self.stats.messages_in += 1
                 try:
                     self.handle(msg, addr)
@@ -656,6 +650,17 @@ class SitlServer:
         from scart_bench.generator.sitl.record import sitl_record
 
         return sitl_record(self, flight_id, extra_config or {}, split)
+
+
+def _frames(data: bytes) -> list:
+    """The messages of one datagram. A UDP datagram carries whole frames, so each gets a parser of its
+    own: a frame cut short (a noisy or hostile sender) never swallows the frames of the next datagram."""
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    try:
+        return parser.parse_buffer(data) or []
+    except mavlink.MAVError:
+        return []
 
 
 def _text(value) -> str:
