@@ -24,8 +24,30 @@ def _log(msg: str) -> None:
 
 
 def cmd_sitl(args: argparse.Namespace) -> int:
+    from scart_bench.generator.mavlink import parse_endpoint
+    from scart_bench.generator.sitl.endpoint import bind_udp
+
+    listen = parse_endpoint(args.listen, "--listen")
+    remote = parse_endpoint(args.remote, "--remote") if args.remote else None
+    _check_options(args)
+    sock = bind_udp(listen)  # before the slow imports: a datagram arriving meanwhile waits in the socket
     try:
-        from scart_bench.generator.mavlink.proxy import parse_endpoint
+        return _run(args, listen, remote, sock)
+    finally:
+        sock.close()
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    if args.scenario is not None and not Path(args.scenario).is_file():
+        raise UsageError(f"--scenario {args.scenario}: no such file")
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
+    if args.speed <= 0:
+        raise UsageError(f"--speed {args.speed}: expected a positive factor (1.0 = real time)")
+
+
+def _run(args: argparse.Namespace, listen, remote, sock) -> int:
+    try:
         from scart_bench.generator.sitl.server import SitlServer
     except ImportError as exc:
         raise UsageError(f"the sitl needs pymavlink, which is not installed: pip install scart-bench[mavlink] "
@@ -33,15 +55,8 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     from scart_bench.generator.dataset import is_dataset
     from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
     from scart_bench.generator.scart.scenario import load_scenarios
+    from scart_bench.generator.sitl.journal import Journal, recover
 
-    listen = parse_endpoint(args.listen, "--listen")
-    remote = parse_endpoint(args.remote, "--remote") if args.remote else None
-    if args.scenario is not None and not Path(args.scenario).is_file():
-        raise UsageError(f"--scenario {args.scenario}: no such file")
-    if args.duration is not None and args.duration <= 0:
-        raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
-    if args.speed <= 0:
-        raise UsageError(f"--speed {args.speed}: expected a positive factor (1.0 = real time)")
     record = Path(args.record) if args.record else None
     if record is not None and record.exists():
         if not record.is_dir():
@@ -52,7 +67,12 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
-    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log)
+    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock)
+    fid = None
+    if record is not None:
+        recover(record, lambda rec: save_recording(rec, record, fmt=args.format), _log)
+        fid = args.flight_id or new_flight_id(record, prefix="sitl")
+        sitl.journal = Journal(record, fid, {"scenario_file": args.scenario}, args.split, _log)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -76,14 +96,22 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     _log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
     for s, e in sitl.windows():
         _log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
-    if record is not None and sitl.plant.step_index == 0:
+    if record is None:
+        return 0
+    if sitl.plant.step_index == 0:
+        sitl.journal.remove()
         _log("sitl: nothing to record: the simulation never ran (no client was heard in --lockstep)")
         return 0
-    if record is not None:
-        fid = args.flight_id or new_flight_id(record, prefix="sitl")
+    sitl.journal.flush(sitl)
+    try:
         path = save_recording(sitl.record(fid, {"scenario_file": args.scenario}, split=args.split), record,
                               fmt=args.format)
-        print(f"flight {fid} recorded in {record} ({path.name})")
+    except OSError:
+        _log(f"sitl: the flight could not be written into {record}; its journal {sitl.journal.folder} keeps it and "
+             f"the next `scart-bench sitl --record {record}` adds it as flight {fid}, marked incomplete")
+        raise
+    sitl.journal.remove()
+    print(f"flight {fid} recorded in {record} ({path.name})")
     return 0
 
 

@@ -12,10 +12,26 @@ modules without it raises :class:`MavlinkMissing`.
 
 from __future__ import annotations
 
+from scart_bench.errors import ScartBenchError
+
 INSTALL_HINT = "pip install scart-bench[mavlink]"
 #: default addresses: PX4's onboard (mission computer) link, on loopback
 DEFAULT_LISTEN = "udp:127.0.0.1:14540"
 DEFAULT_FORWARD = "udp:127.0.0.1:14541"
+
+
+class EndpointError(ScartBenchError):
+    """An address that is not ``udp:HOST:PORT``."""
+
+
+def parse_endpoint(text: str, option: str = "address") -> tuple[str, int]:
+    """``udp:HOST:PORT`` (or ``HOST:PORT``) as ``(host, port)``; here, free of heavy imports, so that a
+    command can bind its socket before its slow start-up."""
+    spec = text[4:] if text.startswith("udp:") else text
+    host, sep, port = spec.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise EndpointError(f"{option} {text!r}: expected udp:HOST:PORT, e.g. udp:127.0.0.1:14540")
+    return host, int(port)
 
 
 class MavlinkMissing(ImportError):

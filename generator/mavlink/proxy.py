@@ -37,7 +37,7 @@ import numpy as np
 
 from scart_bench.errors import ScartBenchError
 from scart_bench.generator.control import empty_command
-from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN  # noqa: F401  (re-exported)
+from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN, parse_endpoint  # noqa: F401  (re-exported)
 from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
     CODECS,
@@ -65,15 +65,6 @@ MAX_CLOCK_LEAD_US = 5_000_000
 
 class ProxyError(ScartBenchError):
     """The proxy cannot be set up as asked (bad address, unusable scenario, port in use)."""
-
-
-def parse_endpoint(text: str, option: str = "address") -> tuple[str, int]:
-    """``udp:HOST:PORT`` (or ``HOST:PORT``) as ``(host, port)``."""
-    spec = text[4:] if text.startswith("udp:") else text
-    host, sep, port = spec.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise ProxyError(f"{option} {text!r}: expected udp:HOST:PORT, e.g. udp:127.0.0.1:14540")
-    return host, int(port)
 
 
 def _is_loopback(host: str) -> bool:

@@ -6,7 +6,14 @@
   mission executor and offboard control, with PX4's custom modes, rules and parameters;
 - :mod:`scart_bench.generator.sitl.server`: the MAVLink endpoint on UDP, with the SCART layer between the
   flight controller and the mission computer, pacing by the wall clock (or lockstep) and the
-  recording in the dataset layout.
+  recording in the dataset layout;
+- :mod:`scart_bench.generator.sitl.missions`: the mission protocol (PX4's mission manager: upload with
+  retries and timeout, download, clear, set current);
+- :mod:`scart_bench.generator.sitl.checks` and :mod:`~scart_bench.generator.sitl.bounds`: what the flight
+  controller refuses (missions, commands, setpoints) and the answer a client gets;
+- :mod:`scart_bench.generator.sitl.endpoint`: the socket, bound before the slow start-up;
+- :mod:`scart_bench.generator.sitl.record` and :mod:`~scart_bench.generator.sitl.journal`: the recorded
+  flight, written as it flies.
 
 ``docs/sitl.md`` describes what a client sees.
 """

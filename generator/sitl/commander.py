@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
+from scart_bench.generator.sitl.bounds import target_ok
 from scart_bench.generator.topics import HOME_ALT
 
 # -- PX4 custom modes ------------------------------------------------------------------------------
@@ -70,24 +71,33 @@ class ParamSpec:
     unit: str
     meaning: str
     read_only: bool = False
+    low: float = -math.inf  # PX4's @min / @max: a value outside is refused
+    high: float = math.inf
 
 
 #: The parameters a client can read and set (PX4 names, defaults and meanings).
 PARAM_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("MIS_TAKEOFF_ALT", 2.5, REAL32, "m", "take-off altitude above home when a take-off command gives none"),
-    ParamSpec("MPC_XY_CRUISE", 5.0, REAL32, "m/s", "horizontal speed of missions, Return and repositions"),
-    ParamSpec("MPC_XY_VEL_MAX", 12.0, REAL32, "m/s", "horizontal speed limit (offboard setpoints)"),
-    ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, REAL32, "m/s", "climb speed limit"),
-    ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, REAL32, "m/s", "descent speed limit"),
-    ParamSpec("MPC_TKO_SPEED", 1.5, REAL32, "m/s", "take-off climb speed"),
-    ParamSpec("MPC_LAND_SPEED", 0.7, REAL32, "m/s", "landing descent speed below MPC_LAND_ALT2"),
-    ParamSpec("MPC_LAND_ALT2", 5.0, REAL32, "m", "below this height above home, land at MPC_LAND_SPEED"),
-    ParamSpec("NAV_ACC_RAD", 2.0, REAL32, "m", "horizontal acceptance radius of a waypoint (an item's param2 > 0 wins)"),
-    ParamSpec("NAV_MC_ALT_RAD", 0.8, REAL32, "m", "vertical acceptance radius of a waypoint"),
-    ParamSpec("RTL_RETURN_ALT", 60.0, REAL32, "m", "Return climbs to at least this height above home"),
-    ParamSpec("COM_OF_LOSS_T", 1.0, REAL32, "s", "offboard setpoints older than this are lost"),
-    ParamSpec("COM_OBL_ACT", 0, INT32, "enum", "failsafe when offboard setpoints are lost: 0 Land, 1 Hold, 2 Return"),
-    ParamSpec("COM_DISARM_PRFLT", 10.0, REAL32, "s", "armed on the ground this long without taking off: disarm"),
+    ParamSpec("MIS_TAKEOFF_ALT", 2.5, REAL32, "m", "take-off altitude above home when a take-off command gives none",
+              low=0.0, high=80.0),
+    ParamSpec("MPC_XY_CRUISE", 5.0, REAL32, "m/s", "horizontal speed of missions, Return and repositions",
+              low=0.0, high=20.0),
+    ParamSpec("MPC_XY_VEL_MAX", 12.0, REAL32, "m/s", "horizontal speed limit (offboard setpoints)", low=0.0, high=20.0),
+    ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, REAL32, "m/s", "climb speed limit", low=0.5, high=8.0),
+    ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, REAL32, "m/s", "descent speed limit", low=0.5, high=4.0),
+    ParamSpec("MPC_TKO_SPEED", 1.5, REAL32, "m/s", "take-off climb speed", low=1.0, high=5.0),
+    ParamSpec("MPC_LAND_SPEED", 0.7, REAL32, "m/s", "landing descent speed below MPC_LAND_ALT2", low=0.6, high=4.0),
+    ParamSpec("MPC_LAND_ALT2", 5.0, REAL32, "m", "below this height above home, land at MPC_LAND_SPEED",
+              low=0.0, high=122.0),
+    ParamSpec("NAV_ACC_RAD", 2.0, REAL32, "m", "horizontal acceptance radius of a waypoint (an item's param2 > 0 wins)",
+              low=0.05, high=200.0),
+    ParamSpec("NAV_MC_ALT_RAD", 0.8, REAL32, "m", "vertical acceptance radius of a waypoint", low=0.05, high=200.0),
+    ParamSpec("RTL_RETURN_ALT", 60.0, REAL32, "m", "Return climbs to at least this height above home",
+              low=0.0, high=150.0),
+    ParamSpec("COM_OF_LOSS_T", 1.0, REAL32, "s", "offboard setpoints older than this are lost", low=0.0, high=60.0),
+    ParamSpec("COM_OBL_ACT", 0, INT32, "enum", "failsafe when offboard setpoints are lost: 0 Land, 1 Hold, 2 Return",
+              low=0, high=2),
+    ParamSpec("COM_DISARM_PRFLT", 10.0, REAL32, "s", "armed on the ground this long without taking off: disarm",
+              low=-1.0, high=20.0),
     ParamSpec("MAV_SYS_ID", 1, INT32, "", "MAVLink system id", read_only=True),
     ParamSpec("SYS_AUTOSTART", 10016, INT32, "", "airframe (10016: 3DR Iris, PX4 SITL)", read_only=True),
 )
@@ -105,12 +115,12 @@ class Params:
         return self.values[name]
 
     def set(self, name: str, value: float) -> bool:
-        """Set a parameter from its wire value (INT32 bytewise-encoded, as PX4 sends them); False if unknown."""
+        """Set a parameter to ``value`` (decoded, :meth:`from_wire`); False, the value unchanged, when the
+        parameter is unknown or read-only or the value is not a number within its range."""
         spec = self.specs.get(name)
-        if spec is None:
+        if spec is None or spec.read_only or not (math.isfinite(value) and spec.low <= value <= spec.high):
             return False
-        if not spec.read_only and math.isfinite(value):
-            self.values[name] = float(value)
+        self.values[name] = float(value)
         return True
 
     def wire_value(self, name: str) -> float:
@@ -169,6 +179,11 @@ class MissionItem:
 
 def _nan(x: float) -> bool:
     return not math.isfinite(x)
+
+
+def _wrap(angle: float) -> float:
+    """An angle (rad) in [-pi, pi]: a yaw of 1e30 rad is a heading, not a number to carry."""
+    return math.remainder(angle, 2 * math.pi)
 
 
 # -- the commander ---------------------------------------------------------------------------------
@@ -355,7 +370,7 @@ class Commander:
         self.target = np.array([self.pos[0], self.pos[1], self.home[2] - rel])
         self.prev = None
         if not _nan(yaw):
-            self.yaw_sp = math.radians(yaw)
+            self.yaw_sp = _wrap(math.radians(yaw))
         changed = self.mode != TAKEOFF
         self.mode = TAKEOFF
         if changed:
@@ -370,12 +385,26 @@ class Commander:
         self.mode = HOLD
         self.target = np.asarray(target, dtype=float)
         self.prev = self.pos.copy()
-        self.speed = speed if speed > 0 else self.params["MPC_XY_CRUISE"]
+        self.speed = self.cruise_speed(speed) if speed > 0 else self.params["MPC_XY_CRUISE"]
         if not _nan(yaw):
-            self.yaw_sp = math.radians(yaw)
+            self.yaw_sp = _wrap(math.radians(yaw))
         if changed:
             self.outbox.append(("mode",))
         return True, ""
+
+    def cruise_speed(self, speed: float) -> float:
+        """A commanded horizontal speed, capped at MPC_XY_VEL_MAX as PX4 caps it."""
+        return min(float(speed), self.params["MPC_XY_VEL_MAX"])
+
+    def change_speed(self, speed: float) -> None:
+        """MAV_CMD_DO_CHANGE_SPEED (checked: finite, >= 0 or -1/-2): -2 back to MPC_XY_CRUISE, <= 0 no change."""
+        if speed == -2.0:
+            self.speed = self.params["MPC_XY_CRUISE"]
+            self.mission_speed = None
+        elif speed > 0:
+            self.speed = self.cruise_speed(speed)
+            if self.mode == MISSION:
+                self.mission_speed = self.speed
 
     # -- mission ----------------------------------------------------------------------------------
     def set_mission(self, items: list[MissionItem]) -> None:
@@ -569,7 +598,7 @@ class Commander:
             if item.command in NAV_POSITION_CMDS or item.command == CMD_RTL:
                 break
             if item.command == CMD_CHANGE_SPEED and item.param2 > 0:
-                self.mission_speed = float(item.param2)
+                self.mission_speed = self.cruise_speed(item.param2)
             self._item_done()
             if self.mode != MISSION or self.mission_state == MISSION_STATE_COMPLETE:
                 return self._velocity() if self.armed else np.zeros(3)
@@ -580,24 +609,29 @@ class Commander:
             self.set_mode(RTL)
             return self._rtl()
         if self.item_phase == 0:
-            self.target = self.to_ned(item.frame, item.x, item.y, item.z)
+            target = self.to_ned(item.frame, item.x, item.y, item.z)
             if item.command == CMD_TAKEOFF:
-                self.target[:2] = self.pos[:2]
+                target[:2] = self.pos[:2]
             if item.command == CMD_LAND:
-                self.target[2] = self.pos[2]
+                target[2] = self.pos[2]
+            if not target_ok(target):  # a relative altitude that home's move took out of range
+                self.say(f"Mission item {self.seq}: target out of range, holding", severity=4)
+                self.set_mode(HOLD)
+                return self._velocity()
+            self.target = target
             self.item_phase = 1
         if item.command == CMD_LAND and self.item_phase >= 2:
             return self._land(self.target[:2])
         v = self._goto(self.target, speed, line=item.command != CMD_TAKEOFF)
         if not _nan(item.param4) and item.command == CMD_WAYPOINT:
-            self.yaw_sp = math.radians(item.param4)
+            self.yaw_sp = _wrap(math.radians(item.param4))
         if self.item_phase == 1:
             acc = item.param2 if item.command == CMD_WAYPOINT and item.param2 > 0 else p["NAV_ACC_RAD"]
             d = self.target - self.pos
             if math.hypot(d[0], d[1]) < acc and abs(d[2]) < p["NAV_MC_ALT_RAD"]:
                 self.item_phase = 2
                 hold = item.param1 if item.command in (CMD_WAYPOINT, CMD_LOITER_TIME) else 0.0
-                self.hold_until = self.t + max(hold, 0.0)
+                self.hold_until = self.t + (max(hold, 0.0) if math.isfinite(hold) else 0.0)
                 if item.command == CMD_LOITER_UNLIM:
                     self.outbox.append(("reached", self.seq))
                 if item.command == CMD_LAND:
@@ -632,7 +666,7 @@ class Commander:
             v[:2] *= vmax_h / sp
         v[2] = float(np.clip(v[2], -p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"]))
         if not _nan(o.yaw):
-            self.yaw_sp = o.yaw
+            self.yaw_sp = _wrap(o.yaw)
         elif not _nan(o.yaw_rate):
             self.yaw_sp = float(math.remainder(self.yaw_sp + o.yaw_rate / 50.0, 2 * math.pi))
         return v

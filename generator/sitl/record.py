@@ -25,18 +25,15 @@ SOURCE = "scart-bench-sitl"
 def _table(topic: str, ts: list[int], vals: list[np.ndarray], windows) -> pd.DataFrame:
     names = list(field_names(topic))
     t = np.asarray(ts, dtype=np.int64)
-    df = pd.DataFrame(np.vstack(vals) if vals else np.zeros((0, len(names))), columns=names)
+    df = pd.DataFrame(np.vstack(vals) if len(vals) else np.zeros((0, len(names))), columns=names)
     df.insert(0, "Timestamp", t)
     return insert_labels(df, t, windows)
 
 
-def sitl_record(server, flight_id: str, extra_config: dict, split: str = "test") -> FlightRecord:
-    """The flight a :class:`scart_bench.generator.sitl.server.SitlServer` has flown so far (``record=True``)."""
+def sitl_parts(server, extra_config: dict, split: str = "test") -> dict:
+    """What a recording holds besides the tables: manifest, config, labelled windows, events, end (JSON-able)."""
     end_us = server.plant.t_us + 1
     windows = server.layer.labelled_windows(0, end_us) if server.layer is not None else []
-    nav = {t: _table(t, *server.views["navigator"][t], windows) for t in server.views["navigator"]}
-    sim = {t: _table(t, *server.views["simulator"][t], windows if t != "truth" else ()) for t in
-           server.views["simulator"]}
     if server.scenarios:
         manifest = scenario_manifest(server.scenarios, "simulation", server.seed, source=SOURCE)
         manifest["split"] = split
@@ -53,5 +50,19 @@ def sitl_record(server, flight_id: str, extra_config: dict, split: str = "test")
         "recorded_at": datetime.fromtimestamp(server.started_wall, UTC).isoformat(timespec="seconds"),
     }
     events = server.layer.event_log(0, end_us) if server.layer is not None else []
-    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=manifest, config=config,
-                        windows=windows, events=events)
+    return {"manifest": manifest, "config": config, "windows": [list(w) for w in windows], "events": events,
+            "end_us": end_us}
+
+
+def build_record(flight_id: str, views: dict, parts: dict) -> FlightRecord:
+    """A FlightRecord from ``views`` (view -> topic -> (timestamps, rows)) and :func:`sitl_parts`."""
+    windows = [tuple(w) for w in parts["windows"]]
+    nav = {t: _table(t, *views["navigator"][t], windows) for t in views.get("navigator", {})}
+    sim = {t: _table(t, *views["simulator"][t], windows if t != "truth" else ()) for t in views.get("simulator", {})}
+    return FlightRecord(flight_id=flight_id, navigator=nav, simulator=sim, manifest=dict(parts["manifest"]),
+                        config=dict(parts["config"]), windows=windows, events=list(parts["events"]))
+
+
+def sitl_record(server, flight_id: str, extra_config: dict, split: str = "test") -> FlightRecord:
+    """The flight a :class:`scart_bench.generator.sitl.server.SitlServer` has flown so far (``record=True``)."""
+    return build_record(flight_id, server.views, sitl_parts(server, extra_config, split))

@@ -9,6 +9,9 @@
                                                                   ^
     client(s) --COMMAND_LONG/INT, mission, params, offboard setpoints--'
 
+Missions are :mod:`~scart_bench.generator.sitl.missions`' protocol; what is refused, and with which
+answer, is :mod:`~scart_bench.generator.sitl.checks`'.
+
 One UDP socket (``listen``) speaks MAVLink 2 as system 1, component 1 (MAV_AUTOPILOT_PX4,
 MAV_TYPE_QUADROTOR). Telemetry goes to every address heard from (the last eight), and to
 ``remote`` if given (PX4's ``-o`` port); answers go to the sender. :meth:`SitlServer.serve`
@@ -22,7 +25,6 @@ from __future__ import annotations
 
 import math
 import selectors
-import socket
 import sys
 import time
 from collections.abc import Callable
@@ -35,6 +37,7 @@ from scart_bench.generator.mavlink import require_pymavlink
 from scart_bench.generator.mavlink.codec import CODECS
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.generator.sitl import checks
 from scart_bench.generator.sitl.commander import (
     FRAME_BODY_NED,
     FRAME_BODY_OFFSET,
@@ -44,17 +47,17 @@ from scart_bench.generator.sitl.commander import (
     HOLD,
     LAND,
     MISSION,
-    MISSION_FRAMES,
     OFFBOARD,
     POSCTL,
     RTL,
     TAKEOFF,
     Commander,
-    MissionItem,
     Params,
     custom_mode,
     mode_from_custom,
 )
+from scart_bench.generator.sitl.endpoint import SitlError, bind_udp
+from scart_bench.generator.sitl.missions import MissionProtocol
 from scart_bench.generator.sitl.plant import DT, NAV_RATE_HZ, Plant, is_due
 from scart_bench.generator.topics import TOPICS
 
@@ -65,8 +68,6 @@ SITL_POINTS = ("link", "command", "sensor", "environment", "vehicle")
 UNSUPPORTED_EFFECTS = frozenset({"sensor_instance_loss"})
 SYSTEM, COMPONENT = 1, 1
 MAX_PEERS = 8
-MISSION_RETRY_S = 0.5
-MISSION_RETRIES = 5
 #: status messages besides the link topics, and their rates (Hz)
 STATUS_RATES = {"HEARTBEAT": 1.0, "SYS_STATUS": 5.0, "EXTENDED_SYS_STATE": 5.0, "HOME_POSITION": 0.5,
                 "MISSION_CURRENT": 1.0, "SYSTEM_TIME": 1.0}
@@ -85,10 +86,6 @@ _CAPABILITIES = (R.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT | R.MAV_PROTOCOL_CAPABI
                  | R.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT | R.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
 
 
-class SitlError(ValueError):
-    """The SITL cannot be set up as asked (bad address, a scenario off the link, port in use)."""
-
-
 @dataclass
 class SitlStats:
     """Counters of a SITL run."""
@@ -99,26 +96,18 @@ class SitlStats:
     commands: int = 0
     rejected: int = 0  # commands answered with anything but ACCEPTED
     offboard_setpoints: int = 0
+    ignored_setpoints: int = 0  # offboard setpoints refused (infinite, off the planet, out of the height range)
     failsafes: int = 0
     errors: int = 0
     behind_s: float = 0.0  # simulated time flown while behind the asked pace
 
     def summary(self) -> str:
         return (f"{self.messages_in} messages in ({self.commands} commands, {self.rejected} not accepted, "
-                f"{self.offboard_setpoints} offboard setpoints), {self.datagrams_out} datagrams out, "
+                f"{self.offboard_setpoints} offboard setpoints"
+                + (f", {self.ignored_setpoints} refused" if self.ignored_setpoints else "")
+                + f"), {self.datagrams_out} datagrams out, "
                 f"{self.failsafes} failsafes, {self.errors} errors"
                 + (f"; could not keep the asked pace for {self.behind_s:.1f} s of flight" if self.behind_s else ""))
-
-
-class _Upload:
-    """A mission upload in progress."""
-
-    def __init__(self, peer, count: int, mission_type: int, sysid: int, compid: int):
-        self.peer, self.count, self.mission_type = peer, count, mission_type
-        self.sysid, self.compid = sysid, compid
-        self.items: list[MissionItem] = []
-        self.sent_wall = 0.0
-        self.retries = 0
 
 
 def check_scenarios(scenarios: list[Scenario]) -> None:
@@ -140,14 +129,17 @@ class SitlServer:
     """One simulated PX4-like vehicle behind a MAVLink UDP endpoint, with ``scenarios`` on its link.
 
     ``scenarios`` run at the points link, command, sensor, environment and vehicle (one flight,
-    ``seed``); ``record`` keeps both views and the truth for :meth:`record`.
+    ``seed``); ``record`` keeps both views and the truth for :meth:`record`. ``sock``: a socket
+    already bound to ``listen`` (:func:`~scart_bench.generator.sitl.endpoint.bind_udp`, done before a
+    slow start-up so that early datagrams wait in it); the server owns and closes it.
     """
 
     def __init__(self, listen: tuple[str, int] = ("127.0.0.1", 0), scenarios: list[Scenario] | None = None,
                  seed: int = 0, remote: tuple[str, int] | None = None, record: bool = False,
-                 log: Callable[[str], None] | None = None):
+                 log: Callable[[str], None] | None = None, sock=None):
         self.scenarios = list(scenarios or [])
         check_scenarios(self.scenarios)
+        self.sock = sock if sock is not None else bind_udp(listen)
         self.seed = int(seed)
         self.plant = Plant(self.seed)
         self.params = Params()
@@ -156,6 +148,7 @@ class SitlServer:
             if self.scenarios else None
         self.points = self.layer.points if self.layer is not None else frozenset()
         self.recording = bool(record)
+        self.journal = None  # a generator.sitl.journal.Journal: the recording written as it flies
         self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
         self.stats = SitlStats()
         self.listen = listen
@@ -163,22 +156,14 @@ class SitlServer:
         self.peers: dict[tuple, float] = {}
         self.mav = mavlink.MAVLink(None, srcSystem=SYSTEM, srcComponent=COMPONENT)
         self.mav.robust_parsing = True
-        self.parser = mavlink.MAVLink(None)
-        self.parser.robust_parsing = True
-        self.upload: _Upload | None = None
+        self.missions = MissionProtocol(self.commander, self._reply, self._outbox_now)
+        self._handlers = {**self.missions.handlers(), **{name[4:].upper(): getattr(self, name)
+                                                         for name in dir(self) if name.startswith("_on_")}}
         self.views: dict[str, dict[str, tuple[list[int], list[np.ndarray]]]] = {"navigator": {}, "simulator": {}}
         self.started_wall = time.time()
         self.boot_wall = time.monotonic()
         self._pending: list[bytes] = []
         self._error_logged = 0
-        try:
-            family = socket.AF_INET6 if ":" in listen[0] else socket.AF_INET
-            self.sock = socket.socket(family, socket.SOCK_DGRAM)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-            self.sock.bind(listen)
-            self.sock.setblocking(False)
-        except OSError as exc:
-            raise SitlError(f"cannot bind udp:{listen[0]}:{listen[1]}: {exc.strerror or exc}") from exc
         if self.plant.step_index == 0:
             self.commander.set_home(np.zeros(3))
             self.commander.outbox.clear()
@@ -289,7 +274,9 @@ class SitlServer:
             if is_due(rate, k):
                 frames.append(self._status(name, t_us))
         frames.extend(self._outbox(t_us))
-        self._retry_upload()
+        self.missions.tick()
+        if self.journal is not None and self.journal.due(k, DT):
+            self.journal.flush(self)
         if frames:
             self._broadcast(b"".join(frames))
 
@@ -408,11 +395,7 @@ class SitlServer:
                 self.peers[addr] = time.monotonic()
                 if len(self.peers) > MAX_PEERS:
                     del self.peers[next(iter(self.peers))]
-            try:
-                msgs = self.parser.parse_buffer(data) or []
-            except mavlink.MAVError:
-                msgs = []
-            for msg in msgs:
+            for msg in _frames(data):
                 self.stats.messages_in += 1
                 try:
                     self.handle(msg, addr)
@@ -435,7 +418,7 @@ class SitlServer:
         name = msg.get_type()
         if name in ("BAD_DATA", "HEARTBEAT") or not self._for_us(msg):
             return
-        handler = getattr(self, f"_on_{name.lower()}", None)
+        handler = self._handlers.get(name)
         if handler is not None:
             handler(msg, addr)
 
@@ -459,8 +442,21 @@ class SitlServer:
         p = [msg.param1, msg.param2, msg.param3, msg.param4, x, y, msg.z]
         self._ack(msg, msg.command, self.command(msg.command, p, msg.frame, addr), addr)
 
+    def _height(self, command: int, frame: int, z: float) -> float:
+        """A command's param7 as metres above the origin: AMSL, except DO_REPOSITION in a relative frame."""
+        fr = frame if command == R.MAV_CMD_DO_REPOSITION and frame in GLOBAL_FRAMES else R.MAV_FRAME_GLOBAL
+        return checks.height_of(fr, z, float(self.commander.home[2]))
+
     def command(self, command: int, p: list[float], frame: int, addr) -> int:
-        """Execute one command; the MAV_RESULT."""
+        """Execute one command; the MAV_RESULT (DENIED, with a STATUSTEXT, for refused parameters)."""
+        refusal = checks.command_refusal(command, p, self._height(command, frame, p[6]))
+        if refusal is not None:
+            name = R.enums["MAV_CMD"][command].name if command in R.enums["MAV_CMD"] else str(command)
+            self.commander.say(f"{name.removeprefix('MAV_CMD_')} denied: {refusal}", severity=4)
+            return DENIED
+        return self._execute(command, p, frame, addr)
+
+    def _execute(self, command: int, p: list[float], frame: int, addr) -> int:
         cmd = self.commander
 
         def result(ok_reason):
@@ -470,9 +466,9 @@ class SitlServer:
             return ACCEPTED if ok else TEMP_REJECTED
 
         if command == R.MAV_CMD_COMPONENT_ARM_DISARM:
-            if p[0] > 0.5:
+            if round(p[0]) == 1:
                 return result(cmd.arm())
-            return result(cmd.disarm(force=int(round(p[1])) == FORCE_DISARM))
+            return result(cmd.disarm(force=math.isfinite(p[1]) and int(round(p[1])) == FORCE_DISARM))
         if command == R.MAV_CMD_NAV_TAKEOFF:
             return result(cmd.takeoff(p[6], p[3]))
         if command == R.MAV_CMD_NAV_LAND:
@@ -487,7 +483,7 @@ class SitlServer:
         if command == R.MAV_CMD_DO_SET_MODE:
             if not int(p[0]) & R.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 return UNSUPPORTED
-            mode = mode_from_custom(int(p[1]), int(p[2]))
+            mode = mode_from_custom(int(p[1]), int(p[2]) if math.isfinite(p[2]) else 0)
             if mode is None:
                 cmd.say(f"Mode {int(p[1])}.{int(p[2])} is not flown by this vehicle (no RC)", severity=4)
                 return DENIED
@@ -496,7 +492,7 @@ class SitlServer:
             if not cmd.mission:
                 cmd.say("Mission rejected: no mission uploaded", severity=4)
                 return DENIED
-            if p[0] > 0 and int(p[0]) < len(cmd.mission):
+            if math.isfinite(p[0]) and 0 < p[0] < len(cmd.mission):
                 cmd.set_current(int(p[0]))
             return result(cmd.set_mode(MISSION))
         if command == R.MAV_CMD_DO_SET_MISSION_CURRENT:
@@ -504,18 +500,17 @@ class SitlServer:
         if command == R.MAV_CMD_DO_REPOSITION:
             fr = frame if frame in GLOBAL_FRAMES else R.MAV_FRAME_GLOBAL
             target = cmd.to_ned(fr, p[4], p[5], p[6])
+            if not checks.target_ok(target):
+                return self._denied("DO_REPOSITION", target)
             return result(cmd.reposition(target, p[0], p[3]))
         if command == R.MAV_CMD_DO_CHANGE_SPEED:
-            if p[1] > 0:
-                cmd.speed = float(p[1])
-                if cmd.mode == MISSION:
-                    cmd.mission_speed = float(p[1])
+            cmd.change_speed(p[1])
             return ACCEPTED
         if command == R.MAV_CMD_DO_SET_HOME:
-            if p[0] > 0.5:
-                cmd.set_home(self.plant.position)
-            else:
-                cmd.set_home(cmd.to_ned(R.MAV_FRAME_GLOBAL, p[4], p[5], p[6]))
+            home = self.plant.position if p[0] > 0.5 else cmd.to_ned(R.MAV_FRAME_GLOBAL, p[4], p[5], p[6])
+            if not checks.target_ok(home):
+                return self._denied("DO_SET_HOME", home)
+            cmd.set_home(home)
             return ACCEPTED
         if command in (R.MAV_CMD_SET_MESSAGE_INTERVAL,):
             return ACCEPTED  # rates are fixed (the link topics' schedule); acknowledged like PX4
@@ -526,6 +521,10 @@ class SitlServer:
         if command == R.MAV_CMD_GET_HOME_POSITION:
             return self._request_message(R.MAVLINK_MSG_ID_HOME_POSITION, addr)
         return UNSUPPORTED
+
+    def _denied(self, what: str, ned: np.ndarray) -> int:
+        self.commander.say(f"{what} denied: target {np.round(ned, 1).tolist()} m is out of range", severity=4)
+        return DENIED
 
     def _request_message(self, msgid: int, addr) -> int:
         t_us = self.plant.t_us
@@ -577,7 +576,11 @@ class SitlServer:
             self.commander.say(f"Parameter {name} unknown", severity=4)
             self._outbox_now(addr)
             return
-        self.params.set(name, self.params.from_wire(name, msg.param_value, msg.param_type))
+        value = self.params.from_wire(name, msg.param_value, msg.param_type)
+        if not self.params.set(name, value):
+            spec = self.params.specs[name]
+            self.commander.say(f"Parameter {name}: {value:g} refused" + (
+                " (read-only)" if spec.read_only else f" (range {spec.low:g} to {spec.high:g})"), severity=4)
         if name == "MPC_XY_CRUISE" and self.commander.mode in (HOLD, POSCTL):
             self.commander.speed = self.params[name]
         self._broadcast(self._pack(self._param_value(name)))
@@ -586,124 +589,6 @@ class SitlServer:
         frames = self._outbox(self.plant.t_us)
         if frames:
             self._sendto(b"".join(frames), addr)
-
-    # mission protocol
-    def _mission_ack(self, addr, sysid: int, compid: int, result: int, mission_type: int = 0) -> None:
-        self._reply(mavlink.MAVLink_mission_ack_message(sysid, compid, result, mission_type), addr)
-
-    def _on_mission_count(self, msg, addr) -> None:
-        h = msg.get_header()
-        mtype = getattr(msg, "mission_type", 0)
-        if mtype != R.MAV_MISSION_TYPE_MISSION:
-            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_UNSUPPORTED, mtype)
-            return
-        if msg.count == 0:
-            self.upload = None
-            self.commander.set_mission([])
-            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ACCEPTED, mtype)
-            return
-        self.upload = _Upload(addr, msg.count, mtype, h.srcSystem, h.srcComponent)
-        self._request_item()
-
-    def _request_item(self) -> None:
-        up = self.upload
-        seq = len(up.items)
-        self._reply(mavlink.MAVLink_mission_request_int_message(up.sysid, up.compid, seq, up.mission_type), up.peer)
-        up.sent_wall = time.monotonic()
-
-    def _retry_upload(self) -> None:
-        up = self.upload
-        if up is None or time.monotonic() - up.sent_wall < MISSION_RETRY_S:
-            return
-        up.retries += 1
-        if up.retries > MISSION_RETRIES:
-            self.upload = None
-            self.commander.say("Mission upload timed out", severity=4)
-            return
-        self._request_item()
-
-    def _on_mission_item_int(self, msg, addr) -> None:
-        glob = msg.frame in GLOBAL_FRAMES
-        x = msg.x / 1e7 if glob else msg.x / 1e4
-        y = msg.y / 1e7 if glob else msg.y / 1e4
-        self._mission_item(msg, x, y, addr)
-
-    def _on_mission_item(self, msg, addr) -> None:
-        self._mission_item(msg, msg.x, msg.y, addr)
-
-    def _mission_item(self, msg, x: float, y: float, addr) -> None:
-        up = self.upload
-        h = msg.get_header()
-        if up is None or getattr(msg, "mission_type", 0) != up.mission_type:
-            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ERROR, getattr(msg, "mission_type", 0))
-            return
-        if msg.seq != len(up.items):
-            if msg.seq > len(up.items):
-                self._request_item()
-            return
-        frame = msg.frame
-        if frame not in MISSION_FRAMES:
-            self.upload = None
-            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_UNSUPPORTED_FRAME, up.mission_type)
-            return
-        up.items.append(MissionItem(msg.seq, frame, msg.command, msg.param1, msg.param2, msg.param3, msg.param4,
-                                    x, y, msg.z, msg.autocontinue))
-        up.retries = 0
-        if len(up.items) < up.count:
-            self._request_item()
-            return
-        self.upload = None
-        self.commander.set_mission(up.items)
-        self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ACCEPTED, up.mission_type)
-        self.commander.say(f"Mission of {up.count} items accepted")
-        self._outbox_now(addr)
-
-    def _on_mission_request_list(self, msg, addr) -> None:
-        h = msg.get_header()
-        mtype = getattr(msg, "mission_type", 0)
-        n = len(self.commander.mission) if mtype == R.MAV_MISSION_TYPE_MISSION else 0
-        self._reply(mavlink.MAVLink_mission_count_message(h.srcSystem, h.srcComponent, n, mtype), addr)
-
-    def _send_item(self, msg, addr, as_int: bool) -> None:
-        h = msg.get_header()
-        items = self.commander.mission
-        if getattr(msg, "mission_type", 0) != R.MAV_MISSION_TYPE_MISSION or not 0 <= msg.seq < len(items):
-            self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_INVALID_SEQUENCE,
-                              getattr(msg, "mission_type", 0))
-            return
-        it = items[msg.seq]
-        current = 1 if it.seq == self.commander.seq else 0
-        glob = it.frame in GLOBAL_FRAMES
-        if as_int:
-            scale = 1e7 if glob else 1e4
-            out = mavlink.MAVLink_mission_item_int_message(
-                h.srcSystem, h.srcComponent, it.seq, it.frame, it.command, current, it.autocontinue, it.param1,
-                it.param2, it.param3, it.param4, int(round(it.x * scale)), int(round(it.y * scale)), it.z, 0)
-        else:
-            out = mavlink.MAVLink_mission_item_message(
-                h.srcSystem, h.srcComponent, it.seq, it.frame, it.command, current, it.autocontinue, it.param1,
-                it.param2, it.param3, it.param4, it.x, it.y, it.z, 0)
-        self._reply(out, addr)
-
-    def _on_mission_request_int(self, msg, addr) -> None:
-        self._send_item(msg, addr, True)
-
-    def _on_mission_request(self, msg, addr) -> None:
-        self._send_item(msg, addr, False)
-
-    def _on_mission_clear_all(self, msg, addr) -> None:
-        h = msg.get_header()
-        mtype = getattr(msg, "mission_type", 0)
-        if mtype in (R.MAV_MISSION_TYPE_MISSION, R.MAV_MISSION_TYPE_ALL):
-            self.upload = None
-            self.commander.set_mission([])
-        self._mission_ack(addr, h.srcSystem, h.srcComponent, R.MAV_MISSION_ACCEPTED, mtype)
-        self._outbox_now(addr)
-
-    def _on_mission_set_current(self, msg, addr) -> None:
-        if not self.commander.set_current(msg.seq):
-            self.commander.say(f"Mission item {msg.seq} does not exist", severity=4)
-        self._outbox_now(addr)
 
     # offboard
     def _on_set_position_target_local_ned(self, msg, addr) -> None:
@@ -730,7 +615,11 @@ class SitlServer:
         mask, cmd = msg.type_mask, self.commander
         pos = np.full(3, np.nan)
         if not mask & 7 and msg.coordinate_frame in GLOBAL_FRAMES:
-            pos = cmd.to_ned(msg.coordinate_frame, msg.lat_int / 1e7, msg.lon_int / 1e7, msg.alt)
+            lat, lon = msg.lat_int / 1e7, msg.lon_int / 1e7
+            if checks.lat_lon_result(lat, lon) != checks.MISSION_ACCEPTED:
+                self.stats.ignored_setpoints += 1
+                return
+            pos = cmd.to_ned(msg.coordinate_frame, lat, lon, msg.alt)
         vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
         vel[[bool(mask & 8), bool(mask & 16), bool(mask & 32)]] = np.nan
         self._offboard(msg, pos, vel)
@@ -739,6 +628,9 @@ class SitlServer:
         mask = msg.type_mask
         yaw = float("nan") if mask & 1024 else float(msg.yaw)
         rate = float("nan") if mask & 2048 else float(msg.yaw_rate)
+        if not checks.setpoint_ok(pos, vel, yaw, rate):
+            self.stats.ignored_setpoints += 1
+            return
         self.stats.offboard_setpoints += 1
         self.commander.offboard_setpoint(self.plant.t_us, pos, vel, yaw, rate)
 
@@ -758,6 +650,17 @@ class SitlServer:
         from scart_bench.generator.sitl.record import sitl_record
 
         return sitl_record(self, flight_id, extra_config or {}, split)
+
+
+def _frames(data: bytes) -> list:
+    """The messages of one datagram. A UDP datagram carries whole frames, so each gets a parser of its
+    own: a frame cut short (a noisy or hostile sender) never swallows the frames of the next datagram."""
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    try:
+        return parser.parse_buffer(data) or []
+    except mavlink.MAVError:
+        return []
 
 
 def _text(value) -> str:
