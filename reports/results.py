@@ -16,21 +16,24 @@ from scart_bench.benchmark.store import RunStore, RunStoreError
 from scart_bench.errors import ReportError
 
 #: Columns of the run tables that hold text, not numbers.
-TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value", "outcome")
+TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "dimension", "value", "outcome",
+                "cluster", "armed_by")
 
 
 def read_table(path: Path) -> pd.DataFrame:
     """A CSV table of a run with text columns kept as text and every other column numeric or bool."""
     df = pd.read_csv(path, dtype=str, keep_default_na=False)
-    for col in df.columns:
+
+    def convert(col: str) -> pd.Series:
         if col in TEXT_COLUMNS:
-            continue
+            return df[col]
         low = df[col].str.lower()
         if len(df) and low.isin(["true", "false"]).all():
-            df[col] = low == "true"
-        else:
-            df[col] = pd.to_numeric(df[col].replace("", None), errors="coerce")
-    return df
+            return low == "true"
+        return pd.to_numeric(df[col].replace("", None), errors="coerce")
+
+    # one constructor: a frame rebuilt column by column (metrics.csv has ~150) is fragmented
+    return pd.DataFrame({col: convert(col) for col in df.columns}, index=df.index)
 
 
 @dataclass

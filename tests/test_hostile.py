@@ -129,7 +129,8 @@ def test_changed_flight_tables_change_the_run_identity(tmp_path, dataset, capsys
     table = table.set_column(table.num_columns - 1, table.schema.field(table.num_columns - 1), pa.array(last))
     pq.write_table(table, view)  # the schema keeps the flight's metadata: still a readable flight
     assert main(args) == 2
-    assert "dataset_fingerprint" in capsys.readouterr().err
+    # the flight's checksum catches it before the run's identity is compared, naming the flight
+    assert "flight 'normal-004' changed since it was written" in capsys.readouterr().err
 
 
 def test_run_config_stores_names_not_code_and_score_imports_nothing(tmp_path, dataset):
@@ -386,7 +387,7 @@ def test_a_damaged_flight_table_stops_the_run_before_anything_is_written(tmp_pat
     out = tmp_path / "run"
     assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(ds), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "sim-001/navigator.parquet: unreadable" in err and "regenerate or remove flight 'sim-001'" in err, err
+    assert "flights/sim-001: flight 'sim-001' changed since it was written" in err and "regenerate it" in err, err
     assert not out.exists()
 
 

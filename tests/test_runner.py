@@ -155,7 +155,7 @@ def test_saved_nan_scores_make_the_job_an_error(reference_run, tmp_path):
     scores = read_npz(run / "jobs/diff_test/scores.npz")
     scores["sim-000"][5] = np.nan
     atomic_write_bytes(run / "jobs/diff_test/scores.npz", npz_bytes(scores))
-    assert main(["score", str(run)]) == 0
+    assert main(["score", str(run)]) == 3  # the other detector is scored; the exit says one job failed
     m = pd.read_csv(run / "metrics.csv").set_index("detector")
     assert m.loc["diff_test", "status"] == "ERROR" and "NaN" in m.loc["diff_test", "message"]
     assert np.isnan(m.loc["diff_test", "tp_simulation"])
