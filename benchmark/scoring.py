@@ -477,6 +477,19 @@ def _resampled_thresholds(ev: Evaluation, rng: np.random.Generator, n_boot: int)
     return (fixed[0] if tr is None else tr), (fixed[1] if tf is None else tf)
 
 
+def _onsets_in_burn_in(ev: Evaluation) -> int:
+    """Attacked flights whose attack starts inside the burn-in after arming (their first rows cannot
+    alarm): the summary says how many, since a grid that starts attacks that early loses them."""
+    burn = ev.protocol.burn_in_s if ev.protocol is not None else 0.0
+    a = ev.test("test_attacked")
+    if burn <= 0 or not len(a) or "attack_start_us" not in a.columns:
+        return 0
+    start = pd.to_numeric(a["attack_start_us"], errors="coerce")
+    armed = (pd.to_numeric(a["armed_us"], errors="coerce") if "armed_us" in a.columns else pd.Series(
+        [float(ev.rows[f].timestamp[0]) if ev.rows[f].timestamp.size else 0.0 for f in a.index], index=a.index))
+    return int(((start >= armed) & (start < armed + burn * 1e6)).sum())
+
+
 def _independent_units(f: pd.DataFrame) -> int:
     """How many independent units a group of flights holds: csv copies of one source recording
     count once."""
@@ -503,7 +516,7 @@ class PaperTable(Metric):
     name = "paper"
     columns = (*(f"{r}{s}" for r in RATES for s in ("", "_lo", "_hi", "_wilson_lo", "_wilson_hi")),
                "n_simulation", "n_csv", "n_no_attack", "n_units_csv", "n_validation", "alpha",
-               "alpha_attainable", "detected_after_fa_simulation", "detected_after_fa_csv")
+               "alpha_attainable", "detected_after_fa_simulation", "detected_after_fa_csv", "n_onset_in_burn_in")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
         out: dict[str, float] = {}
@@ -555,6 +568,7 @@ class PaperTable(Metric):
             a = attacked[m]
             out[f"detected_after_fa_{m}"] = int(((a["outcome"] == "detected") & a["alarm_before_onset"].astype(bool))
                                                 .sum()) if len(a) else 0
+        out["n_onset_in_burn_in"] = _onsets_in_burn_in(ev)
         return out
 
 
@@ -966,6 +980,9 @@ def rate_summary(metrics: pd.DataFrame, no_effect: list[str] = ()) -> list[str]:
                      + f"; TN No Attack: {int(r['n_no_attack'])} held-out normal test flights"
                      + ("" if _nan(r.get("n_validation")) else
                         f"; thresholds calibrated on {int(r['n_validation'])} validation normal flights") + ".")
+        if not _nan(r.get("n_onset_in_burn_in")) and int(r["n_onset_in_burn_in"]):
+            lines.append(f"- **{int(r['n_onset_in_burn_in'])} attacked flights start their attack inside the burn-in "
+                         "after arming**: their first attacked rows cannot alarm (see docs/protocol.md).")
         lines += ["", "## Operating point", ""]
         for _, d in ok.iterrows():
             lines.append("- " + operating_point_line(d))

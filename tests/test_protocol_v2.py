@@ -290,3 +290,15 @@ def test_run_with_the_detectors_own_rule(tmp_path):
     assert len(cal_table) == 3 and (cal_table["max_after_arming_s"] >= 8.0).all()
     assert cal_table["sets_threshold"].sum() >= 1
     assert pd.read_csv(cal / "arming.csv")["armed_by"].eq("first row").all()
+
+
+def test_attacks_starting_inside_the_burn_in_are_counted():
+    val = {f"v{i}": np.zeros(200) for i in range(20)}
+    lab = np.zeros(200)
+    lab[30:80] = 1
+    rows = [(f, "validation", "normal", None, None, 0, None, None) for f in val]
+    rows += [("early", "test_attacked", "simulation", 3 * US, 8 * US, 1 * US, None, "x"),
+             ("late", "test_attacked", "simulation", 12 * US, 15 * US, 1 * US, None, "y")]
+    ev = _evaluation({**val, "early": np.zeros(200), "late": np.zeros(200)}, {"early": lab, "late": lab},
+                     _table(rows), Protocol(burn_in_s=5.0))
+    assert PaperTable()(ev)["n_onset_in_burn_in"] == 1
