@@ -38,7 +38,12 @@ def _require_mavlink():
 def cmd_proxy(args: argparse.Namespace) -> int:
     px = _require_mavlink()
     from scart_bench.generator.dataset import is_dataset
-    from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
+    from scart_bench.generator.mavlink.recording import (
+        RecordingCheckpoint,
+        new_flight_id,
+        recover_recordings,
+        save_recording,
+    )
     from scart_bench.generator.scart.scenario import load_scenarios
 
     listen = px.parse_endpoint(args.listen, "--listen")
@@ -47,6 +52,8 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         raise UsageError(f"--scenario {args.scenario}: no such file")
     if (args.detector is None) != (args.run is None):
         raise UsageError("--detector and --run go together: the detector is the one fitted in that benchmark run")
+    if not (math.isfinite(args.checkpoint) and args.checkpoint > 0):
+        raise UsageError(f"--checkpoint {args.checkpoint}: expected a positive, finite number of seconds")
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise UsageError(f"--duration {args.duration}: expected a positive, finite number of seconds")
     if args.flight_id is not None:
@@ -65,8 +72,14 @@ def cmd_proxy(args: argparse.Namespace) -> int:
 
         monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
 
+    if record is not None:
+        recover_recordings(record, log=_log)  # flights a killed proxy --record left as checkpoints
     proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=record is not None,
                             listeners=[monitor] if monitor is not None else [], log=_log).open()
+    fid = (args.flight_id or new_flight_id(record)) if record is not None else None
+    extra = {"scenario_file": str(args.scenario)}
+    checkpoint = (RecordingCheckpoint(proxy, record, fid, extra, period_s=args.checkpoint, log=_log)
+                  if record is not None else None)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -82,7 +95,7 @@ def cmd_proxy(args: argparse.Namespace) -> int:
     try:
         if timer is not None:
             timer.start()
-        proxy.serve(stop)
+        proxy.serve(stop, on_idle=checkpoint.maybe if checkpoint is not None else None)
     finally:
         if timer is not None:
             timer.cancel()
@@ -97,12 +110,11 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         monitor.flush()
         _log(f"proxy: {monitor.summary()}")
     if record is not None:
-        fid = args.flight_id or new_flight_id(record)
-        extra = {"scenario_file": str(args.scenario)}
         if monitor is not None:
             extra["detector"] = {"name": args.detector, "run": str(args.run), "threshold": monitor.threshold,
                                  "alarm_rows": len(monitor.alarms)}
         path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), record, fmt=args.format)
+        checkpoint.discard()  # written whole: the checkpoint goes (a failed write above keeps it)
         print(f"flight {fid} recorded in {record} ({path.name})")
     return 0
 
@@ -126,6 +138,10 @@ def register(sub) -> None:
                    "added to an existing dataset, or a new one")
     p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
     p.add_argument("--flight-id", help="flight id of the recording (default live-<UTC time>)")
+    p.add_argument("--checkpoint", type=float, default=5.0, metavar="SECONDS",
+                   help="with --record: write the flight seen so far beside the dataset this often (default 5), "
+                        "so a killed proxy loses at most that much; the next proxy --record adds it, marked "
+                        "incomplete")
     p.add_argument("--detector", metavar="NAME", help="score the navigator-side stream with this detector of --run")
     p.add_argument("--run", metavar="RUN", help="the benchmark run folder the detector comes from")
     p.add_argument("--plugin", action="append", metavar="SPEC",

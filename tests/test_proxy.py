@@ -13,6 +13,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -416,3 +417,57 @@ def test_codec_round_trip_within_mavlink_quantisation(reference):
         if topic == "setpoint":
             atol[4:] = np.inf  # seq and armed come with MISSION_CURRENT / COMMAND_LONG
         assert np.all(np.abs(got - v) <= atol + 1e-12), (topic, got, v)
+
+
+def test_a_killed_recording_keeps_what_was_flown(reference, tmp_path):
+    """proxy --record checkpoints the flight as it flies: killed (SIGKILL) after 2 s of traffic, the
+    next proxy --record adds the flight to the dataset, marked incomplete, with the rows up to its
+    last checkpoint."""
+    batch, _ = reference
+    nav, _ = flight_views(batch, 0)
+    mc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    mc.bind(LOCAL)
+    mc.settimeout(10.0)
+    out = tmp_path / "rec"
+
+    def proxy(*extra):
+        port = _free_port()
+        cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
+               "--forward", f"udp:127.0.0.1:{mc.getsockname()[1]}", "--scenario", str(SPOOF), "--record", str(out),
+               *extra]
+        return port, subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                      env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+    port, proc = proxy("--checkpoint", "0.2", "--flight-id", "live-killed")
+    try:
+        line = ""
+        while "listening on" not in line:
+            line = proc.stderr.readline()
+            assert line or proc.poll() is None, "proxy exited early"
+        packer = Packer()
+        ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        rows = nav["attitude"][list(TOPICS["attitude"].field_names)].to_numpy()
+        times = nav["attitude"]["Timestamp"].to_numpy()
+        for k in range(100):  # 2 s of the 50 Hz attitude, sent in about 2 s
+            ap.sendto(packer.pack(CODECS["attitude"].new_message(rows[k], int(times[k])), 1, 1, k),
+                      ("127.0.0.1", port))
+            mc.recvfrom(65535)
+            time.sleep(0.02)
+        ap.close()
+        time.sleep(0.5)  # a checkpoint after the last message
+        proc.kill()
+        proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert not (out / "manifest.parquet").exists()  # killed: the recording itself was never written
+    _, again = proxy("--duration", "0.5", "--flight-id", "live-next")
+    stdout, stderr = again.communicate(timeout=120)
+    mc.close()
+    assert again.returncode == 2 and "nothing was recorded" in stderr  # nothing proxied this time
+    assert "live-killed, an interrupted recording" in stderr, stderr
+    ds = open_dataset(out)
+    assert "live-killed" in set(ds.manifest["flight_id"])
+    config = ds.config("live-killed")
+    assert config["incomplete"] is True
+    assert 90 <= len(ds.topic("live-killed", "attitude")) <= 100

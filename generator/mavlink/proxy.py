@@ -221,8 +221,10 @@ class MavlinkProxy:
         self._up = self._down = None
 
     # -- running ----------------------------------------------------------------------------------
-    def serve(self, stop: threading.Event | None = None, poll_s: float = 0.1) -> ProxyStats:
-        """Forward traffic until ``stop`` (or :meth:`stop`) is set; returns the counters."""
+    def serve(self, stop: threading.Event | None = None, poll_s: float = 0.1,
+              on_idle: Callable[[], None] | None = None) -> ProxyStats:
+        """Forward traffic until ``stop`` (or :meth:`stop`) is set; returns the counters.
+        ``on_idle`` runs in this thread after every poll (e.g. the recording's checkpoint)."""
         if self._up is None:
             self.open()
         stop = stop or self._stop
@@ -233,6 +235,8 @@ class MavlinkProxy:
             while not stop.is_set() and not self._stop.is_set():
                 for key, _ in sel.select(poll_s):
                     self._drain(key.fileobj, key.data)
+                if on_idle is not None:
+                    on_idle()
         finally:
             sel.close()
         return self.stats

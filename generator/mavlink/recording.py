@@ -13,6 +13,9 @@ is complete before and after.
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -80,3 +83,120 @@ def save_recording(record: FlightRecord, out: str | Path, fmt: str = "parquet") 
     if record.navigator == {}:
         raise DatasetError(f"{out}: nothing was recorded (no telemetry of a known topic passed the proxy)")
     return append_flights(out, [record], fmt=fmt, info={"profile": "live", "source": LIVE_SOURCE})
+
+
+# -- written as it flies -------------------------------------------------------------------------
+
+#: Seconds (wall clock) between two checkpoints of a live recording.
+CHECKPOINT_S = 5.0
+JOURNAL_SUFFIX = ".proxy-recording"
+
+
+def journal_root(dataset: str | Path) -> Path:
+    """The folder beside dataset ``dataset`` that holds the checkpoints of its live recordings."""
+    dataset = Path(dataset).resolve()
+    return dataset.with_name(dataset.name + JOURNAL_SUFFIX)
+
+
+class RecordingCheckpoint:
+    """``proxy --record`` written as it flies: every :data:`CHECKPOINT_S` the flight seen so far is
+    written, whole and atomically, as a one-flight dataset beside the recording's dataset
+    (``DIR.proxy-recording/FLIGHT_ID``, marked incomplete). A proxy that stops normally writes the
+    flight and removes its checkpoint; one that is killed, or whose final write fails, leaves it,
+    and the next ``proxy --record DIR`` adds it to ``DIR`` (:func:`recover_recordings`)."""
+
+    def __init__(self, proxy, dataset: str | Path, flight_id: str, extra_config: dict,
+                 period_s: float = CHECKPOINT_S, log=None):
+        self.proxy = proxy
+        self.flight_id = flight_id
+        self.extra_config = extra_config
+        self.period_s = period_s
+        self.folder = journal_root(dataset) / flight_id
+        self.log = log or (lambda msg: None)
+        self._last = time.monotonic()
+        self._failed = False
+
+    def maybe(self) -> None:
+        """Write a checkpoint when the last one is older than the period (called by the serve loop)."""
+        if time.monotonic() - self._last >= self.period_s:
+            self.write()
+
+    def write(self) -> None:
+        from scart_bench.generator.dataset import DatasetWriter, replacing
+
+        self._last = time.monotonic()
+        record = proxy_record(self.proxy, self.flight_id, {
+            **self.extra_config, "incomplete": True,
+            "incomplete_reason": "the proxy stopped before it wrote the recording (killed, or the write failed); "
+                                 "the flight up to its last checkpoint"})
+        if record.navigator == {}:
+            return
+        try:
+            self.folder.parent.mkdir(parents=True, exist_ok=True)
+            with replacing(self.folder) as partial:
+                writer = DatasetWriter(partial, info={"profile": "live", "source": LIVE_SOURCE, "checkpoint": True})
+                try:
+                    writer.write(record)
+                except BaseException:
+                    writer.abort()
+                    raise
+                writer.close()
+        except OSError as exc:  # a full disk: the flight goes on, the last good checkpoint stays
+            if not self._failed:
+                self.log(f"proxy: cannot write the recording's checkpoint in {self.folder} ({exc.strerror or exc}); "
+                         "the flight goes on")
+            self._failed = True
+
+    def discard(self) -> None:
+        """The recording was written: its checkpoint goes."""
+        shutil.rmtree(self.folder, ignore_errors=True)
+        with contextlib.suppress(OSError):
+            self.folder.parent.rmdir()  # only when empty
+
+
+def _record_of(ds, flight_id: str) -> FlightRecord:
+    """A written flight read back as the record it was written from."""
+    from scart_bench.generator import compact
+
+    views = {v: {t: ds.topic(flight_id, t, v) for t in ds.topics(flight_id, v)} for v in ("navigator", "simulator")}
+    meta = compact.read_meta(ds.flight_dir(flight_id) / "navigator.parquet")
+    windows = [tuple(w) for w in meta.get("windows", [])]
+    row = ds.manifest.set_index("flight_id").loc[flight_id].to_dict()
+    manifest = {k: v for k, v in row.items() if k not in ("rows", "duration_s", "checksum", "attack_start_us",
+                                                          "attack_end_us") and not _missing(v)}
+    events = ds.events(flight_id).to_dict("records")
+    end_us = int(round(float(row["duration_s"]) * 1e6))
+    return flight_record(flight_id, views["navigator"], views["simulator"], manifest, ds.config(flight_id), windows,
+                         events, end_us=end_us)
+
+
+def _missing(v) -> bool:
+    try:
+        return bool(pd.isna(v))
+    except (TypeError, ValueError):
+        return False
+
+
+def recover_recordings(dataset: str | Path, log=None) -> list[str]:
+    """Add the checkpoints a killed ``proxy --record DATASET`` left (flights marked incomplete) to
+    ``dataset``; returns their flight ids."""
+    log = log or (lambda msg: None)
+    root = journal_root(dataset)
+    if not root.is_dir():
+        return []
+    added = []
+    for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        if not is_dataset(folder):
+            shutil.rmtree(folder, ignore_errors=True)  # a checkpoint that never completed
+            continue
+        ds = open_dataset(folder)
+        for fid in ds.manifest["flight_id"].astype(str):
+            if is_dataset(Path(dataset)) and fid in set(open_dataset(dataset).manifest["flight_id"].astype(str)):
+                continue  # written after all (the process died after the write, before the cleanup)
+            append_flights(dataset, [_record_of(ds, fid)], info={"profile": "live", "source": LIVE_SOURCE})
+            added.append(fid)
+            log(f"proxy: added {fid}, an interrupted recording (incomplete: up to its last checkpoint), to {dataset}")
+        shutil.rmtree(folder, ignore_errors=True)
+    with contextlib.suppress(OSError):
+        root.rmdir()
+    return added
