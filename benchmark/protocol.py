@@ -20,10 +20,11 @@ on them.
 
 The operating point (protocol v2, the default):
 
-- **Burn-in.** Rows from a flight's arming to ``burn_in_s`` (default 8 s) after it neither
-  calibrate a threshold nor raise an alarm, on every flight and for every detector alike: the
-  arming step and the motors' spin-up are the largest transients of a normal flight and would
-  otherwise set every threshold. The arming time is read from the flight itself
+- **Burn-in.** Rows before ``burn_in_s`` (default 8 s) after a flight's arming neither calibrate
+  a threshold nor raise an alarm, on every flight and for every detector alike: the start-up on
+  the ground (sensors starting, the GPS fix, a detector's first windows), the arming step and the
+  motors' spin-up are the largest transients of a normal flight and would otherwise set every
+  threshold. The arming time is read from the flight itself
   (:func:`arming_time_us`: the first row where an ``armed`` field is set, or PX4's
   ``arming_state`` is ARMED); a flight without one (a log that starts armed) is armed at its
   first row.
@@ -270,12 +271,15 @@ def arming_time_us(flight: pd.DataFrame) -> tuple[int, str]:
 
 
 def counted_rows(timestamps: np.ndarray, armed_us: float | None, burn_in_s: float) -> np.ndarray:
-    """Rows that calibrate and alarm: all but those in ``[armed, armed + burn_in)``."""
+    """Rows that calibrate and alarm: those from ``burn_in_s`` after arming on. The start-up before
+    arming (sensors starting, the GPS fix, a detector's first windows) and the arming and spin-up
+    transient after it are left out alike; a log recorded from arming (PX4's default) loses only
+    its first ``burn_in_s``."""
     ts = np.asarray(timestamps, dtype=np.int64).reshape(-1)
     if burn_in_s <= 0 or ts.size == 0:
         return np.ones(ts.shape, dtype=bool)
     arm = int(ts[0]) if armed_us is None or pd.isna(armed_us) else int(armed_us)
-    return ~((ts >= arm) & (ts < arm + int(round(burn_in_s * 1e6))))
+    return ts >= arm + int(round(burn_in_s * 1e6))
 
 
 def counted_max(scores: np.ndarray, counted: np.ndarray) -> float:
@@ -340,7 +344,7 @@ class Protocol:
                 "row_threshold": self.row_rule.describe() + (
                     " (the same validation flight scores)" if self.row_rule.kind in FLIGHT_KINDS
                     else " (validation row scores)"),
-                "burn_in": (f"rows from arming to {self.burn_in_s:g} s after it neither calibrate nor alarm"
+                "burn_in": (f"rows before {self.burn_in_s:g} s after arming (start-up, arming, spin-up) neither calibrate nor alarm"
                             if self.burn_in_s else "none"),
                 "end_transient": f"{self.end_transient_s:g} s after the last attacked row",
                 "alarms": ("each detector's own alarm rule where it has one, else the calibrated threshold"

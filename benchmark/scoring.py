@@ -478,8 +478,8 @@ def _resampled_thresholds(ev: Evaluation, rng: np.random.Generator, n_boot: int)
 
 
 def _onsets_in_burn_in(ev: Evaluation) -> int:
-    """Attacked flights whose attack starts inside the burn-in after arming (their first rows cannot
-    alarm): the summary says how many, since a grid that starts attacks that early loses them."""
+    """Attacked flights whose attack starts before the burn-in after arming ends (their first rows
+    cannot alarm): the summary says how many, since a grid that starts attacks that early loses them."""
     burn = ev.protocol.burn_in_s if ev.protocol is not None else 0.0
     a = ev.test("test_attacked")
     if burn <= 0 or not len(a) or "attack_start_us" not in a.columns:
@@ -487,7 +487,7 @@ def _onsets_in_burn_in(ev: Evaluation) -> int:
     start = pd.to_numeric(a["attack_start_us"], errors="coerce")
     armed = (pd.to_numeric(a["armed_us"], errors="coerce") if "armed_us" in a.columns else pd.Series(
         [float(ev.rows[f].timestamp[0]) if ev.rows[f].timestamp.size else 0.0 for f in a.index], index=a.index))
-    return int(((start >= armed) & (start < armed + burn * 1e6)).sum())
+    return int((start < armed + burn * 1e6).sum())
 
 
 def _independent_units(f: pd.DataFrame) -> int:
@@ -776,7 +776,7 @@ class CalibrationPoint(Metric):
         return {"threshold_after_arming_s": float(sets["max_after_arming_s"].iloc[0]) if len(sets) else float("nan"),
                 "val_max_near_arming": int(((cal["max_after_arming_s"] >= 0)
                                             & (cal["max_after_arming_s"] < NEAR_ARMING_S)).sum()),
-                "val_raw_max_in_burn_in": int(((raw >= 0) & (raw < burn_in)).sum()) if burn_in > 0 else 0}
+                "val_raw_max_in_burn_in": int((raw < burn_in).sum()) if burn_in > 0 else 0}
 
 
 class ScoringLatency(Metric):
