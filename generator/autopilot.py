@@ -316,7 +316,7 @@ class Controller:
         E = A - A.transpose(0, 2, 1)
         e = 0.5 * np.column_stack([E[:, 2, 1], E[:, 0, 2], E[:, 1, 0]])
         rate = -np.array(self.p.att_p) * e
-        rmax = np.array(self.p.rate_max)
+        rmax = np.array(self.p.rate_limits())
         c.rate_sp = np.clip(rate, -rmax, rmax)
 
     def rate_control(self, c: ControllerState, rates: np.ndarray) -> np.ndarray:

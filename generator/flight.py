@@ -22,6 +22,7 @@ from scart_bench.generator.params import (
     VehicleParams,
 )
 from scart_bench.generator.sensors import Sensors
+from scart_bench.generator.startup import battery_start, startup_times
 from scart_bench.generator.topics import SIM_RATE_HZ
 from scart_bench.generator.vehicle import VehicleState, Wind
 
@@ -81,10 +82,12 @@ class BatchResult:
 
     def __len__(self) -> int:
         return len(self.seeds)
-def _battery_init(n: int) -> np.ndarray:
-    b = np.zeros((n, 3))
-    b[:, 0] = 16.8
-    b[:, 2] = 1.0
+def _battery_init(remaining: np.ndarray) -> np.ndarray:
+    """(N, 3) voltage, current, remaining of 4S packs at rest with the given charge (0-1)."""
+    remaining = np.asarray(remaining, dtype=float)
+    b = np.zeros((remaining.shape[0], 3))
+    b[:, 0] = 12.8 + 4.0 * remaining  # open-circuit voltage, as the battery model of both engines
+    b[:, 2] = remaining
     return b
 @dataclass
 class Initial:
@@ -99,6 +102,10 @@ class Initial:
     vehicle_state: VehicleState
     sensor_state: object
     max_steps: int
+    #: (N, 3) s after boot: GPS fix, estimator origin (GPS fused from then), arming (generator.startup)
+    start: np.ndarray | None = None
+    #: (N, 3) battery state at boot: voltage, current, remaining
+    battery: np.ndarray | None = None
 def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
     n = len(seeds)
@@ -116,7 +123,11 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     sensors = Sensors(cfg.sensors, DT)
     vs = VehicleState.zeros(n, yaw0)
     ss = sensors.init_state(n, rngs)
-    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ))
+    start = startup_times(seeds, m.ground_phase, m.arm_delay_s)
+    ss.fix_at = start[:, 0].copy()
+    battery = _battery_init(battery_start(seeds))
+    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ),
+                   start, battery)
 def _alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
     """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
     lost = env.lost(sensor) if env is not None else None

@@ -32,6 +32,7 @@ from scart_bench.generator.noise import (
     NZ_WIND,
 )
 from scart_bench.generator.params import GRAVITY
+from scart_bench.generator.startup import EPH_SETTLE, EPH_SETTLE_TAU_S, SATS_RAMP
 
 _I = L.PARAM_INDEX
 K_DT, K_MASS, K_JX, K_JY, K_JZ = _I["dt"], _I["mass"], _I["Jx"], _I["Jy"], _I["Jz"]
@@ -53,7 +54,7 @@ K_THRUST_LO, K_THRUST_HI, K_MAX_THRUST = _I["thrust_lo"], _I["thrust_hi"], _I["m
 K_LAND_DETECT, K_ARM_DELAY, K_TAKEOFF_HOLD = _I["land_detect_s"], _I["arm_delay"], _I["takeoff_hold"]
 K_APPROACH, K_CLIMB, K_LAND_SPEED, K_ACCEPT = _I["approach_gain"], _I["climb_speed"], _I["land_speed"], _I["acceptance"]
 K_LAT0, K_LON0, K_SIN_LAT0, K_COS_LAT0 = _I["lat0"], _I["lon0"], _I["sin_lat0"], _I["cos_lat0"]
-K_HOVER, K_TAIL = _I["hover"], _I["tail_steps"]
+K_HOVER, K_TAIL, K_YAW_STEP = _I["hover"], _I["tail_steps"], _I["yaw_step_max"]
 
 G = GRAVITY
 PI = math.pi
@@ -353,12 +354,20 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
                 vel_noise = vel_noise * growth
             s[L.GPS_POS + a] = tbuf[old, a] + s[L.GPS_BIAS + a] + white
             s[L.GPS_VEL + a] = tbuf[old, 3 + a] + vel_noise
-        s[L.GPS_EPH] = p[K_EPH0] * (12.0 / max(sats, 1.0))
-        s[L.GPS_EPV] = p[K_EPV0] * (12.0 / max(sats, 1.0))
+        # the receiver's start (generator.startup.gps_quality): no fix, then satellites and accuracy settle
+        after = max(step * p[K_DT] - s[L.GPS_FIX_AT], 0.0)
+        sats = max(min(sats, s[L.SATS_IN_VIEW] - SATS_RAMP + math.floor(after)), 0.0)
+        scale = 1.0 + EPH_SETTLE * math.exp(-after / EPH_SETTLE_TAU_S)
+        s[L.GPS_EPH] = p[K_EPH0] * (12.0 / max(sats, 1.0)) * scale
+        s[L.GPS_EPV] = p[K_EPV0] * (12.0 / max(sats, 1.0)) * scale
         s[L.GPS_SATS] = sats
         s[L.GPS_FIX] = 3.0
         if env:
             _gps_environment(s, x, sats, growth)
+        if step * p[K_DT] < s[L.GPS_FIX_AT]:
+            s[L.GPS_FIX] = 1.0
+            s[L.GPS_EPH] = 99.99
+            s[L.GPS_EPV] = 99.99
 
 
 @njit(**_JIT)
@@ -577,7 +586,7 @@ def _estimate(s, hist, p, step, due, mag_ok, baro_ok, gps_ok):
         _fuse_baro(s, p, baro_ok)
     if due[L.D_GPS, step]:
         usable = (s[L.GPS_FIX] >= 3 and s[L.GPS_SATS] >= p[K_MIN_SATS] and s[L.GPS_EPH] <= p[K_MAX_EPH]
-                  and gps_ok)
+                  and gps_ok and step * p[K_DT] >= s[L.GPS_ORIGIN_AT])
         _fuse_gps(s, hist, p, step, usable)
 
 
@@ -648,8 +657,8 @@ def _receive(s, topic, vals, m):
 def _navigate(s, wps, p, t, out, m):
     """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed)."""
     k_last = wps.shape[0] - 1
-    armed = 1.0 if t >= p[K_ARM_DELAY] else 0.0
-    if s[L.PHASE] == PH_IDLE and t >= p[K_ARM_DELAY] + 0.5:
+    armed = 1.0 if t >= s[L.ARM_AT] else 0.0
+    if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + 0.5:
         s[L.PHASE] = PH_TAKEOFF
     phase = s[L.PHASE]
     seq = int(s[L.SEQ])
@@ -688,8 +697,9 @@ def _navigate(s, wps, p, t, out, m):
         out[m, 0], out[m, 1], out[m, 2] = vh0, vh1, vz
     else:
         out[m, 0], out[m, 1], out[m, 2] = 0.0, 0.0, 0.0
-    if flying and dist_h > 3.0 and phase == PH_MISSION:
-        s[L.NAV_YAW_SP] = math.atan2(d1, d0)
+    if flying and dist_h > 3.0 and phase == PH_MISSION:  # turning no faster than MPC_YAWRAUTO_MAX
+        turn_by = _clip(_wrap_pi(math.atan2(d1, d0) - s[L.NAV_YAW_SP]), -p[K_YAW_STEP], p[K_YAW_STEP])
+        s[L.NAV_YAW_SP] = _wrap_pi(s[L.NAV_YAW_SP] + turn_by)
     reached = flying and dist_h < p[K_ACCEPT] and abs(d2) < 0.5
     tk = reached and phase == PH_TAKEOFF
     if tk and s[L.HOLD_UNTIL] == 0:

@@ -97,9 +97,15 @@ class ControllerParams:
     tilt_max: float = np.deg2rad(35.0)  # MPC_TILTMAX_AIR (rad)
     att_p: tuple[float, float, float] = (6.5, 6.5, 2.8)  # MC_ROLL_P, MC_PITCH_P, MC_YAW_P
     rate_max: tuple[float, float, float] = (np.deg2rad(220), np.deg2rad(220), np.deg2rad(200))
+    #: MPC_YAWRAUTO_MAX (rad/s): every flight here is flown in an auto mode, whose yaw rate PX4 limits
+    yaw_rate_auto: float = float(np.deg2rad(45.0))
     rate_p: tuple[float, float, float] = (18.0, 18.0, 8.0)  # 1/s, in physical units
     rate_i: tuple[float, float, float] = (4.0, 4.0, 2.0)
     thrust_min: float = 0.08  # of the maximum collective thrust
+
+    def rate_limits(self) -> tuple[float, float, float]:
+        """Body-rate setpoint limits (rad/s): MC_*RATE_MAX, the yaw at most MPC_YAWRAUTO_MAX."""
+        return (self.rate_max[0], self.rate_max[1], min(self.rate_max[2], self.yaw_rate_auto))
     land_detect_s: float = 0.6  # seconds of "landed" evidence before disarming
 
 
@@ -134,8 +140,12 @@ class MissionParams:
     land_speed: float = 0.7  # m/s (MPC_LAND_SPEED), below 3 m; 1.5 m/s above
     acceptance_radius: float = 0.8  # m, perceived
     approach_gain: float = 1.0  # 1/s, speed = gain * distance near a waypoint
-    arm_delay_s: float = 1.0
-    takeoff_hold_s: float = 1.0
+    #: a PX4 start (generator.startup): wait on the ground for the GPS fix and the estimator's
+    #: origin, then arm (3.8-16 s on the ground as in real logs); False: GPS from boot, arm at arm_delay_s
+    ground_phase: bool = True
+    arm_delay_s: float = 1.0  # s, arming time when there is no ground phase
+    takeoff_hold_s: float = 5.0  # s of hover at the take-off point before the mission's first leg
+    yaw_rate_max: float = float(np.deg2rad(45.0))  # MPC_YAWRAUTO_MAX, rad/s: the navigator turns no faster
     max_duration_s: float = 150.0
     jitter_m: float = 0.3  # per-flight jitter of waypoints
     jitter_speed: float = 0.4  # m/s, per-flight jitter of the cruise speed

@@ -23,7 +23,6 @@ from scart_bench.generator.flight import (  # noqa: F401 (re-exported: the publi
     FlightConfig,
     Initial,
     _alive,
-    _battery_init,
     _instance_gps,
     _instance_imu,
     _instance_value,
@@ -127,7 +126,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     sensors = init.sensors
     est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
     ctrl = Controller(cfg.controller, cfg.vehicle, DT)
-    nav = Navigator(m, waypoints.copy(), init.cruise)  # a copy: a mission tamper changes what it flies
+    nav = Navigator(m, waypoints.copy(), init.cruise, init.start[:, 2])  # a copy: a mission tamper changes what it flies
     vs = init.vehicle_state
     ss = init.sensor_state
     es = est.init_state(n, yaw0)
@@ -151,7 +150,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     done = np.zeros(n, dtype=bool)
     exit_step = np.full(n, -1, dtype=np.int64)
     status = np.array(["timeout"] * n, dtype=object)
-    battery = _battery_init(n)
+    battery = init.battery.copy()
+    origin_s = init.start[:, 1]
     vel_sp = np.zeros((n, 3))
     yaw_sp = yaw0.copy()
     setpoint_in = np.zeros((n, 6))
@@ -254,6 +254,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
         if gps_due:
             ep = cfg.estimator
             usable = (gps["fix_type"] >= 3) & (gps["satellites"] >= ep.gps_min_satellites) & (gps["eph"] <= ep.gps_max_eph)
+            usable &= t >= origin_s  # EKF2 fuses GPS once its checks have passed (generator.startup)
             if "sensor_gps" in sens_ok:
                 usable = usable & sens_ok["sensor_gps"]
             est.fuse_gps(es, step, gps["pos"], gps["vel"], None if usable.all() else usable)

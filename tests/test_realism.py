@@ -18,7 +18,7 @@ from scart_bench.generator.simulate import FlightConfig, simulate
 
 ULOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ulog"
 RFLYMAD = ULOGS / "rflymad_TestCase_1_1000000000.ulg"
-HOVER = FlightConfig(mission=MissionParams(takeoff_hold_s=8.0, max_duration_s=14.0))
+HOVER = FlightConfig(mission=MissionParams(takeoff_hold_s=10.0, max_duration_s=30.0))  # arm by 12 s, climb, hover
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,7 @@ def test_gps_accuracy_levels_report_what_they_name(hover_flights):
 
 
 def test_real_receiver_flights_still_fly_the_mission():
-    cfg = with_gps_accuracy(FlightConfig(mission=MissionParams(max_duration_s=40.0)), "real_receiver")
+    cfg = with_gps_accuracy(FlightConfig(mission=MissionParams(max_duration_s=50.0)), "real_receiver")
     batch = simulate([11, 12, 13], cfg)
     for i in range(3):
         nav, _ = flight_views(batch, i, ())
