@@ -55,8 +55,9 @@ class FlightConfig:
     mission: MissionParams = field(default_factory=MissionParams)
     #: the flight controller's commander: accepted commands, link-loss failsafe (generator.control)
     control: ControlParams = field(default_factory=ControlParams)
-    #: how the written messages are stamped: "ideal" or "realistic" (generator.timing; after flying)
-    timing: str = "ideal"
+    #: how the written messages are stamped: "realistic" (jitter, drops, late topics) or "ideal"
+    #: (periodic from t = 0); generator.timing, applied after flying
+    timing: str = "realistic"
     #: also write the uORB view (PX4 topic names and units, generator.uorb) of each flight; after flying
     uorb: bool = False
 @dataclass
