@@ -143,6 +143,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "land_speed": mp.land_speed, "acceptance": mp.acceptance_radius, "lat0": lat0, "lon0": lon0,
         "sin_lat0": np.sin(lat0), "cos_lat0": np.cos(lat0), "hover": vp.mass * GRAVITY,
         "tail_steps": int(0.5 * SIM_RATE_HZ), "yaw_step_max": mp.yaw_rate_max * nav_dt,
+        "out_decay": 1.0 - dt / ep.output_tau_s,
     }
     return K.param_vector(values)
 
@@ -395,7 +396,7 @@ class _Hooks:
                 vals, sp_ok, command, st.waypoints[:] = exchange(layer, h, t_us, sp.copy(), self.mission)
                 self.nav["setpoint"][m] = vals
                 self.nav_ok["setpoint"][m] = sp_ok
-                est = st["est_x"].reshape(n, 3, 3)
+                est = st["est_x"].reshape(n, 3, 3)[:, :, :2] + st["out_err"].reshape(n, 3, 2)  # the output
                 vals, sp_ok, crashed = self.commander.step(h * DT, vals, sp_ok, command, est[:, :, 0], est[:, :, 1],
                                                            st["setpoint_in"][:, 3].copy(), st["armed"] > 0.5,
                                                            st["vel"][:, 2].copy(), st["on_ground"] > 0.5, st.done)

@@ -75,12 +75,13 @@ class SensorParams:
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)
     # GPS position errors: the "simulator" level of GPS_ACCURACY (see there for "real_receiver");
     # the receiver reports eph = hypot(noise_h, bias_h) and epv = hypot(noise_v, bias_v) at 12 satellites
-    gps_noise_h: float = 0.15  # m, white, per axis
-    gps_noise_v: float = 0.25  # m, white
-    gps_bias_h: float = 0.25  # m, 1 sigma of the correlated (Gauss-Markov) error
-    gps_bias_v: float = 0.4  # m
+    # (PX4 SITL's GPS, as the RflyMAD SIL log shows it at hover: 0.03 m white on top of a slow error)
+    gps_noise_h: float = 0.03  # m, white, per axis
+    gps_noise_v: float = 0.05  # m, white
+    gps_bias_h: float = 0.2985  # m, 1 sigma of the correlated (Gauss-Markov) error: eph 0.30 m
+    gps_bias_v: float = 0.469  # m: epv 0.47 m
     gps_bias_tau: float = 60.0  # s
-    gps_vel_noise: float = 0.05  # m/s
+    gps_vel_noise: float = 0.025  # m/s, white per axis (the RflyMAD SIL log at hover: 0.024-0.025 m/s)
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,10 @@ class EstimatorParams:
     baro_noise: float = 0.3  # m (EKF2_BARO_NOISE)
     gps_min_satellites: int = 6  # EKF2_REQ_NSATS: fewer satellites and GPS is not fused
     gps_max_eph: float = 3.0  # m, EKF2_REQ_EPH: a worse horizontal accuracy and GPS is not fused
+    #: EKF2_TAU_VEL / EKF2_TAU_POS (s): PX4's output predictor passes a fusion's correction on to the
+    #: position and velocity the controllers and the telemetry use over this time constant, so that
+    #: a GPS or baro update does not jolt the vehicle (the EKF's own state jumps at each fusion)
+    output_tau_s: float = 0.25
     att_accel_gain: float = 0.2  # 1/s, tilt correction from the accelerometer
     att_mag_gain: float = 0.3  # 1/s, heading correction from the magnetometer
     gyro_bias_gain: float = 0.002
