@@ -30,6 +30,19 @@ DT = 1.0 / SIM_RATE_HZ
 STEP_US = int(round(1e6 * DT))
 NAV_RATE_HZ = 50.0
 STATUS = ("landed", "timeout", "crashed")
+
+#: Which defaults a dataset's flights were made with (dataset.json ``flight_defaults``; a dataset
+#: without it was made with 1). 1: instant start (arming at 1 s, GPS from boot), 1 s hover,
+#: ideal timing, Gazebo GPS noise. 2: the PX4 start (ground phase, GPS fix and estimator origin
+#: before arming), 5 s hover, yaw within MPC_YAWRAUTO_MAX, realistic timing, EKF2's output
+#: predictor, PX4 SITL GPS noise, settling GPS accuracy and satellites, battery charge per flight.
+FLIGHT_DEFAULTS = 2
+
+
+def defaults_summary(cfg: FlightConfig) -> dict:
+    """What dataset.json records of the defaults a dataset was made with."""
+    return {"flight_defaults": FLIGHT_DEFAULTS, "timing": cfg.timing, "ground_phase": cfg.mission.ground_phase,
+            "takeoff_hold_s": cfg.mission.takeoff_hold_s}
 class AttackHooks(Protocol):
     """What the simulator calls at its injection points (implemented by the SCART layer)."""
 

@@ -97,3 +97,27 @@ def test_start_times_are_drawn_per_seed_and_the_instant_start_stays_available():
     truth = flight_views(simulate([7], FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=4.0))),
                          0)[1]["truth"]
     assert _lift_off_us(truth) < 2_500_000
+
+
+def test_dataset_json_says_which_defaults_made_it_and_old_datasets_still_read(tmp_path):
+    import json
+
+    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.generator.flight import FLIGHT_DEFAULTS
+    from scart_bench.generator.generate import generate_dataset
+
+    out = generate_dataset("quick", tmp_path / "ds", n_normal=1, with_attacks=False,
+                           config=FlightConfig(mission=MissionParams(max_duration_s=12.0)))
+    info = json.loads((out / "dataset.json").read_text())
+    assert info["flight_defaults"] == FLIGHT_DEFAULTS == 2
+    assert info["timing"] == "realistic" and info["ground_phase"] is True
+    ds = open_dataset(out)
+    assert ds.flight_defaults == 2
+    fid = ds.manifest["flight_id"].iloc[0]
+    gps_before = len(ds.topic(fid, "gps_raw_int"))
+    # a dataset from before: no such keys in its dataset.json; it reads, and says it is of the first defaults
+    for key in ("flight_defaults", "timing", "ground_phase", "takeoff_hold_s"):
+        info.pop(key)
+    (out / "dataset.json").write_text(json.dumps(info))
+    old = open_dataset(out)
+    assert old.flight_defaults == 1 and len(old.topic(fid, "gps_raw_int")) == gps_before
