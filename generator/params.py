@@ -65,7 +65,7 @@ class SensorParams:
     gyro_bias_random_walk: float = 3.8785e-05  # rad/s^2/sqrt(Hz)
     gyro_bias_tau: float = 1000.0  # s
     mag_rate_hz: float = 100.0
-    mag_noise: float = 0.004  # gauss, 1 sigma per sample
+    mag_noise: float = 0.0015  # gauss, 1 sigma per sample: the shared SITL logs 0.0009-0.0023 (Gazebo: 0.004)
     # Earth field at the PX4 SITL home (Zurich), NED, gauss
     mag_field_ned: tuple[float, float, float] = (0.2158, 0.0099, 0.4250)
     baro_rate_hz: float = 50.0
