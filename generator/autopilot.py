@@ -84,6 +84,9 @@ class EstimatorState:
     P_h: np.ndarray | None = None  # (N, 3, 3) covariance of the horizontal axes (north and east alike)
     P_v: np.ndarray | None = None  # (N, 3, 3) covariance of the vertical axis
     R: np.ndarray | None = None  # (N, 3, 3) rotation of ``quat`` (None when stale)
+    #: (N, 3, 2) output predictor: the output position / velocity per axis minus the filter's (the
+    #: part of recent corrections not passed on yet); see :meth:`Estimator.output`
+    out_err: np.ndarray | None = None
 
 
 class Estimator:
@@ -96,6 +99,7 @@ class Estimator:
         self.delay = gps_delay_steps
         self.decl = np.arctan2(mag_field_ned[1], mag_field_ned[0])
         self.kf = _AxisKF(dt, params.accel_process_noise, params.bias_process_noise)
+        self.out_decay = 1.0 - dt / params.output_tau_s
 
     def init_state(self, n: int, yaw: np.ndarray) -> EstimatorState:
         quat = np.zeros((n, 4))
@@ -107,7 +111,7 @@ class Estimator:
             gps_pos_rejected=np.zeros(n, dtype=np.int64), gps_vel_rejected=np.zeros(n, dtype=np.int64),
             baro_rejected=np.zeros(n, dtype=np.int64), baro_offset=np.full(n, np.nan),
             inertial_only_s=np.zeros(n), since_pos_fusion_s=np.zeros(n), gps_resets=np.zeros(n, dtype=np.int64),
-            P_h=self.kf.init(n), P_v=self.kf.init(n),
+            P_h=self.kf.init(n), P_v=self.kf.init(n), out_err=np.zeros((n, 3, 2)),
         )
 
     def predict(self, s: EstimatorState, step: int, accel: np.ndarray, gyro: np.ndarray,
@@ -141,7 +145,27 @@ class Estimator:
         s.history[slot, :, 3:] = x[:, :, 1]
         s.inertial_only_s += dt
         s.since_pos_fusion_s += dt
+        if s.out_err is not None:
+            s.out_err *= self.out_decay
         return R
+
+    @staticmethod
+    def begin_fusion(s: EstimatorState) -> np.ndarray:
+        """The filter's position and velocity before this step's fusions (for :meth:`end_fusion`)."""
+        return s.x[:, :, :2].copy()
+
+    @staticmethod
+    def end_fusion(s: EstimatorState, before: np.ndarray) -> None:
+        """Hold back this step's corrections from the output (it takes them in over output_tau_s)."""
+        s.out_err -= s.x[:, :, :2] - before
+
+    @staticmethod
+    def output(s: EstimatorState) -> tuple[np.ndarray, np.ndarray]:
+        """(position, velocity) (N, 3) as the controllers and the telemetry see them: the filter's
+        state with the latest corrections smoothed in (EKF2's output predictor)."""
+        if s.out_err is None:
+            return s.x[:, :, 0], s.x[:, :, 1]
+        return s.x[:, :, 0] + s.out_err[:, :, 0], s.x[:, :, 1] + s.out_err[:, :, 1]
 
     def fuse_mag(self, s: EstimatorState, mag: np.ndarray) -> None:
         """Heading correction from the magnetometer (tilt-compensated)."""
@@ -316,7 +340,7 @@ class Controller:
         E = A - A.transpose(0, 2, 1)
         e = 0.5 * np.column_stack([E[:, 2, 1], E[:, 0, 2], E[:, 1, 0]])
         rate = -np.array(self.p.att_p) * e
-        rmax = np.array(self.p.rate_max)
+        rmax = np.array(self.p.rate_limits())
         c.rate_sp = np.clip(rate, -rmax, rmax)
 
     def rate_control(self, c: ControllerState, rates: np.ndarray) -> np.ndarray:

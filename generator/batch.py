@@ -99,7 +99,8 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     st["att_sp"] = np.eye(3).ravel()
     st["nav_yaw_sp"], st["nav_yaw"] = yaw0, yaw0
     st["cruise"] = init.cruise
-    st["battery"] = (16.8, 0.0, 1.0)
+    st["battery"] = init.battery
+    st["gps_fix_at"], st["gps_origin_at"], st["arm_at"] = init.start[:, 0], init.start[:, 1], init.start[:, 2]
     st["exit_step"] = -1.0
     st["landed_at"] = -1.0
     return st
@@ -135,13 +136,14 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "gps_min_sats": ep.gps_min_satellites, "gps_max_eph": ep.gps_max_eph,
         "vel_p": (cp.vel_xy_p, cp.vel_xy_p, cp.vel_z_p), "vel_i": (cp.vel_xy_i, cp.vel_xy_i, cp.vel_z_i),
         "vel_xy_d": cp.vel_xy_d, "acc_hor_dt": cp.acc_hor * nav_dt, "acc_vert_dt": cp.acc_vert * nav_dt,
-        "tan_tilt": np.tan(cp.tilt_max), "att_p": cp.att_p, "rate_max": cp.rate_max, "rate_p": cp.rate_p,
+        "tan_tilt": np.tan(cp.tilt_max), "att_p": cp.att_p, "rate_max": cp.rate_limits(), "rate_p": cp.rate_p,
         "rate_i": cp.rate_i, "thrust_lo": cp.thrust_min * max_total, "thrust_hi": 0.95 * max_total,
         "max_thrust": vp.max_thrust, "land_detect_s": cp.land_detect_s, "arm_delay": mp.arm_delay_s,
         "takeoff_hold": mp.takeoff_hold_s, "approach_gain": mp.approach_gain, "climb_speed": mp.climb_speed,
         "land_speed": mp.land_speed, "acceptance": mp.acceptance_radius, "lat0": lat0, "lon0": lon0,
         "sin_lat0": np.sin(lat0), "cos_lat0": np.cos(lat0), "hover": vp.mass * GRAVITY,
-        "tail_steps": int(0.5 * SIM_RATE_HZ),
+        "tail_steps": int(0.5 * SIM_RATE_HZ), "yaw_step_max": mp.yaw_rate_max * nav_dt,
+        "out_decay": 1.0 - dt / ep.output_tau_s,
     }
     return K.param_vector(values)
 
@@ -394,7 +396,7 @@ class _Hooks:
                 vals, sp_ok, command, st.waypoints[:] = exchange(layer, h, t_us, sp.copy(), self.mission)
                 self.nav["setpoint"][m] = vals
                 self.nav_ok["setpoint"][m] = sp_ok
-                est = st["est_x"].reshape(n, 3, 3)
+                est = st["est_x"].reshape(n, 3, 3)[:, :, :2] + st["out_err"].reshape(n, 3, 2)  # the output
                 vals, sp_ok, crashed = self.commander.step(h * DT, vals, sp_ok, command, est[:, :, 0], est[:, :, 1],
                                                            st["setpoint_in"][:, 3].copy(), st["armed"] > 0.5,
                                                            st["vel"][:, 2].copy(), st["on_ground"] > 0.5, st.done)

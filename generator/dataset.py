@@ -641,6 +641,12 @@ class Dataset:
     def __len__(self) -> int:
         return len(self.manifest)
 
+    @property
+    def flight_defaults(self) -> int:
+        """Which generator defaults made the flights (generator.flight.FLIGHT_DEFAULTS); 1 for a
+        dataset written before dataset.json said so."""
+        return int(self.info.get("flight_defaults", 1))
+
     def flight_dir(self, flight_id: str) -> Path:
         return inside(self.path / "flights", check_id(flight_id, f"{self.path}: flight id"))
 

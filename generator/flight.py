@@ -22,6 +22,7 @@ from scart_bench.generator.params import (
     VehicleParams,
 )
 from scart_bench.generator.sensors import Sensors
+from scart_bench.generator.startup import battery_start, startup_times
 from scart_bench.generator.topics import SIM_RATE_HZ
 from scart_bench.generator.vehicle import VehicleState, Wind
 
@@ -29,6 +30,19 @@ DT = 1.0 / SIM_RATE_HZ
 STEP_US = int(round(1e6 * DT))
 NAV_RATE_HZ = 50.0
 STATUS = ("landed", "timeout", "crashed")
+
+#: Which defaults a dataset's flights were made with (dataset.json ``flight_defaults``; a dataset
+#: without it was made with 1). 1: instant start (arming at 1 s, GPS from boot), 1 s hover,
+#: ideal timing, Gazebo GPS noise. 2: the PX4 start (ground phase, GPS fix and estimator origin
+#: before arming), 5 s hover, yaw within MPC_YAWRAUTO_MAX, realistic timing, EKF2's output
+#: predictor, PX4 SITL GPS noise, settling GPS accuracy and satellites, battery charge per flight.
+FLIGHT_DEFAULTS = 2
+
+
+def defaults_summary(cfg: FlightConfig) -> dict:
+    """What dataset.json records of the defaults a dataset was made with."""
+    return {"flight_defaults": FLIGHT_DEFAULTS, "timing": cfg.timing, "ground_phase": cfg.mission.ground_phase,
+            "takeoff_hold_s": cfg.mission.takeoff_hold_s}
 class AttackHooks(Protocol):
     """What the simulator calls at its injection points (implemented by the SCART layer)."""
 
@@ -54,8 +68,9 @@ class FlightConfig:
     mission: MissionParams = field(default_factory=MissionParams)
     #: the flight controller's commander: accepted commands, link-loss failsafe (generator.control)
     control: ControlParams = field(default_factory=ControlParams)
-    #: how the written messages are stamped: "ideal" or "realistic" (generator.timing; after flying)
-    timing: str = "ideal"
+    #: how the written messages are stamped: "realistic" (jitter, drops, late topics) or "ideal"
+    #: (periodic from t = 0); generator.timing, applied after flying
+    timing: str = "realistic"
     #: also write the uORB view (PX4 topic names and units, generator.uorb) of each flight; after flying
     uorb: bool = False
 @dataclass
@@ -81,10 +96,12 @@ class BatchResult:
 
     def __len__(self) -> int:
         return len(self.seeds)
-def _battery_init(n: int) -> np.ndarray:
-    b = np.zeros((n, 3))
-    b[:, 0] = 16.8
-    b[:, 2] = 1.0
+def _battery_init(remaining: np.ndarray) -> np.ndarray:
+    """(N, 3) voltage, current, remaining of 4S packs at rest with the given charge (0-1)."""
+    remaining = np.asarray(remaining, dtype=float)
+    b = np.zeros((remaining.shape[0], 3))
+    b[:, 0] = 12.8 + 4.0 * remaining  # open-circuit voltage, as the battery model of both engines
+    b[:, 2] = remaining
     return b
 @dataclass
 class Initial:
@@ -99,6 +116,10 @@ class Initial:
     vehicle_state: VehicleState
     sensor_state: object
     max_steps: int
+    #: (N, 3) s after boot: GPS fix, estimator origin (GPS fused from then), arming (generator.startup)
+    start: np.ndarray | None = None
+    #: (N, 3) battery state at boot: voltage, current, remaining
+    battery: np.ndarray | None = None
 def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
     n = len(seeds)
@@ -116,7 +137,11 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     sensors = Sensors(cfg.sensors, DT)
     vs = VehicleState.zeros(n, yaw0)
     ss = sensors.init_state(n, rngs)
-    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ))
+    start = startup_times(seeds, m.ground_phase, m.arm_delay_s)
+    ss.fix_at = start[:, 0].copy()
+    battery = _battery_init(battery_start(seeds))
+    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ),
+                   start, battery)
 def _alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
     """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
     lost = env.lost(sensor) if env is not None else None

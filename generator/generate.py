@@ -18,6 +18,7 @@ from scart_bench.generator.dataset import (
     replacing,
 )
 from scart_bench.generator.effect import field_stds
+from scart_bench.generator.flight import defaults_summary
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.records import normal_record
 from scart_bench.generator.scart.grid import load_configurations
@@ -100,7 +101,8 @@ def _write_all(partial: Path, prof: Profile, cfg: FlightConfig, config_dict: dic
                layout: str | None = None) -> None:
     # one worker process writes flights while this one simulates the next batch
     writer = DatasetWriter(partial, fmt=fmt, workers=1, layout=layout,
-                           info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions()})
+                           info={"profile": prof.name, "seed": seed, "n_normal": count, "versions": versions(),
+                                 **defaults_summary(cfg)})
     try:
         _fly_and_write(writer, prof, cfg, config_dict, seeds, split_of, count, seed, with_attacks, log)
     except BaseException:

@@ -32,6 +32,7 @@ from scart_bench.generator.noise import (
     NZ_WIND,
 )
 from scart_bench.generator.params import GRAVITY
+from scart_bench.generator.startup import EPH_SETTLE, EPH_SETTLE_TAU_S, SATS_RAMP
 
 _I = L.PARAM_INDEX
 K_DT, K_MASS, K_JX, K_JY, K_JZ = _I["dt"], _I["mass"], _I["Jx"], _I["Jy"], _I["Jz"]
@@ -53,7 +54,7 @@ K_THRUST_LO, K_THRUST_HI, K_MAX_THRUST = _I["thrust_lo"], _I["thrust_hi"], _I["m
 K_LAND_DETECT, K_ARM_DELAY, K_TAKEOFF_HOLD = _I["land_detect_s"], _I["arm_delay"], _I["takeoff_hold"]
 K_APPROACH, K_CLIMB, K_LAND_SPEED, K_ACCEPT = _I["approach_gain"], _I["climb_speed"], _I["land_speed"], _I["acceptance"]
 K_LAT0, K_LON0, K_SIN_LAT0, K_COS_LAT0 = _I["lat0"], _I["lon0"], _I["sin_lat0"], _I["cos_lat0"]
-K_HOVER, K_TAIL = _I["hover"], _I["tail_steps"]
+K_HOVER, K_TAIL, K_YAW_STEP, K_OUT_DECAY = _I["hover"], _I["tail_steps"], _I["yaw_step_max"], _I["out_decay"]
 
 G = GRAVITY
 PI = math.pi
@@ -353,12 +354,20 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
                 vel_noise = vel_noise * growth
             s[L.GPS_POS + a] = tbuf[old, a] + s[L.GPS_BIAS + a] + white
             s[L.GPS_VEL + a] = tbuf[old, 3 + a] + vel_noise
-        s[L.GPS_EPH] = p[K_EPH0] * (12.0 / max(sats, 1.0))
-        s[L.GPS_EPV] = p[K_EPV0] * (12.0 / max(sats, 1.0))
+        # the receiver's start (generator.startup.gps_quality): no fix, then satellites and accuracy settle
+        after = max(step * p[K_DT] - s[L.GPS_FIX_AT], 0.0)
+        sats = max(min(sats, s[L.SATS_IN_VIEW] - SATS_RAMP + math.floor(after)), 0.0)
+        scale = 1.0 + EPH_SETTLE * math.exp(-after / EPH_SETTLE_TAU_S)
+        s[L.GPS_EPH] = p[K_EPH0] * (12.0 / max(sats, 1.0)) * scale
+        s[L.GPS_EPV] = p[K_EPV0] * (12.0 / max(sats, 1.0)) * scale
         s[L.GPS_SATS] = sats
         s[L.GPS_FIX] = 3.0
         if env:
             _gps_environment(s, x, sats, growth)
+        if step * p[K_DT] < s[L.GPS_FIX_AT]:
+            s[L.GPS_FIX] = 1.0
+            s[L.GPS_EPH] = 99.99
+            s[L.GPS_EPV] = 99.99
 
 
 @njit(**_JIT)
@@ -429,6 +438,8 @@ def _predict(s, hist, p, step):
         hist[slot, a] = s[L.EST_X + 3 * a]
         hist[slot, 3 + a] = s[L.EST_X + 3 * a + 1]
     s[L.INERTIAL_ONLY_S] += dt
+    for j in range(6):
+        s[L.OUT_ERR + j] *= p[K_OUT_DECAY]
     s[L.SINCE_POS_FUSION_S] += dt
 
 
@@ -571,20 +582,35 @@ def _fuse_gps(s, hist, p, step, usable):
 @njit(**_JIT)
 def _estimate(s, hist, p, step, due, mag_ok, baro_ok, gps_ok):
     _predict(s, hist, p, step)
+    x = L.EST_X
+    p0, v0, p1, v1, p2, v2 = s[x], s[x + 1], s[x + 3], s[x + 4], s[x + 6], s[x + 7]
     if due[L.D_MAG, step] and mag_ok:
         _fuse_mag(s, p)
     if due[L.D_BARO, step]:
         _fuse_baro(s, p, baro_ok)
     if due[L.D_GPS, step]:
         usable = (s[L.GPS_FIX] >= 3 and s[L.GPS_SATS] >= p[K_MIN_SATS] and s[L.GPS_EPH] <= p[K_MAX_EPH]
-                  and gps_ok)
+                  and gps_ok and step * p[K_DT] >= s[L.GPS_ORIGIN_AT])
         _fuse_gps(s, hist, p, step, usable)
+    # the output predictor takes this step's corrections in over output_tau_s (Estimator.end_fusion)
+    o = L.OUT_ERR
+    s[o] -= s[x] - p0
+    s[o + 1] -= s[x + 1] - v0
+    s[o + 2] -= s[x + 3] - p1
+    s[o + 3] -= s[x + 4] - v1
+    s[o + 4] -= s[x + 6] - p2
+    s[o + 5] -= s[x + 7] - v2
+
+
+@njit(**_JIT)
+def _out(s, a, c):
+    """The output predictor's position (c = 0) or velocity (c = 1) on axis ``a`` (Estimator.output)."""
+    return s[L.EST_X + 3 * a + c] + s[L.OUT_ERR + 2 * a + c]
 
 
 @njit(**_JIT)
 def _compose(s, p, topic, out, m):
     """One telemetry message of the flight into ``out`` (field order of generator.topics)."""
-    x = L.EST_X
     if topic == L.D_ATT:
         r, pi, y = _euler(s, L.EST_QUAT)
         out[m, 0], out[m, 1], out[m, 2] = r, pi, y
@@ -599,18 +625,18 @@ def _compose(s, p, topic, out, m):
         out[m, 10] = _altitude_at(s[L.PRESSURE])
         out[m, 11] = s[L.BARO_TEMP]
     elif topic == L.D_GPI:
-        lat, lon = _latlon(p, s[x], s[x + 3])
+        lat, lon = _latlon(p, _out(s, 0, 0), _out(s, 1, 0))
         _, _, yaw = _euler(s, L.EST_QUAT)
         out[m, 0], out[m, 1] = lat, lon
-        out[m, 2] = p[K_HOME_ALT] - s[x + 6]
-        out[m, 3] = -s[x + 6]
+        out[m, 2] = p[K_HOME_ALT] - _out(s, 2, 0)
+        out[m, 3] = -_out(s, 2, 0)
         for a in range(3):
-            out[m, 4 + a] = s[x + 3 * a + 1]
+            out[m, 4 + a] = _out(s, a, 1)
         out[m, 7] = yaw % TWO_PI
     elif topic == L.D_LPN:
         for a in range(3):
-            out[m, a] = s[x + 3 * a]
-            out[m, 3 + a] = s[x + 3 * a + 1]
+            out[m, a] = _out(s, a, 0)
+            out[m, 3 + a] = _out(s, a, 1)
     elif topic == L.D_GPSRAW:
         lat, lon = _latlon(p, s[L.GPS_POS], s[L.GPS_POS + 1])
         v0, v1, v2 = s[L.GPS_VEL], s[L.GPS_VEL + 1], s[L.GPS_VEL + 2]
@@ -625,9 +651,9 @@ def _compose(s, p, topic, out, m):
         out[m, 0] = s[L.PRESSURE] / 100.0
         out[m, 1] = s[L.BARO_TEMP]
     elif topic == L.D_ALT:
-        out[m, 0] = p[K_HOME_ALT] - s[x + 6]
-        out[m, 1] = -s[x + 6]
-        out[m, 2] = -s[x + 6]
+        out[m, 0] = p[K_HOME_ALT] - _out(s, 2, 0)
+        out[m, 1] = -_out(s, 2, 0)
+        out[m, 2] = -_out(s, 2, 0)
     elif topic == L.D_BAT:
         for a in range(3):
             out[m, a] = s[L.BATTERY + a]
@@ -648,8 +674,8 @@ def _receive(s, topic, vals, m):
 def _navigate(s, wps, p, t, out, m):
     """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed)."""
     k_last = wps.shape[0] - 1
-    armed = 1.0 if t >= p[K_ARM_DELAY] else 0.0
-    if s[L.PHASE] == PH_IDLE and t >= p[K_ARM_DELAY] + 0.5:
+    armed = 1.0 if t >= s[L.ARM_AT] else 0.0
+    if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + 0.5:
         s[L.PHASE] = PH_TAKEOFF
     phase = s[L.PHASE]
     seq = int(s[L.SEQ])
@@ -688,8 +714,9 @@ def _navigate(s, wps, p, t, out, m):
         out[m, 0], out[m, 1], out[m, 2] = vh0, vh1, vz
     else:
         out[m, 0], out[m, 1], out[m, 2] = 0.0, 0.0, 0.0
-    if flying and dist_h > 3.0 and phase == PH_MISSION:
-        s[L.NAV_YAW_SP] = math.atan2(d1, d0)
+    if flying and dist_h > 3.0 and phase == PH_MISSION:  # turning no faster than MPC_YAWRAUTO_MAX
+        turn_by = _clip(_wrap_pi(math.atan2(d1, d0) - s[L.NAV_YAW_SP]), -p[K_YAW_STEP], p[K_YAW_STEP])
+        s[L.NAV_YAW_SP] = _wrap_pi(s[L.NAV_YAW_SP] + turn_by)
     reached = flying and dist_h < p[K_ACCEPT] and abs(d2) < 0.5
     tk = reached and phase == PH_TAKEOFF
     if tk and s[L.HOLD_UNTIL] == 0:
@@ -717,7 +744,7 @@ def _navigate(s, wps, p, t, out, m):
 def _vel_axis(s, p, a, dv, armed, dt):
     """Slewed setpoint, error, derivative and PID acceleration of one axis."""
     s[L.CTRL_VEL_SP + a] = s[L.CTRL_VEL_SP + a] + dv if armed else 0.0
-    err = s[L.CTRL_VEL_SP + a] - s[L.EST_X + 3 * a + 1]
+    err = s[L.CTRL_VEL_SP + a] - _out(s, a, 1)
     d_err = (err - s[L.PREV_VEL_ERR + a]) / dt
     s[L.PREV_VEL_ERR + a] = err
     acc = p[K_VEL_P + a] * err + p[K_VEL_I + a] * s[L.VEL_INT + a]
@@ -781,7 +808,7 @@ def _velocity_control(s, p):
 
 @njit(**_JIT)
 def _land_detector(s, p):
-    evidence = (s[L.ARMED] > 0.5 and s[L.SETPOINT_IN + 2] > 0.1 and abs(s[L.EST_X + 7]) < 0.25
+    evidence = (s[L.ARMED] > 0.5 and s[L.SETPOINT_IN + 2] > 0.1 and abs(_out(s, 2, 1)) < 0.25
                 and s[L.THRUST_SP] < 0.7 * p[K_HOVER])
     s[L.LAND_TIME] = s[L.LAND_TIME] + NAV_DT if evidence else 0.0
     if s[L.LAND_TIME] >= p[K_LAND_DETECT]:

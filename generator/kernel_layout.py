@@ -91,7 +91,13 @@ R_CTRL = 162  # 9, estimated attitude the attitude controller uses this step
 R_TRUE = 171  # 9, true attitude of this step's sensor samples (before the step's rotation)
 LAST_FIX = 180  # 3, last fixed GPS position (reported while a jammed receiver has no fix)
 LAST_FIX_SET = 183
-WIDTH = 184
+# -- the flight's start on the ground (generator.startup) --------------------------------------------
+GPS_FIX_AT = 184  # s, the receiver's first fix
+GPS_ORIGIN_AT = 185  # s, the estimator fuses GPS from then
+ARM_AT = 186  # s, the navigator arms
+# -- the estimator's output predictor ----------------------------------------------------------------
+OUT_ERR = 187  # 6: per axis (N, E, D) [position, velocity] of the output minus the filter's state
+WIDTH = 193
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -125,7 +131,8 @@ FIELDS: dict[str, tuple[int, int]] = {
     "nav_pos": (NAV_POS, 3), "nav_vel": (NAV_VEL, 3), "nav_yaw": (NAV_YAW, 1), "xt_int": (XT_INT, 1),
     "cruise": (CRUISE, 1), "battery": (BATTERY, 3), "done": (DONE, 1), "exit_step": (EXIT_STEP, 1),
     "status": (STATUS, 1), "landed_at": (LANDED_AT, 1), "R_ctrl": (R_CTRL, 9), "R_true": (R_TRUE, 9),
-    "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1),
+    "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1), "gps_fix_at": (GPS_FIX_AT, 1),
+    "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------
@@ -146,7 +153,7 @@ PARAMS = (
     "gps_max_eph", "vel_p", "vel_i", "vel_xy_d", "acc_hor_dt", "acc_vert_dt", "tan_tilt", "att_p", "rate_max",
     "rate_p", "rate_i", "thrust_lo", "thrust_hi", "max_thrust", "land_detect_s", "arm_delay", "takeoff_hold",
     "approach_gain", "climb_speed", "land_speed", "acceptance", "lat0", "lon0", "sin_lat0", "cos_lat0",
-    "hover", "tail_steps",
+    "hover", "tail_steps", "yaw_step_max", "out_decay",
 )
 _SIZES = {"alloc": 16, "alloc_inv": 16, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
           "vel_p": 3, "vel_i": 3, "att_p": 3, "rate_max": 3, "rate_p": 3, "rate_i": 3}

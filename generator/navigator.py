@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scart_bench.generator.params import MissionParams
+from scart_bench.generator.rotation import wrap_pi
 
 PHASE_IDLE, PHASE_TAKEOFF, PHASE_MISSION, PHASE_LAND = 0, 1, 2, 3
 
@@ -53,10 +54,13 @@ def mission_waypoints(mission: MissionParams, rngs: list[np.random.Generator]) -
 class Navigator:
     """Mission state machine for a batch: arm, take off, mission items, land."""
 
-    def __init__(self, mission: MissionParams, waypoints: np.ndarray, cruise: np.ndarray):
+    def __init__(self, mission: MissionParams, waypoints: np.ndarray, cruise: np.ndarray,
+                 arm_s: np.ndarray | None = None):
         self.m = mission
         self.wps = waypoints
         self.cruise = cruise
+        #: (N,) when each flight arms (generator.startup); default: the mission's arm_delay_s
+        self.arm_s = np.full(waypoints.shape[0], mission.arm_delay_s) if arm_s is None else np.asarray(arm_s)
 
     def init_state(self, n: int, yaw0: np.ndarray) -> NavigatorState:
         return NavigatorState(
@@ -79,8 +83,8 @@ class Navigator:
         m = self.m
         n = s.phase.shape[0]
         out = np.zeros((n, 6))
-        armed = np.full(n, t >= m.arm_delay_s)
-        start = (s.phase == PHASE_IDLE) & (t >= m.arm_delay_s + 0.5)
+        armed = t >= self.arm_s
+        start = (s.phase == PHASE_IDLE) & (t >= self.arm_s + 0.5)
         s.phase[start] = PHASE_TAKEOFF
         k_last = self.wps.shape[1] - 1
         target = self.wps[np.arange(n), np.minimum(s.seq, k_last)]
@@ -110,7 +114,10 @@ class Navigator:
         out[:, 0:2] = np.where(flying[:, None], vh, 0.0)
         out[:, 2] = np.where(flying, vz, 0.0)
         turn = flying & (dist_h > 3.0) & (s.phase == PHASE_MISSION)
-        s.yaw_sp = np.where(turn, np.arctan2(d[:, 1], d[:, 0]), s.yaw_sp)
+        # turn towards the next item no faster than MPC_YAWRAUTO_MAX, as PX4's auto modes do
+        step_max = m.yaw_rate_max * dt
+        turn_by = np.clip(wrap_pi(np.arctan2(d[:, 1], d[:, 0]) - s.yaw_sp), -step_max, step_max)
+        s.yaw_sp = np.where(turn, wrap_pi(s.yaw_sp + turn_by), s.yaw_sp)
         reached = flying & (dist_h < m.acceptance_radius) & (np.abs(d[:, 2]) < 0.5)
         # take-off item: hold for takeoff_hold_s once reached
         tk = reached & (s.phase == PHASE_TAKEOFF)

@@ -65,7 +65,7 @@ class SensorParams:
     gyro_bias_random_walk: float = 3.8785e-05  # rad/s^2/sqrt(Hz)
     gyro_bias_tau: float = 1000.0  # s
     mag_rate_hz: float = 100.0
-    mag_noise: float = 0.004  # gauss, 1 sigma per sample
+    mag_noise: float = 0.0015  # gauss, 1 sigma per sample: the shared SITL logs 0.0009-0.0023 (Gazebo: 0.004)
     # Earth field at the PX4 SITL home (Zurich), NED, gauss
     mag_field_ned: tuple[float, float, float] = (0.2158, 0.0099, 0.4250)
     baro_rate_hz: float = 50.0
@@ -75,12 +75,13 @@ class SensorParams:
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)
     # GPS position errors: the "simulator" level of GPS_ACCURACY (see there for "real_receiver");
     # the receiver reports eph = hypot(noise_h, bias_h) and epv = hypot(noise_v, bias_v) at 12 satellites
-    gps_noise_h: float = 0.15  # m, white, per axis
-    gps_noise_v: float = 0.25  # m, white
-    gps_bias_h: float = 0.25  # m, 1 sigma of the correlated (Gauss-Markov) error
-    gps_bias_v: float = 0.4  # m
+    # (PX4 SITL's GPS, as the RflyMAD SIL log shows it at hover: 0.03 m white on top of a slow error)
+    gps_noise_h: float = 0.03  # m, white, per axis
+    gps_noise_v: float = 0.05  # m, white
+    gps_bias_h: float = 0.2985  # m, 1 sigma of the correlated (Gauss-Markov) error: eph 0.30 m
+    gps_bias_v: float = 0.469  # m: epv 0.47 m
     gps_bias_tau: float = 60.0  # s
-    gps_vel_noise: float = 0.05  # m/s
+    gps_vel_noise: float = 0.025  # m/s, white per axis (the RflyMAD SIL log at hover: 0.024-0.025 m/s)
 
 
 @dataclass(frozen=True)
@@ -97,9 +98,15 @@ class ControllerParams:
     tilt_max: float = np.deg2rad(35.0)  # MPC_TILTMAX_AIR (rad)
     att_p: tuple[float, float, float] = (6.5, 6.5, 2.8)  # MC_ROLL_P, MC_PITCH_P, MC_YAW_P
     rate_max: tuple[float, float, float] = (np.deg2rad(220), np.deg2rad(220), np.deg2rad(200))
+    #: MPC_YAWRAUTO_MAX (rad/s): every flight here is flown in an auto mode, whose yaw rate PX4 limits
+    yaw_rate_auto: float = float(np.deg2rad(45.0))
     rate_p: tuple[float, float, float] = (18.0, 18.0, 8.0)  # 1/s, in physical units
     rate_i: tuple[float, float, float] = (4.0, 4.0, 2.0)
     thrust_min: float = 0.08  # of the maximum collective thrust
+
+    def rate_limits(self) -> tuple[float, float, float]:
+        """Body-rate setpoint limits (rad/s): MC_*RATE_MAX, the yaw at most MPC_YAWRAUTO_MAX."""
+        return (self.rate_max[0], self.rate_max[1], min(self.rate_max[2], self.yaw_rate_auto))
     land_detect_s: float = 0.6  # seconds of "landed" evidence before disarming
 
 
@@ -116,6 +123,10 @@ class EstimatorParams:
     baro_noise: float = 0.3  # m (EKF2_BARO_NOISE)
     gps_min_satellites: int = 6  # EKF2_REQ_NSATS: fewer satellites and GPS is not fused
     gps_max_eph: float = 3.0  # m, EKF2_REQ_EPH: a worse horizontal accuracy and GPS is not fused
+    #: EKF2_TAU_VEL / EKF2_TAU_POS (s): PX4's output predictor passes a fusion's correction on to the
+    #: position and velocity the controllers and the telemetry use over this time constant, so that
+    #: a GPS or baro update does not jolt the vehicle (the EKF's own state jumps at each fusion)
+    output_tau_s: float = 0.25
     att_accel_gain: float = 0.2  # 1/s, tilt correction from the accelerometer
     att_mag_gain: float = 0.3  # 1/s, heading correction from the magnetometer
     gyro_bias_gain: float = 0.002
@@ -134,8 +145,12 @@ class MissionParams:
     land_speed: float = 0.7  # m/s (MPC_LAND_SPEED), below 3 m; 1.5 m/s above
     acceptance_radius: float = 0.8  # m, perceived
     approach_gain: float = 1.0  # 1/s, speed = gain * distance near a waypoint
-    arm_delay_s: float = 1.0
-    takeoff_hold_s: float = 1.0
+    #: a PX4 start (generator.startup): wait on the ground for the GPS fix and the estimator's
+    #: origin, then arm (3.8-16 s on the ground as in real logs); False: GPS from boot, arm at arm_delay_s
+    ground_phase: bool = True
+    arm_delay_s: float = 1.0  # s, arming time when there is no ground phase
+    takeoff_hold_s: float = 5.0  # s of hover at the take-off point before the mission's first leg
+    yaw_rate_max: float = float(np.deg2rad(45.0))  # MPC_YAWRAUTO_MAX, rad/s: the navigator turns no faster
     max_duration_s: float = 150.0
     jitter_m: float = 0.3  # per-flight jitter of waypoints
     jitter_speed: float = 0.4  # m/s, per-flight jitter of the cruise speed

@@ -29,9 +29,9 @@ class Profile:
     #: GPS accuracy of the flights: "simulator" (PX4 SITL-like eph/epv ~0.3/0.5 m) or
     #: "real_receiver" (~2.8/5.9 m, as real receivers report); see generator/params.py GPS_ACCURACY
     gps_accuracy: str = "simulator"
-    #: message timing of the written flights: "ideal" (periodic from t = 0) or "realistic"
-    #: (jitter, drops, late messages, GPS after its fix; generator.timing)
-    timing: str = "ideal"
+    #: message timing of the written flights: "realistic" (jitter, drops, late messages, GPS after
+    #: its fix; generator.timing) or "ideal" (periodic from t = 0)
+    timing: str = "realistic"
 
     def flight_config(self):
         """The FlightConfig for this profile's flights (the defaults at its GPS accuracy and timing)."""

@@ -14,6 +14,7 @@ from scart_bench.generator.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.geo import HOME_ALT, pressure_at
 from scart_bench.generator.params import GRAVITY, SensorParams
 from scart_bench.generator.rotation import rotate_t
+from scart_bench.generator.startup import gps_quality
 
 
 @dataclass
@@ -28,6 +29,7 @@ class SensorState:
     truth_buffer: np.ndarray  # (delay_steps, N, 6) true pos/vel, for the GPS delay
     temperature: np.ndarray  # (N,) degC
     last_fix: np.ndarray | None = None  # (N, 3) last fixed position, reported while the fix is lost
+    fix_at: np.ndarray | None = None  # (N,) s, the receiver's first fix (generator.startup); None: from boot
 
 
 class Sensors:
@@ -110,6 +112,11 @@ class Sensors:
         eph = np.full(n, np.hypot(p.gps_noise_h, p.gps_bias_h)) * (12.0 / np.maximum(sats, 1.0))
         epv = np.full(n, np.hypot(p.gps_noise_v, p.gps_bias_v)) * (12.0 / np.maximum(sats, 1.0))
         fix = np.full(n, 3.0)
+        settling = None
+        if st.fix_at is not None:  # a receiver that starts: no fix yet, then satellites and accuracy settle
+            settling, sats, scale = gps_quality(step * self.dt, st.fix_at, st.satellites, sats)
+            eph = np.hypot(p.gps_noise_h, p.gps_bias_h) * (12.0 / np.maximum(sats, 1.0)) * scale
+            epv = np.hypot(p.gps_noise_v, p.gps_bias_v) * (12.0 / np.maximum(sats, 1.0)) * scale
         if env is not None:
             pos = pos + env.gps_offset
             vel = vel + env.gps_vel_offset
@@ -124,5 +131,9 @@ class Sensors:
                 pos[lost] = st.last_fix[lost]
                 vel[lost] = 0.0
                 eph[lost], epv[lost] = 99.99, 99.99
+        if settling is not None and not settling.all():
+            early = ~settling
+            fix = np.where(early, 1.0, fix)  # MAVLink GPS_FIX_TYPE_NO_FIX until the first fix
+            eph, epv = np.where(early, 99.99, eph), np.where(early, 99.99, epv)
         return {"pos": pos, "vel": vel, "eph": eph, "epv": epv, "satellites": np.asarray(sats, dtype=float).copy(),
                 "fix_type": fix}

@@ -23,7 +23,6 @@ from scart_bench.generator.flight import (  # noqa: F401 (re-exported: the publi
     FlightConfig,
     Initial,
     _alive,
-    _battery_init,
     _instance_gps,
     _instance_imu,
     _instance_value,
@@ -127,7 +126,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     sensors = init.sensors
     est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
     ctrl = Controller(cfg.controller, cfg.vehicle, DT)
-    nav = Navigator(m, waypoints.copy(), init.cruise)  # a copy: a mission tamper changes what it flies
+    nav = Navigator(m, waypoints.copy(), init.cruise, init.start[:, 2])  # a copy: a mission tamper changes what it flies
     vs = init.vehicle_state
     ss = init.sensor_state
     es = est.init_state(n, yaw0)
@@ -151,7 +150,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     done = np.zeros(n, dtype=bool)
     exit_step = np.full(n, -1, dtype=np.int64)
     status = np.array(["timeout"] * n, dtype=object)
-    battery = _battery_init(n)
+    battery = init.battery.copy()
+    origin_s = init.start[:, 1]
     vel_sp = np.zeros((n, 3))
     yaw_sp = yaw0.copy()
     setpoint_in = np.zeros((n, 6))
@@ -242,6 +242,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
                     gps["satellites"], gps["fix_type"] = vals[:, 8], vals[:, 9]
 
         R_est = est.predict(es, step, accel, gyro, ~cs.armed)
+        before_fusion = est.begin_fusion(es)
         if due_sens["sensor_mag"][step]:
             mag_ok = _alive(env, "mag", sens_ok.get("sensor_mag"))
             if mag_ok is not None:
@@ -254,15 +255,18 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
         if gps_due:
             ep = cfg.estimator
             usable = (gps["fix_type"] >= 3) & (gps["satellites"] >= ep.gps_min_satellites) & (gps["eph"] <= ep.gps_max_eph)
+            usable &= t >= origin_s  # EKF2 fuses GPS once its checks have passed (generator.startup)
             if "sensor_gps" in sens_ok:
                 usable = usable & sens_ok["sensor_gps"]
             est.fuse_gps(es, step, gps["pos"], gps["vel"], None if usable.all() else usable)
+        est.end_fusion(es, before_fusion)
+        out_pos, out_vel = est.output(es)
 
         # telemetry: flight controller -> link -> navigator
         due_now = [tp for tp in TELEMETRY_TOPICS if due[tp][step]]
         if due_now:
             snap = FCSnapshot(
-                quat=es.quat, rates=es.rates, pos=es.x[:, :, 0], vel=es.x[:, :, 1], accel=accel, gyro=gyro,
+                quat=es.quat, rates=es.rates, pos=out_pos, vel=out_vel, accel=accel, gyro=gyro,
                 mag=mag, pressure=pressure, baro_temp=baro_temp, gps=gps if gps is not None else _no_gps(n),
                 battery=battery, baro_home_alt=es.baro_offset,
             )
@@ -290,7 +294,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
                 nav_rec.add("setpoint", step, sp_vals, sp_ok)
             ok = np.ones(n, bool) if sp_ok is None else sp_ok
             if commander is not None:
-                sp_vals, ok, crashed = commander.step(t, sp_vals, ok, command, es.x[:, :, 0], es.x[:, :, 1],
+                sp_vals, ok, crashed = commander.step(t, sp_vals, ok, command, out_pos, out_vel,
                                                       setpoint_in[:, 3],
                                                       cs.armed, vs.vel[:, 2], vs.on_ground, done)
                 status[crashed] = "crashed"
@@ -302,8 +306,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             arm_req = (setpoint_in[:, 5] > 0.5) & ~cs.disarmed_after_flight & ~done
             cs.armed = arm_req
             R_est = _rot(es)
-            ctrl.velocity_control(cs, vel_sp, yaw_sp, es.x[:, :, 1], R_est, 1.0 / NAV_RATE_HZ)
-            ctrl.land_detector(cs, vel_sp, es.x[:, :, 1], 1.0 / NAV_RATE_HZ)
+            ctrl.velocity_control(cs, vel_sp, yaw_sp, out_vel, R_est, 1.0 / NAV_RATE_HZ)
+            ctrl.land_detector(cs, vel_sp, out_vel, 1.0 / NAV_RATE_HZ)
         ctrl.attitude_control(cs, R_est)
 
         # battery (4S, 5.1 Ah), at its own rate

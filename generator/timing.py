@@ -8,14 +8,16 @@ and the simulator view of a flight, so the two still line up row for row.
 
 ``FlightConfig.timing``:
 
-- ``"ideal"`` (the default): nothing changes;
-- ``"realistic"``: per topic (:data:`REALISTIC`), every message's timestamp moves by a zero-mean
+- ``"realistic"`` (the default): per topic (:data:`REALISTIC`), every message's timestamp moves by a zero-mean
   offset (normal, clipped at +-0.45 period) sized so that the interval coefficient of variation is
   that of the RflyMAD SIL log (``perf/realism.py``: jitter CV); a message is dropped, or written
   late (0.5-0.9 period after its time), with the topic's probabilities (from the CubeOrange
-  hardware log; the SIL log has neither); the GPS topics start when the receiver has a fix (:data:`GPS_FIX_S`, SIL log:
-  4.6 s) and the global position when the estimator has its origin (:data:`GLOBAL_AFTER_FIX_S`
-  later; SIL log: 8.9 s). The truth and the setpoint are not messages of the link: unchanged.
+  hardware log; the SIL log has neither); the GPS topics start when the receiver has its fix and
+  the global position when the estimator has its origin, at the flight's own times
+  (:func:`generator.startup.flight_start`, the times the closed loop flies by: SIL log 4.6 s and
+  8.9 s). The truth and the setpoint are not messages of the link: unchanged;
+- ``"ideal"``: nothing changes (every topic periodic from t = 0; GPS messages before the fix are
+  written, with fix type 1 "no fix").
 
 Everything is drawn from the flight's seed and the topic's name only (one generator per flight,
 topic and purpose, each used in one call), so a flight's timing is the same in any batch and on
@@ -29,6 +31,8 @@ import zlib
 
 import numpy as np
 
+from scart_bench.generator import startup
+
 TIMINGS = ("ideal", "realistic")
 
 #: per link topic: (interval coefficient of variation, drop probability, late probability).
@@ -41,8 +45,8 @@ REALISTIC = {
     "local_position_ned": (0.059, 0.008, 0.044), "global_position_int": (0.112, 0.0, 0.0),
     "gps_raw_int": (0.018, 0.0, 0.0), "scaled_pressure": (0.025, 0.008, 0.0), "battery_status": (0.071, 0.0, 0.0),
 }
-GPS_FIX_S = (3.0, 6.0)
-GLOBAL_AFTER_FIX_S = (3.0, 5.0)
+GPS_FIX_S = startup.GPS_FIX_S
+GLOBAL_AFTER_FIX_S = startup.ORIGIN_AFTER_FIX_S
 GPS_TOPICS = ("gps_raw_int", "global_position_int")
 _CLIP = 0.45
 
@@ -58,10 +62,9 @@ def _rng(seed: int, key: str, purpose: int) -> np.random.Generator:
 
 
 def fix_times_us(seed: int) -> dict[str, int]:
-    """When the GPS topics of a flight start (µs): the fix, then the global position."""
-    u = _rng(seed, "gps_fix", 0).random(2)
-    fix = GPS_FIX_S[0] + u[0] * (GPS_FIX_S[1] - GPS_FIX_S[0])
-    glob = fix + GLOBAL_AFTER_FIX_S[0] + u[1] * (GLOBAL_AFTER_FIX_S[1] - GLOBAL_AFTER_FIX_S[0])
+    """When the GPS topics of a flight start (µs): the fix, then the global position (the
+    estimator's origin), as the flight's ground phase has them (generator.startup)."""
+    fix, glob, _ = startup.flight_start(seed)
     return {"gps_raw_int": int(round(fix * 1e6)), "global_position_int": int(round(glob * 1e6))}
 
 

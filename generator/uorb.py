@@ -22,7 +22,8 @@ controller's internal topics hold:
 
 Rates are the ones the generator records (no value is interpolated or repeated): each uORB topic
 has the rows of its source message (:data:`UORB_TOPICS`), so ``sensor_combined`` is at 50 Hz (one
-250 Hz IMU sample per row), not PX4's 250 Hz. Fields PX4 has that the generator does not produce
+250 Hz IMU sample per row), not PX4's 250 Hz; ``vehicle_air_data`` takes the latest baro sample on
+a 20 Hz clock of its own (``UorbTopic.own_rate_hz``), as PX4 logs show it. Fields PX4 has that the generator does not produce
 (estimator bookkeeping, receiver internals, device ids, absolute clocks) are left out, each named
 with its reason in :data:`OMITTED`.
 """
@@ -57,11 +58,24 @@ class UorbTopic:
     fields: tuple[str, ...]
     compute: Columns
     meaning: str
+    #: a clock of its own (Hz), slower than the source's: the topic has the source row due at each
+    #: tick (the latest sample), as PX4 publishes it; None: every source row
+    own_rate_hz: float | None = None
 
     @property
     def rate_hz(self) -> float:
-        """The rate the generator records the source message at (Hz)."""
-        return TOPICS[self.source].rate_hz
+        """The rate of the topic's rows (Hz): its own clock's, else the source message's."""
+        return self.own_rate_hz if self.own_rate_hz is not None else TOPICS[self.source].rate_hz
+
+
+def own_clock_rows(timestamps: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Indices of the rows a topic on its own ``rate_hz`` clock takes from a faster source: the first
+    row at or after each tick from the first row's time (sorted timestamps, µs)."""
+    ts = np.asarray(timestamps, dtype=np.int64)
+    if ts.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    ticks = ts[0] + np.arange(0, ts[-1] - ts[0] + 1, 1e6 / rate_hz)
+    return np.unique(np.searchsorted(ts, ticks, side="left"))
 
 
 def _col(df: pd.DataFrame, name: str) -> np.ndarray:
@@ -117,8 +131,9 @@ def _battery_status(d: pd.DataFrame) -> dict[str, np.ndarray]:
     return {"voltage_v": _col(d, "voltage"), "current_a": _col(d, "current"), "remaining": _col(d, "remaining")}
 
 
-#: The uORB topics of the view, in order. The baro rides on highres_imu (50 Hz: every baro sample,
-#: the barometer's own rate) rather than scaled_pressure (10 Hz).
+#: The uORB topics of the view, in order. The baro rides on highres_imu (every 50 Hz row holds the
+#: latest baro sample) rather than scaled_pressure (10 Hz), on a 20 Hz clock of its own as
+#: ``vehicle_air_data`` has in PX4 logs (18.3-20 Hz in the shared logs).
 UORB_TOPICS: dict[str, UorbTopic] = {t.name: t for t in (
     UorbTopic("sensor_combined", "highres_imu",
               ("gyro_rad_0", "gyro_rad_1", "gyro_rad_2", "gyro_integral_dt", "accelerometer_timestamp_relative",
@@ -136,7 +151,8 @@ UORB_TOPICS: dict[str, UorbTopic] = {t.name: t for t in (
                "fix_type", "satellites_used"), _vehicle_gps_position,
               "GPS receiver output: deg, m AMSL, accuracies m, velocity m/s NED, course rad"),
     UorbTopic("vehicle_air_data", "highres_imu", ("baro_alt_meter", "baro_temp_celcius", "baro_pressure_pa", "rho"),
-              _vehicle_air_data, "barometer: pressure Pa, temperature degC, altitude AMSL m, air density kg/m^3"),
+              _vehicle_air_data, "barometer: pressure Pa, temperature degC, altitude AMSL m, air density kg/m^3",
+              own_rate_hz=20.0),
     UorbTopic("battery_status", "battery_status", ("voltage_v", "current_a", "remaining"), _battery_status,
               "battery: voltage V, current A, state of charge 0..1"),
 )}
@@ -209,6 +225,8 @@ def uorb_view(simulator: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
         src = simulator.get(topic.source)
         if src is None:
             continue
+        if topic.own_rate_hz is not None:
+            src = src.iloc[own_clock_rows(src["Timestamp"].to_numpy(), topic.own_rate_hz)]
         lead = ["Timestamp", *(c for c in LABEL_COLUMNS if c in src.columns)]
         table = src[lead].reset_index(drop=True).copy()
         values = topic.compute(src)

@@ -1,10 +1,15 @@
 """How close generated flights are to real PX4 logs: rates, timing jitter, sensor noise, GPS accuracy.
 
-    python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--markdown] [--ulog FILE ...]
+    python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--timing T] [--markdown]
+                           [--dataset DIR [--view VIEW]] [--logs DIR] [--ulog FILE ...] [--two-sample]
 
-Flies ``N`` default-mission normal flights (holding 12 s in hover after take-off) and reads the given ULogs (by default every ``*.ulg`` in
-``../shared/data/ulog`` next to the checkout), then prints one row per figure: the generated value
-(median over the flights), each log's value and the ratio generated / log.
+Flies ``N`` default-mission normal flights (holding 12 s in hover after take-off), or reads up to
+``N`` normal flights of a generated dataset (``--dataset``, its simulator view by default), and
+reads the given ULogs (``--ulog`` files and every ``*.ulg`` of ``--logs``; by default every
+``*.ulg`` in ``../shared/data/ulog`` next to the checkout), then prints one row per figure and
+axis: the generated value (median over the flights), each log's value and the ratio generated /
+log. ``--two-sample`` also prints the cross-validated AUC of a classifier that tells the generated
+flights from the logs by their timing and noise figures (:func:`two_sample_auc`; 0.5: it cannot).
 
 Figures, computed the same way on both sides:
 
@@ -19,7 +24,7 @@ Figures, computed the same way on both sides:
   still samples: horizontal speed < 0.5 m/s, vertical < 0.3 m/s and yaw rate (1 s average)
   < 0.05 rad/s (no turn on the spot), airborne (> 1 m above the
   first position) when the log has such samples ("hover"), else on the ground ("ground": a bench
-  log). Gyro z (rad/s), accelerometer x and y (m/s^2).
+  log). Gyro x, y, z (rad/s), accelerometer x, y, z (m/s^2), magnetometer x, y, z (gauss).
 - Baro altitude noise: the barometric altitude sampled at 10 Hz, minus its 1 s moving average,
   std over the same still samples (m).
 - GPS accuracy: median reported ``eph`` / ``epv`` (m) over messages with a 3-D fix.
@@ -60,6 +65,10 @@ STILL_YAW = 0.05  # rad/s, yaw rate averaged over HP_WINDOW_S
 AIRBORNE_M = 1.0
 EDGE_S = 0.5  # still samples this close to a moving one are left out
 HOVER_S = 12.0  # the generated flights hold this long after take-off
+#: noise figures of the IMU and magnetometer: (figure, Flight attribute), every axis
+NOISE_AXES = tuple((f"{sensor} {axis} std {unit}", f"{attr}_{axis}")
+                   for sensor, attr, unit in (("gyro", "gyro", "rad/s"), ("acc", "acc", "m/s2"), ("mag", "mag", "gauss"))
+                   for axis in "xyz")
 
 
 @dataclass
@@ -68,9 +77,15 @@ class Flight:
 
     name: str
     times: dict[str, np.ndarray] = field(default_factory=dict)  # logical topic -> message times
+    gyro_x: tuple[np.ndarray, np.ndarray] | None = None
+    gyro_y: tuple[np.ndarray, np.ndarray] | None = None
     gyro_z: tuple[np.ndarray, np.ndarray] | None = None
     acc_x: tuple[np.ndarray, np.ndarray] | None = None
     acc_y: tuple[np.ndarray, np.ndarray] | None = None
+    acc_z: tuple[np.ndarray, np.ndarray] | None = None
+    mag_x: tuple[np.ndarray, np.ndarray] | None = None
+    mag_y: tuple[np.ndarray, np.ndarray] | None = None
+    mag_z: tuple[np.ndarray, np.ndarray] | None = None
     baro_alt: tuple[np.ndarray, np.ndarray] | None = None
     velocity: tuple[np.ndarray, np.ndarray] | None = None  # t, (n, 3) NED
     height: tuple[np.ndarray, np.ndarray] | None = None  # t, metres above the first position
@@ -132,15 +147,20 @@ def from_ulog_topics(name: str, data: dict[str, dict[str, np.ndarray]]) -> Fligh
             f.times[logical] = hit[1]["t"]
     if "sensor_combined" in data:
         d = data["sensor_combined"]
-        f.gyro_z = d["t"], _col(d, "gyro_rad[2]")
-        f.acc_x, f.acc_y = (d["t"], _col(d, "accelerometer_m_s2[0]")), (d["t"], _col(d, "accelerometer_m_s2[1]"))
+        f.gyro_x, f.gyro_y, f.gyro_z = ((d["t"], _col(d, f"gyro_rad[{k}]")) for k in range(3))
+        f.acc_x, f.acc_y, f.acc_z = ((d["t"], _col(d, f"accelerometer_m_s2[{k}]")) for k in range(3))
     else:
         if "vehicle_angular_velocity" in data:
             d = data["vehicle_angular_velocity"]
-            f.gyro_z = d["t"], _col(d, "xyz[2]")
+            f.gyro_x, f.gyro_y, f.gyro_z = ((d["t"], _col(d, f"xyz[{k}]")) for k in range(3))
         if "vehicle_acceleration" in data:
             d = data["vehicle_acceleration"]
-            f.acc_x, f.acc_y = (d["t"], _col(d, "xyz[0]")), (d["t"], _col(d, "xyz[1]"))
+            f.acc_x, f.acc_y, f.acc_z = ((d["t"], _col(d, f"xyz[{k}]")) for k in range(3))
+    hit = _first(data, ("sensor_mag", "vehicle_magnetometer"))
+    if hit is not None:
+        d = hit[1]
+        f.mag_x, f.mag_y, f.mag_z = ((d["t"], _col(d, axis, f"magnetometer_ga[{k}]"))
+                                     for k, axis in enumerate("xyz"))
     if "vehicle_air_data" in data:
         d = data["vehicle_air_data"]
         f.baro_alt = d["t"], _col(d, "baro_alt_meter")
@@ -173,24 +193,40 @@ def from_tables(name: str, tables: dict) -> Flight:
     if "highres_imu" in tables:
         d = tables["highres_imu"]
         ti = t["highres_imu"]
-        f.gyro_z = ti, d["zgyro"].to_numpy(float)
-        f.acc_x, f.acc_y = (ti, d["xacc"].to_numpy(float)), (ti, d["yacc"].to_numpy(float))
+        f.gyro_x, f.gyro_y, f.gyro_z = ((ti, d[f"{a}gyro"].to_numpy(float)) for a in "xyz")
+        f.acc_x, f.acc_y, f.acc_z = ((ti, d[f"{a}acc"].to_numpy(float)) for a in "xyz")
+        f.mag_x, f.mag_y, f.mag_z = ((ti, d[f"{a}mag"].to_numpy(float)) for a in "xyz")
+    elif "sensor_combined" in tables:  # the uORB view
+        d = tables["sensor_combined"]
+        ti = t["sensor_combined"]
+        f.gyro_x, f.gyro_y, f.gyro_z = ((ti, d[f"gyro_rad_{k}"].to_numpy(float)) for k in range(3))
+        f.acc_x, f.acc_y, f.acc_z = ((ti, d[f"accelerometer_m_s2_{k}"].to_numpy(float)) for k in range(3))
+    if "sensor_mag" in tables and f.mag_x is None:
+        d = tables["sensor_mag"]
+        f.mag_x, f.mag_y, f.mag_z = ((t["sensor_mag"], d[a].to_numpy(float)) for a in "xyz")
     if "scaled_pressure" in tables:
         d = tables["scaled_pressure"]
         f.baro_alt = t["scaled_pressure"], pressure_altitude(d["press_abs"].to_numpy(float) * 100.0)
-    if "local_position_ned" in tables:
-        d = tables["local_position_ned"]
-        f.velocity = t["local_position_ned"], d[["vx", "vy", "vz"]].to_numpy(float)
-        z = d["z"].to_numpy(float)
-        f.height = t["local_position_ned"], z[0] - z
-    if "gps_raw_int" in tables:
-        d = tables["gps_raw_int"]
-        ok = d["fix_type"].to_numpy(float) >= 3
-        f.eph, f.epv = d["eph"].to_numpy(float)[ok], d["epv"].to_numpy(float)[ok]
+    elif "vehicle_air_data" in tables:
+        f.baro_alt = t["vehicle_air_data"], tables["vehicle_air_data"]["baro_alt_meter"].to_numpy(float)
+    for name in ("local_position_ned", "vehicle_local_position"):
+        if name in tables:
+            d = tables[name]
+            f.velocity = t[name], d[["vx", "vy", "vz"]].to_numpy(float)
+            z = d["z"].to_numpy(float)
+            f.height = t[name], z[0] - z
+            break
+    for name in ("gps_raw_int", "vehicle_gps_position"):
+        if name in tables:
+            d = tables[name]
+            ok = d["fix_type"].to_numpy(float) >= 3
+            f.eph, f.epv = d["eph"].to_numpy(float)[ok], d["epv"].to_numpy(float)[ok]
+            break
     return f
 
 
-def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, timing: str = "ideal") -> list[Flight]:
+def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, timing: str | None = None
+                      ) -> list[Flight]:
     """Fly ``n`` normal default-mission flights (in one batch) and read them like a log.
 
     The flights hold ``HOVER_S`` s after take-off (instead of 1 s) so that they have a hover.
@@ -201,8 +237,8 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
     from scart_bench.generator.records import flight_views
     from scart_bench.generator.simulate import FlightConfig, simulate
 
-    config = FlightConfig(timing=timing)
-    # the default mission only pauses 1 s after take-off; hold HOVER_S so there is a hover to measure
+    config = FlightConfig() if timing is None else FlightConfig(timing=timing)
+    # hold HOVER_S (the default mission holds takeoff_hold_s) so there is a long hover to measure
     config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, takeoff_hold_s=HOVER_S))
     if gps_accuracy is not None:
         from scart_bench.generator.params import with_gps_accuracy
@@ -213,6 +249,21 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
     for i in range(n):
         _, sim = flight_views(batch, i, ())
         flights.append(from_tables(f"generated-{i}", sim))
+    return flights
+
+
+def dataset_flights(path: str | Path, n: int | None = None, view: str = "simulator") -> list[Flight]:
+    """Up to ``n`` normal flights of a generated dataset, read like a log (one view of each:
+    ``simulator``, ``navigator`` or ``uorb``)."""
+    from scart_bench.generator.dataset import open_dataset
+
+    ds = open_dataset(path)
+    m = ds.manifest
+    ids = m.loc[m["mode"] == "normal", "flight_id"].astype(str).tolist()[:n]
+    flights = []
+    for fid in ids:
+        tables = {t: ds.topic(fid, t, view) for t in ds.topics(fid, view)}
+        flights.append(from_tables(f"{Path(path).name}/{fid}", tables))
     return flights
 
 
@@ -285,8 +336,8 @@ def figures(f: Flight) -> dict[str, tuple[float, str]]:
         cv = float(dt.std() / dt.mean())
         out[f"{logical} jitter CV"] = (cv if cv > 1e-9 else 0.0, "")  # float rounding of a perfect clock: 0
         out[f"{logical} first msg s"] = (float(t[0]), "")
-    for name, series in (("gyro z std rad/s", f.gyro_z), ("acc x std m/s2", f.acc_x), ("acc y std m/s2", f.acc_y)):
-        out[name] = noise(f, series, IMU_HZ)
+    for name, attr in NOISE_AXES:
+        out[name] = noise(f, getattr(f, attr), IMU_HZ)
     out["baro alt std m"] = noise(f, f.baro_alt, BARO_HZ)
     out["gps eph m"] = (float(np.median(f.eph)) if f.eph is not None and len(f.eph) else math.nan, "")
     out["gps epv m"] = (float(np.median(f.epv)) if f.epv is not None and len(f.epv) else math.nan, "")
@@ -336,20 +387,82 @@ def table(generated: list[Flight], logs: list[Flight], markdown: bool = False) -
     return "\n".join([fmt(header), "  ".join("-" * w for w in widths)] + [fmt(r) for r in rows])
 
 
+#: the per-flight figures the two-sample check compares: timing (jitter, late topics) and noise
+TWO_SAMPLE_FEATURES = (
+    "imu jitter CV", "attitude jitter CV", "local_position jitter CV", "gps jitter CV", "baro jitter CV",
+    "battery jitter CV", "gps first msg s", "global_position first msg s",
+    *(name for name, _ in NOISE_AXES), "baro alt std m", "gps eph m", "gps epv m",
+)
+
+
+def two_sample_features(flights: list[Flight]) -> np.ndarray:
+    """(n_flights, n_features) log10 of the :data:`TWO_SAMPLE_FEATURES` (NaN where a flight lacks one;
+    0, a perfect clock, counts as 1e-4)."""
+    rows = []
+    for f in flights:
+        fig = figures(f)
+        rows.append([fig[name][0] for name in TWO_SAMPLE_FEATURES])
+    x = np.asarray(rows, dtype=float)
+    return np.log10(np.maximum(x, 1e-4))
+
+
+def two_sample_auc(generated: list[Flight], logs: list[Flight], repeats: int = 20, seed: int = 0) -> float:
+    """Cross-validated ROC AUC of a logistic regression telling generated flights from real logs by
+    their timing and noise figures (median-imputed, standardised, classes weighted alike): 0.5
+    means it cannot tell them apart, 1.0 that every flight gives itself away. Stratified k-fold
+    (k = at most 5 and the smaller class), out-of-fold probabilities, averaged over ``repeats``
+    shuffles."""
+    from sklearn.impute import SimpleImputer
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.metrics import roc_auc_score
+    from sklearn.model_selection import StratifiedKFold, cross_val_predict
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    x = np.vstack([two_sample_features(generated), two_sample_features(logs)])
+    y = np.r_[np.zeros(len(generated)), np.ones(len(logs))]
+    x = x[:, ~np.isnan(x).all(axis=0)]  # a figure no flight has
+    k = int(min(5, len(generated), len(logs)))
+    if k < 2:
+        raise ValueError("the two-sample check needs at least 2 generated flights and 2 logs")
+    aucs = []
+    for r in range(repeats):
+        model = make_pipeline(SimpleImputer(strategy="median", keep_empty_features=True), StandardScaler(),
+                              LogisticRegression(C=1.0, class_weight="balanced", max_iter=1000))
+        folds = StratifiedKFold(n_splits=k, shuffle=True, random_state=seed + r)
+        p = cross_val_predict(model, x, y, cv=folds, method="predict_proba")[:, 1]
+        aucs.append(roc_auc_score(y, p))
+    return float(np.mean(aucs))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--flights", type=int, default=8, help="generated normal flights (default 8)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gps-accuracy", default=None,
                    help="GPS accuracy level of the generated flights (default: the generator's default)")
-    p.add_argument("--timing", default="ideal", choices=("ideal", "realistic"),
-                   help="message timing of the generated flights (generator.timing; default ideal)")
-    p.add_argument("--ulog", nargs="*", default=None, help=f"PX4 ULog files (default: {DEFAULT_ULOG_DIR}/*.ulg)")
+    p.add_argument("--timing", default=None, choices=("ideal", "realistic"),
+                   help="message timing of the generated flights (generator.timing; default: the generator's)")
+    p.add_argument("--dataset", default=None, help="read up to --flights normal flights of this generated dataset "
+                   "instead of flying them")
+    p.add_argument("--view", default="simulator", choices=("simulator", "navigator", "uorb"),
+                   help="the dataset view to read (default simulator)")
+    p.add_argument("--logs", default=None, help=f"a folder of PX4 ULogs (its *.ulg; default {DEFAULT_ULOG_DIR} "
+                   "when no --ulog is given)")
+    p.add_argument("--ulog", nargs="*", default=None, help="PX4 ULog files")
     p.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    p.add_argument("--two-sample", action="store_true",
+                   help="also print the two-sample classifier's cross-validated AUC (generated vs logs)")
     args = p.parse_args(argv)
     if args.flights < 1:
         p.error("--flights must be at least 1")
-    paths = [Path(x) for x in args.ulog] if args.ulog is not None else sorted(DEFAULT_ULOG_DIR.glob("*.ulg"))
+    paths = [Path(x) for x in args.ulog or ()]
+    if args.logs is not None:
+        if not Path(args.logs).is_dir():
+            p.error(f"--logs {args.logs}: no such folder")
+        paths += sorted(Path(args.logs).glob("*.ulg"))
+    elif args.ulog is None:
+        paths = sorted(DEFAULT_ULOG_DIR.glob("*.ulg"))
     missing = [str(x) for x in paths if not x.is_file()]
     if missing:
         p.error(f"no such ULog file: {missing[0]}")
@@ -359,8 +472,17 @@ def main(argv: list[str] | None = None) -> int:
             logs.append(read_ulog(path))
         except Exception as exc:  # a damaged log: say which and go on with the others
             print(f"{path}: cannot read it as a ULog ({type(exc).__name__}: {exc}); left out")
-    generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing)
+    if args.dataset is not None:
+        generated = dataset_flights(args.dataset, args.flights, args.view)
+        if not generated:
+            p.error(f"--dataset {args.dataset}: no normal flights")
+    else:
+        generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing)
     print(table(generated, logs, markdown=args.markdown))
+    if args.two_sample:
+        auc = two_sample_auc(generated, logs)
+        print(f"\ntwo-sample AUC (generated n={len(generated)} vs logs n={len(logs)}; 0.5 = indistinguishable): "
+              f"{auc:.3f}")
     return 0
 
 

@@ -48,7 +48,10 @@ def _views(batch, layer, i):
 
 def _estimate_error(sim) -> pd.DataFrame:
     """Horizontal distance between the flight controller's position estimate and the truth."""
-    m = sim["truth"].merge(sim["local_position_ned"], on="Timestamp", suffixes=("_t", "_e"))
+    # the nearest truth row (50 Hz) to each estimate: with realistic timing the messages are not on its clock
+    est = sim["local_position_ned"].sort_values("Timestamp")
+    m = pd.merge_asof(est, sim["truth"], on="Timestamp", direction="nearest", tolerance=10_000, suffixes=("_e", "_t"))
+    m = m.dropna(subset=["x_t"])
     return pd.DataFrame({"t": m["Timestamp"], "err": np.hypot(m["x_t"] - m["x_e"], m["y_t"] - m["y_e"])})
 
 

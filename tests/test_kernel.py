@@ -14,7 +14,7 @@ from scart_bench.generator.topics import TOPICS
 
 TOPIC_FIELDS = {name: i for i, name in enumerate(TOPICS["gps_raw_int"].field_names)}
 
-STEPS_1000 = FlightConfig(mission=MissionParams(max_duration_s=4.0))  # 1,000 steps: arm, take off, climb
+STEPS_1000 = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=4.0))  # 1,000 steps: arm, take off, climb
 
 
 def _assert_close(kernel: dict, reference: dict, atol: float = 1e-9) -> None:
@@ -38,6 +38,18 @@ def test_kernel_matches_the_numpy_reference_step_over_1000_steps():
     np.testing.assert_array_equal(ker.exit_step, ref.exit_step)
 
 
+def test_kernel_matches_the_reference_through_the_ground_phase():
+    """GPS fix, the estimator's origin, arming and take-off at each flight's own times, and the
+    receiver's settling satellites and accuracy: the two engines agree step for step."""
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=13.0))
+    ref = simulate([3, 4], cfg, engine="numpy")
+    ker = simulate([3, 4], cfg, engine="kernel")
+    truth = ref.simulator["truth"][1]
+    assert truth[:, 0, 2].max() == 0.0 and truth[:, -1, 2].max() < -1.0, "on the ground first, then airborne"
+    _assert_close(ker.simulator, ref.simulator)
+    np.testing.assert_array_equal(ker.gps_rejections, ref.gps_rejections)
+
+
 def _layer_scenarios() -> list:
     link = scenario_from_dict({
         "id": "k-link", "injection_point": "link", "start": [{"condition": "time_window", "start_s": 2.0}],
@@ -55,7 +67,7 @@ def _layer_scenarios() -> list:
 
 def test_kernel_matches_the_reference_with_the_layer_at_every_injection_point():
     """Link, sensor and command hooks: both views, the delivered masks and the event log agree."""
-    cfg = FlightConfig(mission=MissionParams(max_duration_s=5.0))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=5.0))
     seeds = [7, 8, 9]
     runs = {}
     for engine in ("numpy", "kernel"):
@@ -77,7 +89,7 @@ def _physical(sid: str, point: str, start_s: float, action: dict) -> object:
 def test_kernel_matches_the_reference_under_environment_attacks_and_faults():
     """Jamming (fix lost), RF spoofing, a gust, magnetic interference, motor and battery faults and
     lost sensor instances (frozen and failed over) change the flights as the reference step does."""
-    cfg = FlightConfig(mission=MissionParams(max_duration_s=5.0))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=5.0))
     env, veh = "environment", "vehicle"
     flights = [
         [_physical("jam", env, 1.6, {"action": "gps_jamming", "js_db": 80.0}),
@@ -116,7 +128,7 @@ def test_kernel_matches_the_reference_under_attacks_on_the_control_link():
     mission, a link loss into the datalink failsafe, replay and flooding: both engines react alike."""
     from scart_bench.generator.control import ControlParams
 
-    cfg = FlightConfig(mission=MissionParams(max_duration_s=24.0), control=ControlParams(datalink_loss_s=2.0))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=24.0), control=ControlParams(datalink_loss_s=2.0))
     scenarios = [
         [_link_attack("disarm", "command", 7.0, {"action": "inject_command", "command": "disarm"})],
         [_link_attack("land", "command", 6.0, {"action": "inject_command", "command": "land"})],
@@ -184,7 +196,7 @@ def test_batches_flown_from_two_threads_at_once_are_unchanged():
     """simulate() may be called from several threads (the parallel stretches take turns)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    cfg = FlightConfig(mission=MissionParams(max_duration_s=10.0))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=10.0))
     seeds = ([41, 42, 43, 44, 45], [51, 52, 53, 54, 55])
     with ThreadPoolExecutor(max_workers=2) as pool:
         together = list(pool.map(lambda s: simulate(s, cfg), seeds))

@@ -17,8 +17,9 @@ from scart_bench.generator.scart.scenario import scenario_from_dict
 from scart_bench.generator.scart.spec import ScenarioError
 from scart_bench.generator.simulate import FlightConfig, simulate
 
-#: The attacks start at 14 s: the vehicle is on the first leg of the square (at 10 m).
-START_S = 14.0
+#: The attacks start at 29 s: the vehicle (seed 11: armed at 11.6 s, after its GPS fix and the
+#: estimator's origin) is on the first leg of the square (at 10 m).
+START_S = 29.0
 
 
 def _sc(sid: str, point: str, action: dict, end_s: float | None = None, start_s: float = START_S):
@@ -152,9 +153,10 @@ def test_inject_command_and_mission_tamper_only_at_the_command_point():
 
 @pytest.fixture(scope="module")
 def replay_flood():
-    cfg = FlightConfig(mission=MissionParams(max_duration_s=22.0))
-    replay = _sc("replay", "link", {"action": "replay", "span_s": 2.0}, end_s=4.0, start_s=12.0)
-    flood = _sc("flood", "link", {"action": "flood", "rate_hz": 150.0}, end_s=4.0, start_s=12.0)
+    # seed 5 arms at 10.0 s (after its GPS fix and the estimator's origin): on the first leg at 25 s
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=35.0))
+    replay = _sc("replay", "link", {"action": "replay", "span_s": 2.0}, end_s=4.0, start_s=25.0)
+    flood = _sc("flood", "link", {"action": "flood", "rate_hz": 150.0}, end_s=4.0, start_s=25.0)
     layer = AttackLayer([[replay], [flood], []], [5, 5, 5])
     return simulate([5, 5, 5], cfg, layer=layer), layer
 
@@ -283,7 +285,11 @@ def test_a_benchmark_run_on_a_dataset_with_control_link_attacks_reports_them(tmp
     from run_fixtures import plugin
 
     out = tmp_path / "ds"
-    assert main(["generate", "--profile", "quick", "--flights", "4", "--scenarios", "data/scenarios/control_link.toml",
+    # the grid's attacks start at 20 s, where a flight without a ground phase was on its second leg;
+    # a flight that waits for its GPS fix and arms at 6.5-14.5 s is there about 13 s later
+    grid = tmp_path / "control_link.toml"
+    grid.write_text(open("data/scenarios/control_link.toml").read().replace("start_s = 20.0", "start_s = 33.0"))
+    assert main(["generate", "--profile", "quick", "--flights", "4", "--scenarios", str(grid),
                  "--out", str(out)]) == 0
     m = open_dataset(out).manifest.set_index("flight_id")
     attacked = m[m["mode"] != "normal"]

@@ -19,7 +19,7 @@ from scart_bench.generator.simulate import FlightConfig, simulate
 from scart_bench.generator.timing import GPS_FIX_S, fix_times_us, message_timing
 
 REAL = FlightConfig(mission=MissionParams(max_duration_s=20.0), timing="realistic")
-IDEAL = FlightConfig(mission=MissionParams(max_duration_s=20.0))
+IDEAL = FlightConfig(mission=MissionParams(max_duration_s=20.0), timing="ideal")
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +55,33 @@ def test_realistic_timing_jitters_drops_and_starts_gps_late(flown):
                for i in range(3))
     assert lost > 0
     assert len(sim["truth"]) == len(flight_views(ideal, 0)[1]["truth"])
+
+
+def test_realistic_timing_is_the_default():
+    """A default flight (and every profile's) is stamped as a PX4 link stamps it: no topic is
+    perfectly periodic, and GPS starts at the receiver's fix, not at boot."""
+    from scart_bench.generator.profiles import PROFILES
+
+    assert FlightConfig().timing == "realistic"
+    assert all(p.flight_config().timing == "realistic" for p in PROFILES.values())
+    nav, _ = flight_views(simulate([24], FlightConfig(mission=MissionParams(max_duration_s=12.0))), 0)
+    for topic in ("highres_imu", "attitude", "gps_raw_int", "local_position_ned"):
+        assert _cv(nav[topic]["Timestamp"].to_numpy()) > 0.01, topic
+    assert nav["gps_raw_int"]["Timestamp"].iloc[0] >= GPS_FIX_S[0] * 1e6
+
+
+def test_gps_topics_start_at_the_fix_the_closed_loop_flew_by(flown):
+    """The first GPS message written (realistic timing) is the receiver's first fix, and the
+    global position starts when the estimator fused GPS for the first time."""
+    real, _, ideal = flown
+    nav, _ = flight_views(real, 0)
+    nav0, _ = flight_views(ideal, 0)
+    gps = nav["gps_raw_int"]
+    assert gps["fix_type"].iloc[0] == 3 and (gps["fix_type"] == 3).all()
+    ideal_gps = nav0["gps_raw_int"]
+    first_fix = ideal_gps.loc[ideal_gps["fix_type"] == 3, "Timestamp"].iloc[0]
+    assert abs(gps["Timestamp"].iloc[0] - first_fix) <= 100_000  # one GPS period (the jitter aside)
+    assert (ideal_gps.loc[ideal_gps["Timestamp"] < first_fix, "eph"] > 90).all(), "no fix, no accuracy"
 
 
 def test_timing_is_seeded_per_flight_batch_equals_one_by_one(flown):

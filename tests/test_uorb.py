@@ -221,3 +221,19 @@ def test_a_flight_without_a_uorb_topic_is_refused_naming_it(attacked_views):
         columns=["remaining"])}
     with pytest.raises(DatasetError, match=r"'battery_status': field\(s\) \['remaining'\] missing"):
         uorb_table(view)
+
+
+def test_baro_is_on_its_own_20hz_clock_with_the_log_rates_jitter():
+    """vehicle_air_data at ~20 Hz (the shared logs: 18.3-20 Hz), not on every IMU row; its interval
+    jitter is between the SIL log's and the CubeOrange's (0.025-0.2), and the values are the baro's."""
+    from scart_bench.generator.params import MissionParams
+    from scart_bench.generator.simulate import FlightConfig, simulate
+
+    _, sim = flight_views(simulate([31], FlightConfig(mission=MissionParams(max_duration_s=20.0))), 0)
+    view = uorb_view(sim)
+    air, imu = view["vehicle_air_data"]["Timestamp"].to_numpy(), view["sensor_combined"]["Timestamp"].to_numpy()
+    rate = (len(air) - 1) * 1e6 / (air[-1] - air[0])
+    assert 19.0 < rate < 21.0 and len(imu) > 2 * len(air)
+    dt = np.diff(air)
+    assert 0.02 < dt.std() / dt.mean() < 0.3
+    assert np.isin(air, imu).all(), "the latest baro sample of a flight-controller row"
