@@ -9,7 +9,7 @@ import string
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis", reason="hypothesis is in the dev extra (make test installs it)")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from scart_bench.errors import ScartBenchError  # noqa: E402
@@ -39,6 +39,7 @@ _tables = st.dictionaries(st.sampled_from(_KEYS), _values, max_size=8)
 
 @FUZZ
 @given(table=st.one_of(_tables, _values))
+@example(table={"start": {"condition": []}})  # found by this test: a list as the condition's name
 def test_scenario_parser_gives_a_scenario_or_a_scenario_error(table):
     try:
         sc = scenario_from_dict(table, source="fuzz.toml")

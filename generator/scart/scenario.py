@@ -221,7 +221,7 @@ def _items(table: dict, key: str, registry: dict, kind_key: str, where: str, end
         if not isinstance(item, dict):
             raise ScenarioError(f"{w}: expected a table, got {item!r}")
         name = item.get(kind_key)
-        if name not in registry:
+        if not isinstance(name, str) or name not in registry:  # a list or table is no name (and unhashable)
             raise ScenarioError(f"{w}.{kind_key}: unknown {kind_key} {name!r}{context}; "
                                 f"allowed: {', '.join(sorted(registry))}")
         cls = registry[name]
