@@ -71,11 +71,11 @@ def _trusted_plugins(from_file: list[str], from_command_line: list[str], args: a
     """The plugins to load: those named on the command line, plus a run file's only with
     ``--trust-plugins``. A run file (or a shared run folder's config.json) is data: importing a
     plugin it names would run that file's code, so it is refused, naming the plugin and the flag."""
-    from scart_bench.benchmark.selection import _absolute_plugin
+    from scart_bench.benchmark.selection import absolute_plugin
     from scart_bench.errors import RunError
 
-    named = {_absolute_plugin(p) for p in from_command_line}
-    untrusted = [p for p in from_file if _absolute_plugin(p) not in named]
+    named = {absolute_plugin(p) for p in from_command_line}
+    untrusted = [p for p in from_file if absolute_plugin(p) not in named]
     if untrusted and not getattr(args, "trust_plugins", False):
         raise RunError(f"--config {args.config}: it names the plugin {untrusted[0]!r}, whose code would run when "
                        "it is imported; a run file is read as data only. Load it with --plugin "

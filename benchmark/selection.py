@@ -39,7 +39,8 @@ class DetectorChoice:
         return json_safe(self.cls(**self.overrides(seed)).get_params(deep=False))
 
 
-def _absolute_plugin(spec: str) -> str:
+def absolute_plugin(spec: str) -> str:
+    """A plugin spec with its file path made absolute (module specs unchanged)."""
     target, sep, cls = spec.rpartition(":")
     if sep and target.endswith(".py"):
         return f"{Path(target).resolve()}:{cls}"
@@ -58,7 +59,7 @@ def load_plugins(specs: list[str], probe_timeout_s: float | None = None) -> dict
 
     out = {}
     for spec in specs:
-        absolute = _absolute_plugin(spec)
+        absolute = absolute_plugin(spec)
         if probe_timeout_s is not None:
             probe_plugin(absolute, probe_timeout_s)
         info = registry.load_plugin(absolute)

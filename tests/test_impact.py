@@ -100,5 +100,5 @@ def test_manifest_and_path_figure_show_before_and_after(paired, tmp_path):
     assert _grey_pixels(spoof) > 2000  # the twin's path, apart from the attacked one
     for f in (tmp_path / "ds/flights/sim-attitude-noise-1pc/sensors/simulator").glob(f"{TWIN_TOPIC}*"):
         f.unlink()  # a flight without a twin (and no normal flight of its seed): no "before" path
-    ds._verified.add("sim-attitude-noise-1pc")  # its files were edited on purpose: not a damaged flight
+    ds.trust("sim-attitude-noise-1pc")  # its files were edited on purpose: not a damaged flight
     assert _grey_pixels(flight_path(ds, "sim-attitude-noise-1pc", tmp_path / "fig")) < 1000  # text edges only

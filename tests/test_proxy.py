@@ -332,6 +332,23 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _proxy_cli(port: int, forward_port: int, out, *extra) -> tuple[subprocess.Popen, str]:
+    """``scart-bench proxy --record OUT`` in its own process, returned once it listens, with what it
+    wrote to stderr until then."""
+    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
+           "--forward", f"udp:127.0.0.1:{forward_port}", "--scenario", str(SPOOF), "--record", str(out), *extra]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    seen, line = [], ""
+    while "listening on" not in line:
+        line = proc.stderr.readline()
+        if not line and proc.poll() is not None:
+            proc.communicate()
+            raise AssertionError("proxy exited early: " + "".join(seen))
+        seen.append(line)
+    return proc, "".join(seen)
+
+
 def test_ctrl_c_stops_cleanly_and_leaves_a_complete_recording(reference, bench_run, tmp_path):
     batch, _ = reference
     nav, _ = flight_views(batch, 0)
@@ -340,16 +357,8 @@ def test_ctrl_c_stops_cleanly_and_leaves_a_complete_recording(reference, bench_r
     mc.settimeout(10.0)
     port = _free_port()
     out = tmp_path / "rec"
-    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
-           "--forward", f"udp:127.0.0.1:{mc.getsockname()[1]}", "--scenario", str(SPOOF), "--record", str(out),
-           "--detector", "statistical", "--run", str(bench_run)]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    proc, _ = _proxy_cli(port, mc.getsockname()[1], out, "--detector", "statistical", "--run", str(bench_run))
     try:
-        line = ""
-        while "listening on" not in line:
-            line = proc.stderr.readline()
-            assert line or proc.poll() is None, "proxy exited early"
         packer = Packer()
         ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         topics = ("attitude", "highres_imu", "global_position_int", "local_position_ned")
@@ -430,20 +439,9 @@ def test_a_killed_recording_keeps_what_was_flown(reference, tmp_path):
     mc.settimeout(10.0)
     out = tmp_path / "rec"
 
-    def proxy(*extra):
-        port = _free_port()
-        cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
-               "--forward", f"udp:127.0.0.1:{mc.getsockname()[1]}", "--scenario", str(SPOOF), "--record", str(out),
-               *extra]
-        return port, subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                                      env={**os.environ, "PYTHONPATH": str(ROOT)})
-
-    port, proc = proxy("--checkpoint", "0.2", "--flight-id", "live-killed")
+    port = _free_port()
+    proc, _ = _proxy_cli(port, mc.getsockname()[1], out, "--checkpoint", "0.2", "--flight-id", "live-killed")
     try:
-        line = ""
-        while "listening on" not in line:
-            line = proc.stderr.readline()
-            assert line or proc.poll() is None, "proxy exited early"
         packer = Packer()
         ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         rows = nav["attitude"][list(TOPICS["attitude"].field_names)].to_numpy()
@@ -461,8 +459,10 @@ def test_a_killed_recording_keeps_what_was_flown(reference, tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert not (out / "manifest.parquet").exists()  # killed: the recording itself was never written
-    _, again = proxy("--duration", "0.5", "--flight-id", "live-next")
+    again, startup = _proxy_cli(_free_port(), mc.getsockname()[1], out, "--duration", "0.5",
+                                "--flight-id", "live-next")
     stdout, stderr = again.communicate(timeout=120)
+    stderr = startup + stderr
     mc.close()
     assert again.returncode == 2 and "nothing was recorded" in stderr  # nothing proxied this time
     assert "live-killed, an interrupted recording" in stderr, stderr

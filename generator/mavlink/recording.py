@@ -185,15 +185,17 @@ def recover_recordings(dataset: str | Path, log=None) -> list[str]:
     if not root.is_dir():
         return []
     added = []
+    taken = set(open_dataset(dataset).manifest["flight_id"].astype(str)) if is_dataset(Path(dataset)) else set()
     for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
         if not is_dataset(folder):
             shutil.rmtree(folder, ignore_errors=True)  # a checkpoint that never completed
             continue
         ds = open_dataset(folder)
         for fid in ds.manifest["flight_id"].astype(str):
-            if is_dataset(Path(dataset)) and fid in set(open_dataset(dataset).manifest["flight_id"].astype(str)):
+            if fid in taken:
                 continue  # written after all (the process died after the write, before the cleanup)
             append_flights(dataset, [_record_of(ds, fid)], info={"profile": "live", "source": LIVE_SOURCE})
+            taken.add(fid)
             added.append(fid)
             log(f"proxy: added {fid}, an interrupted recording (incomplete: up to its last checkpoint), to {dataset}")
         shutil.rmtree(folder, ignore_errors=True)
