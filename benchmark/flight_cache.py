@@ -208,7 +208,7 @@ class DatasetReader:
         self.path = str(path)
 
     def __call__(self, fid: str) -> pd.DataFrame:
-        from scart_bench.generator.dataset import open_dataset
+        from scart_bench.dataset import open_dataset
 
         if _OPENED.get("path") != self.path:
             _OPENED.update(path=self.path, dataset=open_dataset(self.path))

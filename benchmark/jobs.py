@@ -88,7 +88,7 @@ def _max_rss_mb() -> float:
 def open_flights(spec: JobSpec):
     """Where the job reads its flights: the run's flight cache when it is usable here (same key,
     every flight in it), else the dataset (a line in the job's log says why)."""
-    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.dataset import open_dataset
 
     if spec.cache:
         from scart_bench.benchmark.flight_cache import CacheInvalid, FlightCache

@@ -6,7 +6,7 @@ row threshold.
 
 The monitor rebuilds, message by message, the rows of the navigator view's ``most_frequent``
 table (one row per message of the base topic, every other topic holding its last value, as
-:func:`scart_bench.generator.dataset.combine` does): a row is complete once a message with a later timestamp
+:func:`scart_bench.dataset.combine` does): a row is complete once a message with a later timestamp
 arrives, so the stream gives the same rows as the recorded flight. Each row is scored by calling
 the detector on its trailing ``history_rows_`` rows (the rows that reproduce the last row's score;
 detectors are causal) and an alarm is logged when the score exceeds the threshold, with the
@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.dataset.schema import TOPICS
 from scart_bench.errors import RunError
-from scart_bench.generator.topics import TOPICS
 
 #: rows scored when a detector does not say how much history it needs (10 s at 50 Hz)
 DEFAULT_HISTORY_ROWS = 500
@@ -142,9 +142,9 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     """
     from scart_bench.benchmark.protocol import Protocol, counted_rows
     from scart_bench.benchmark.store import RunStore
+    from scart_bench.dataset import open_dataset
     from scart_bench.detectors import registry
     from scart_bench.detectors.base import DetectorError
-    from scart_bench.generator.dataset import open_dataset
 
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     store = RunStore(run)

@@ -60,7 +60,7 @@ _VERSION_PACKAGES = ("scart-bench", "numpy", "pandas", "scipy", "scikit-learn", 
 
 def prepare_dataset(cfg: RunConfig) -> Path:
     """The dataset folder: ``--dataset``, or the profile's dataset (generated when missing)."""
-    from scart_bench.generator.dataset import is_dataset
+    from scart_bench.dataset import is_dataset
 
     if cfg.dataset is not None:
         return Path(cfg.dataset)
@@ -238,7 +238,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     raises RunError (a ValueError) before anything in the run folder is touched.
     """
     from scart_bench.benchmark.executors import Progress, make_executor
-    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.dataset import open_dataset
 
     store = RunStore(cfg.out_path)
     old = _previous_config(store, cfg.seed)

@@ -46,8 +46,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.dataset.locks import FolderLock
 from scart_bench.errors import ScartBenchError
-from scart_bench.locks import FolderLock
 from scart_bench.names import check_id, inside
 
 STATUSES = ("OK", "ERROR", "TIMEOUT")
@@ -60,8 +60,8 @@ class RunStoreError(ScartBenchError):
 
 
 def _json_default(obj):
-    """numpy values and paths as JSON (generator.dataset's rule); anything else as its repr."""
-    from scart_bench.generator.dataset import json_default
+    """numpy values and paths as JSON (scart_bench.dataset's rule); anything else as its repr."""
+    from scart_bench.dataset import json_default
 
     try:
         return json_default(obj)

@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 from sklearn.base import BaseEstimator
 
+from scart_bench.dataset.schema import TOPICS, sensor_columns
 from scart_bench.errors import ScartBenchError
-from scart_bench.generator.topics import TOPICS, sensor_columns
 
 #: Field names that are not sensor values (the feature rule, matched on the part after ``topic.``):
 #: timestamps, counters, ids and reset counters/deltas. Constant columns go too (see feature_columns).
@@ -294,7 +294,7 @@ class Detector(BaseEstimator):
     def _raw_matrix(flight: pd.DataFrame, cols: list[str]) -> np.ndarray:
         """Selected columns as float64 with +/-inf as missing (NaN; filled after standardising).
 
-        Angle fields (yaw, heading, course: ``quantity == "angle"`` in generator.topics) wrap
+        Angle fields (yaw, heading, course: ``quantity == "angle"`` in scart_bench.dataset.schema) wrap
         around; each is replaced by its sine and cosine so that a wrap is not a jump.
         """
         block = flight[cols]

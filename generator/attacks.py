@@ -8,7 +8,7 @@
   environment and vehicle scenarios alone get no csv copy.
 
 Every attacked flight records what the attack changed relative to its clean reference (the
-simulator view, or the csv source) and how large it was (:mod:`generator.effect`).
+simulator view, or the csv source) and how large it was (:mod:`generator.attack_effect`).
 """
 
 from __future__ import annotations
@@ -20,15 +20,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import LABEL_COLUMNS, DatasetWriter
-from scart_bench.generator.effect import attack_effect
+from scart_bench.dataset import LABEL_COLUMNS, DatasetWriter
+from scart_bench.generator.attack_effect import attack_effect
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
-from scart_bench.generator.records import truth_table
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 from scart_bench.generator.scart.scenario import Scenario
-from scart_bench.generator.simulate import FlightConfig, simulate
+from scart_bench.generator.telemetry.tables import truth_table
 
 #: the shipped scenario grids and examples (package data of scart_bench.data)
 SCENARIO_DIR = Path(str(resources.files("scart_bench.data").joinpath("scenarios")))
@@ -147,7 +147,7 @@ class _RowWriter:
         self.ids: set[str] = set()
 
     def write(self, record) -> None:
-        from scart_bench.generator.dataset import DatasetError, write_flight
+        from scart_bench.dataset import DatasetError, write_flight
 
         if record.flight_id in self.ids:
             raise DatasetError(f"{self.out}: a flight {record.flight_id!r} is already in the dataset; "
@@ -159,7 +159,7 @@ class _RowWriter:
 def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, sources, config_dict: dict,
               batch_size: int, stds) -> None:
     """Entry of the csv-mode process: replay every configuration, write the flights, send the rows."""
-    from scart_bench.generator.dataset import exit_with_parent
+    from scart_bench.dataset import exit_with_parent
 
     exit_with_parent(parent)
     try:

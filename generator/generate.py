@@ -9,20 +9,20 @@ from pathlib import Path
 
 import numpy as np
 
-from scart_bench.generator.attacks import attack_flights, strip_labels
-from scart_bench.generator.dataset import (
+from scart_bench.dataset import (
     DatasetError,
     DatasetWriter,
     check_layout,
     check_output_dir,
     replacing,
 )
-from scart_bench.generator.effect import field_stds
-from scart_bench.generator.flight import defaults_summary
+from scart_bench.generator.attack_effect import field_stds
+from scart_bench.generator.attacks import attack_flights, strip_labels
+from scart_bench.generator.engine.flight_batch import defaults_summary
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.profiles import Profile, get_profile
-from scart_bench.generator.records import normal_record
 from scart_bench.generator.scart.grid import load_configurations
-from scart_bench.generator.simulate import FlightConfig, simulate
+from scart_bench.generator.telemetry.tables import normal_record
 
 
 def normal_seeds(seed: int, count: int) -> list[int]:
@@ -57,11 +57,11 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     """Generate a complete dataset; returns its folder. The manifest is written last.
 
     ``layout``: "compact" (default for Parquet) or "paper" (the paper's per-topic files; the
-    default for CSV); see generator.dataset.
+    default for CSV); see scart_bench.dataset.
 
     ``scenarios``: a scenario, grid or sweep file that replaces the profile's grid for the
     attacked flights (both modes); it is validated before anything is flown. ``uorb``: also write
-    each flight's uORB view (a third view, generator.uorb); None keeps ``config``'s
+    each flight's uORB view (a third view, generator.telemetry.uorb); None keeps ``config``'s
     ``FlightConfig.uorb`` (False by default), whatever the profile.
     """
     prof = get_profile(profile)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.generator.topics import HOME_ALT, HOME_LAT, HOME_LON
+from scart_bench.dataset.schema import HOME_ALT, HOME_LAT, HOME_LON
 
 EARTH_RADIUS = 6371000.0  # m, CONSTANTS_RADIUS_OF_EARTH in PX4
 _LAT0 = np.deg2rad(HOME_LAT)

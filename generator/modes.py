@@ -10,18 +10,19 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import (
+from scart_bench.dataset import (
     LABEL_COLUMNS,
     FlightRecord,
     flight_record,
     insert_labels,
     labelled_table,
 )
-from scart_bench.generator.effect import attack_effect
-from scart_bench.generator.records import flight_views, with_uorb
+from scart_bench.generator.attack_effect import attack_effect
+from scart_bench.generator.engine.simulate import BatchResult, FlightConfig, simulate
+from scart_bench.generator.params import STEP_US
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
-from scart_bench.generator.simulate import STEP_US, BatchResult, FlightConfig, simulate
+from scart_bench.generator.telemetry.tables import flight_views, with_uorb
 
 
 def simulation_mode(seeds: list[int], scenarios: list[list[Scenario]], config: FlightConfig | None = None
@@ -33,8 +34,8 @@ def simulation_mode(seeds: list[int], scenarios: list[list[Scenario]], config: F
 
 
 def _builtin_rates() -> dict[str, float]:
-    from scart_bench.generator.link import SENSOR_TOPICS
-    from scart_bench.generator.topics import TOPICS
+    from scart_bench.dataset.schema import TOPICS
+    from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS
 
     rates = {t: v.rate_hz for t, v in TOPICS.items()}
     rates.update({t: r for t, (r, _) in SENSOR_TOPICS.items()})
@@ -74,7 +75,7 @@ def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, s
                seed: int, source_name: str, config: dict, stds: dict[str, float] | None = None) -> FlightRecord:
     """An attacked csv-mode flight: ``result`` is one entry of :func:`csv_mode` on ``source``
     (the unattacked topic tables, which become the simulator view). Its manifest row says what the
-    attack changed relative to the source (:func:`scart_bench.generator.effect.attack_effect`;
+    attack changed relative to the source (:func:`scart_bench.generator.attack_effect.attack_effect`;
     ``stds``: the validation flights' std per ``topic.field``, for the detectability)."""
     nav, windows, events = result
     cfg = {**config, "mode": "csv", "seed": seed, "scenarios": [s.to_dict() for s in scenarios]}

@@ -12,7 +12,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.dataset.schema import SIM_RATE_HZ
+
 GRAVITY = 9.80665  # m/s^2
+
+#: The one clock of every engine (numpy reference step, compiled kernel, sitl plant): the simulation step
+#: in seconds and microseconds, and the rate at which the navigator sends setpoints.
+DT = 1.0 / SIM_RATE_HZ
+STEP_US = int(round(1e6 * DT))
+NAV_RATE_HZ = 50.0
 
 
 @dataclass(frozen=True)
@@ -145,7 +153,7 @@ class MissionParams:
     land_speed: float = 0.7  # m/s (MPC_LAND_SPEED), below 3 m; 1.5 m/s above
     acceptance_radius: float = 0.8  # m, perceived
     approach_gain: float = 1.0  # 1/s, speed = gain * distance near a waypoint
-    #: a PX4 start (generator.startup): wait on the ground for the GPS fix and the estimator's
+    #: a PX4 start (generator.flight_software.startup): wait on the ground for the GPS fix and the estimator's
     #: origin, then arm (3.8-16 s on the ground as in real logs); False: GPS from boot, arm at arm_delay_s
     ground_phase: bool = True
     arm_delay_s: float = 1.0  # s, arming time when there is no ground phase

@@ -30,13 +30,13 @@ class Profile:
     #: "real_receiver" (~2.8/5.9 m, as real receivers report); see generator/params.py GPS_ACCURACY
     gps_accuracy: str = "simulator"
     #: message timing of the written flights: "realistic" (jitter, drops, late messages, GPS after
-    #: its fix; generator.timing) or "ideal" (periodic from t = 0)
+    #: its fix; generator.telemetry.timing) or "ideal" (periodic from t = 0)
     timing: str = "realistic"
 
     def flight_config(self):
         """The FlightConfig for this profile's flights (the defaults at its GPS accuracy and timing)."""
+        from scart_bench.generator.engine.simulate import FlightConfig
         from scart_bench.generator.params import with_gps_accuracy
-        from scart_bench.generator.simulate import FlightConfig
 
         return with_gps_accuracy(FlightConfig(timing=self.timing), self.gps_accuracy)
 

@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from scart_bench.generator.dataset import open_dataset
+from scart_bench.dataset import open_dataset
 from scart_bench.generator.generate import generate_dataset
 
 

@@ -20,7 +20,7 @@ import os
 import resource
 import time
 
-from scart_bench.generator.simulate import ENGINES, STEP_US, FlightConfig, simulate
+from scart_bench.generator.engine.simulate import ENGINES, STEP_US, FlightConfig, simulate
 
 
 def _cpu() -> float:

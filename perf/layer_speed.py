@@ -48,10 +48,10 @@ def _hash_csv(results) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     from scart_bench.generator.attacks import _order, attack_seeds, grid_path, strip_labels
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
     from scart_bench.generator.modes import csv_mode, simulation_mode
-    from scart_bench.generator.records import normal_record
     from scart_bench.generator.scart.grid import load_configurations
-    from scart_bench.generator.simulate import FlightConfig, simulate
+    from scart_bench.generator.telemetry.tables import normal_record
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--grid", default="paper.toml")

@@ -29,8 +29,8 @@ import pandas as pd
 import psutil
 
 from scart_bench.benchmark import executors, runner
-from scart_bench.benchmark.cli import main as cli_main
-from scart_bench.benchmark.cli_run import PROFILES
+from scart_bench.cli.main import main as cli_main
+from scart_bench.cli.run import PROFILES
 
 
 def _role(p: psutil.Process) -> str:

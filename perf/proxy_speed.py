@@ -68,9 +68,9 @@ def _serve(conn, scenario: str, record: bool) -> None:
 
 def telemetry_stream(seconds: float) -> list[bytes]:
     """One frame per datagram: every telemetry topic at its rate, values of a vehicle circling home."""
-    from scart_bench.generator.link import due_steps
+    from scart_bench.dataset.schema import HOME_LAT, HOME_LON, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
     from scart_bench.generator.mavlink.codec import CODECS, Packer
-    from scart_bench.generator.topics import HOME_LAT, HOME_LON, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
+    from scart_bench.generator.telemetry.schedule import due_steps
 
     packer = Packer()
     n_steps = int(seconds * SIM_RATE_HZ)

@@ -233,9 +233,9 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
     """
     import dataclasses
 
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
     from scart_bench.generator.generate import normal_seeds
-    from scart_bench.generator.records import flight_views
-    from scart_bench.generator.simulate import FlightConfig, simulate
+    from scart_bench.generator.telemetry.tables import flight_views
 
     config = FlightConfig() if timing is None else FlightConfig(timing=timing)
     # hold HOVER_S (the default mission holds takeoff_hold_s) so there is a long hover to measure
@@ -255,7 +255,7 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
 def dataset_flights(path: str | Path, n: int | None = None, view: str = "simulator") -> list[Flight]:
     """Up to ``n`` normal flights of a generated dataset, read like a log (one view of each:
     ``simulator``, ``navigator`` or ``uorb``)."""
-    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.dataset import open_dataset
 
     ds = open_dataset(path)
     m = ds.manifest
@@ -442,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gps-accuracy", default=None,
                    help="GPS accuracy level of the generated flights (default: the generator's default)")
     p.add_argument("--timing", default=None, choices=("ideal", "realistic"),
-                   help="message timing of the generated flights (generator.timing; default: the generator's)")
+                   help="message timing of the generated flights (generator.telemetry.timing; default: the generator's)")
     p.add_argument("--dataset", default=None, help="read up to --flights normal flights of this generated dataset "
                    "instead of flying them")
     p.add_argument("--view", default="simulator", choices=("simulator", "navigator", "uorb"),

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from scart_bench.benchmark.cli import main as cli_main
-from scart_bench.benchmark.cli_run import PROFILES
 from scart_bench.benchmark.runner import RunConfig, prepare_dataset
+from scart_bench.cli.main import main as cli_main
+from scart_bench.cli.run import PROFILES
 
 
 def _peak_mib(who: int) -> float:

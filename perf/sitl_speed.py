@@ -41,7 +41,7 @@ def measure(seconds: float, speed: float | None, scenario: str | None) -> dict:
 
     mav = mavutil.mavlink
     port = _free_port()
-    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}"]
+    cmd = [sys.executable, "-m", "scart_bench.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}"]
     cmd += ["--lockstep"] if speed is None else ["--speed", str(speed)]
     if scenario:
         cmd += ["--scenario", scenario]

@@ -14,7 +14,7 @@ import argparse
 import time
 from pathlib import Path
 
-from scart_bench.generator.dataset import flight_checksum, open_dataset
+from scart_bench.dataset import flight_checksum, open_dataset
 
 
 def main(argv: list[str] | None = None) -> None:

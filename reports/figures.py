@@ -1,6 +1,6 @@
 """The paper's figures as PNG files (matplotlib's object API with the Agg renderer; no pyplot state).
 
-One flight (from the public dataset reader, :func:`scart_bench.generator.dataset.open_dataset`):
+One flight (from the public dataset reader, :func:`scart_bench.dataset.open_dataset`):
 
 - :func:`flight_path`: path (east, north) of the attacked flight as flown (simulator view: the
   ``truth`` topic when the flight has it, else ``local_position_ned``), as the navigator perceived
@@ -39,8 +39,8 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from scart_bench.benchmark.store import RunStore
+from scart_bench.dataset import Dataset, is_dataset, open_dataset
 from scart_bench.errors import ReportError, ScartBenchError
-from scart_bench.generator.dataset import Dataset, is_dataset, open_dataset
 from scart_bench.reports.results import RunResults, load_run
 
 #: Shaded attack window (light orange, opaque, drawn over the grid and below the data).

@@ -17,8 +17,8 @@ from pathlib import Path
 import pandas as pd
 
 from scart_bench.benchmark.store import atomic_write_text
+from scart_bench.dataset import is_dataset, open_dataset
 from scart_bench.errors import ReportError
-from scart_bench.generator.dataset import is_dataset, open_dataset
 from scart_bench.reports import figures as fg
 from scart_bench.reports import html as html_page
 from scart_bench.reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown

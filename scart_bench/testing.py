@@ -48,9 +48,9 @@ POSITION_FIELDS = ["global_position_int.lat", "global_position_int.lon", "local_
 
 @lru_cache(maxsize=1)
 def _fleet() -> tuple[dict[str, pd.DataFrame], ...]:
-    from scart_bench.generator.dataset import LABEL_COLUMNS
-    from scart_bench.generator.records import flight_views
-    from scart_bench.generator.simulate import simulate
+    from scart_bench.dataset import LABEL_COLUMNS
+    from scart_bench.generator.engine.simulate import simulate
+    from scart_bench.generator.telemetry.tables import flight_views
 
     batch = simulate(list(FLEET_SEEDS))
     views = []
@@ -73,7 +73,7 @@ def normal_flights(n: int, seed: int, rows: int = 1500) -> list[pd.DataFrame]:
 
     ``seed`` picks which flights of the cached fleet are returned (same seed, same flights).
     """
-    from scart_bench.generator.dataset import combine
+    from scart_bench.dataset import combine
 
     fleet = _fleet()
     return [combine(fleet[i], [])["most_frequent"].iloc[:rows].reset_index(drop=True) for i in _pick(n, seed)]
@@ -81,7 +81,7 @@ def normal_flights(n: int, seed: int, rows: int = 1500) -> list[pd.DataFrame]:
 
 def attacked_flight(seed: int, rows: int = 1500) -> pd.DataFrame:
     """A normal flight with 20 m GPS noise injected on the link over the middle fifth of ``rows``."""
-    from scart_bench.generator.dataset import combine
+    from scart_bench.dataset import combine
     from scart_bench.generator.modes import csv_mode
     from scart_bench.generator.scart.scenario import scenario_from_dict
 

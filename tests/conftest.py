@@ -13,7 +13,7 @@ SCENARIOS = "data/scenarios"
 @pytest.fixture(scope="session")
 def normal_fleet():
     """20 normal flights with different seeds (and so different winds), flown as one batch."""
-    from scart_bench.generator.simulate import simulate
+    from scart_bench.generator.engine.simulate import simulate
 
     return simulate(list(range(100, 120)))
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.dataset import DatasetWriter, FlightRecord
 from scart_bench.detectors.base import Detector
-from scart_bench.generator.dataset import DatasetWriter, FlightRecord
 
 HERE = Path(__file__).resolve().parent
 FIXTURES = HERE / "run_fixtures.py"

@@ -1,5 +1,11 @@
-"""The import graph of the package: no circle between modules, and imports go one way
-(benchmark and reports -> detectors / generator; generator and detectors never import the benchmark)."""
+"""The import graph of the package: no circle between modules, and imports go one way between the rooms.
+
+The rooms, from the top: the command line (``scart_bench.cli``) -> the reports -> the benchmark (the run
+and its evaluation) -> the detectors and the generator (side by side, neither imports the other) ->
+the dataset format (``scart_bench.dataset``) -> the shared base (``scart_bench.errors``, ``names``). A
+room imports only rooms below it, so no package imports one that imports it (a loop between
+packages fails here even when no two modules form a circle).
+"""
 
 from __future__ import annotations
 
@@ -9,7 +15,23 @@ from pathlib import Path
 import scart_bench
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = {"benchmark": "benchmark", "detectors": "detectors", "generator": "generator", "reports": "reports"}
+#: subpackage -> its folder in the source tree (pyproject.toml maps them)
+FOLDERS = {"benchmark": ROOT / "benchmark", "detectors": ROOT / "detectors", "generator": ROOT / "generator",
+           "reports": ROOT / "reports", "cli": ROOT / "scart_bench" / "cli", "dataset": ROOT / "scart_bench" / "dataset"}
+
+#: room -> the rooms it may import (besides itself)
+BASE = {"base"}
+ALLOWED = {
+    "base": set(),
+    "dataset": BASE,
+    "generator": {"dataset"} | BASE,
+    "detectors": {"dataset"} | BASE,
+    "testing": {"generator", "detectors", "dataset"} | BASE,  # the conformance kit for plugin authors
+    "benchmark": {"generator", "detectors", "dataset"} | BASE,
+    "reports": {"benchmark", "generator", "detectors", "dataset"} | BASE,
+    "cli": {"reports", "benchmark", "generator", "detectors", "dataset"} | BASE,
+    "main": {"cli"},
+}
 
 
 def _modules() -> dict[str, Path]:
@@ -17,13 +39,22 @@ def _modules() -> dict[str, Path]:
     for f in (ROOT / "scart_bench").glob("*.py"):
         if f.stem != "__init__":
             out[f"scart_bench.{f.stem}"] = f
-    for sub, folder in PACKAGES.items():
-        for f in (ROOT / folder).rglob("*.py"):
-            parts = list(f.relative_to(ROOT / folder).with_suffix("").parts)
+    for sub, folder in FOLDERS.items():
+        for f in folder.rglob("*.py"):
+            parts = list(f.relative_to(folder).with_suffix("").parts)
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             out[".".join(["scart_bench", sub, *parts])] = f
     return out
+
+
+def _room(module: str) -> str:
+    parts = module.split(".")
+    if len(parts) == 1 or parts[1] in ("errors", "names"):
+        return "base"
+    if parts[1] == "__main__":
+        return "main"
+    return parts[1]
 
 
 def _imports(path: Path, modules: dict[str, Path]) -> set[str]:
@@ -49,6 +80,7 @@ def _graph() -> dict[str, set[str]]:
 def test_every_module_is_under_the_one_import_name():
     assert Path(scart_bench.__file__).parent == ROOT / "scart_bench"
     assert len(_modules()) > 40
+    assert set(map(_room, _modules())) <= set(ALLOWED), set(map(_room, _modules())) - set(ALLOWED)
 
 
 def test_no_import_circle():
@@ -75,12 +107,58 @@ def test_no_import_circle():
             visit(m)
 
 
-def test_generator_and_detectors_never_import_the_benchmark_or_reports():
+def test_rooms_import_only_the_rooms_below_them():
+    bad = []
     for module, deps in _graph().items():
-        for low in ("scart_bench.generator", "scart_bench.detectors"):
-            if module.startswith(low):
-                bad = [d for d in deps if d.startswith(("scart_bench.benchmark", "scart_bench.reports"))]
-                assert not bad, f"{module} imports {bad}"
-        if module.startswith("scart_bench.generator"):
-            bad = [d for d in deps if d.startswith("scart_bench.detectors")]
-            assert not bad, f"{module} imports {bad}"
+        room = _room(module)
+        for d in deps:
+            if _room(d) != room and _room(d) not in ALLOWED[room]:
+                bad.append(f"{module} ({room}) imports {d} ({_room(d)})")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_layers_have_no_loop_between_packages():
+    """The allowed imports themselves form no loop, so no package can import one that imports it."""
+    seen: dict[str, int] = {}
+
+    def visit(room: str) -> None:
+        seen[room] = 1
+        for below in ALLOWED[room]:
+            assert seen.get(below) != 1, f"the rooms {room} and {below} may import each other"
+            if below not in seen:
+                visit(below)
+        seen[room] = 2
+
+    for room in ALLOWED:
+        visit(room)
+
+
+def test_the_dataset_format_stands_alone():
+    """A plugin author or a report reader reads a dataset without the simulator, the benchmark or the reports."""
+    for module, deps in _graph().items():
+        if _room(module) == "dataset":
+            assert all(_room(d) in ("dataset", "base") for d in deps), (module, deps)
+
+
+def test_the_command_line_is_one_folder_one_module_per_command():
+    from scart_bench.cli.main import COMMAND_MODULES, build_parser
+
+    assert not list((ROOT / "benchmark").glob("cli*.py")), "command modules belong in scart_bench/cli/"
+    commands = build_parser()._subparsers._group_actions[0].choices  # noqa: SLF001 (argparse has no public list)
+    assert len(COMMAND_MODULES) == len(commands), (COMMAND_MODULES, sorted(commands))
+
+
+def test_no_private_name_is_imported_across_modules():
+    bad = []
+    modules = _modules()
+    for module, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module in modules:
+                bad += [f"{module} imports {node.module}.{a.name}" for a in node.names
+                        if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_generator_top_level_stays_small():
+    """Subsystems live in their folders; about a dozen modules stay at the top."""
+    assert len(list((ROOT / "generator").glob("*.py"))) <= 12

@@ -10,11 +10,10 @@ import pandas as pd
 import pytest
 from conftest import distance_to_path
 
-from scart_bench.benchmark.cli import main
-from scart_bench.generator.dataset import LABEL_COLUMNS, label_columns, open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import LABEL_COLUMNS, label_columns, open_dataset
 from scart_bench.generator.modes import csv_mode, simulation_mode, simulation_record
 from scart_bench.generator.params import GRAVITY, VehicleParams
-from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.scenario import (
     ScenarioError,
@@ -22,6 +21,7 @@ from scart_bench.generator.scart.scenario import (
     load_scenarios,
     scenario_from_dict,
 )
+from scart_bench.generator.telemetry.tables import flight_views
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "data" / "scenarios"
 SEED = 5

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 from run_fixtures import plugin, write_dataset
 
-from scart_bench.benchmark.cli import main
-from scart_bench.generator.dataset import DatasetError, open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import DatasetError, open_dataset
 
 ZS = plugin("ZScore")
 
@@ -89,7 +89,7 @@ def test_a_killed_overwrite_is_cleaned_up_by_the_next_command(tmp_path):
     """A generate --overwrite killed mid-write leaves its hidden partial folder; killed between its two
     renames, the old dataset sits aside. The next command on that folder removes the first and puts
     the second back."""
-    from scart_bench.generator.dataset import check_output_dir
+    from scart_bench.dataset import check_output_dir
 
     root = write_dataset(tmp_path / "ds")
     partial = tmp_path / ".ds.partial"

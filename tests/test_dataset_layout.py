@@ -9,9 +9,9 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from scart_bench.benchmark.cli import main
-from scart_bench.generator.compact import COMPACT_VERSION, META_KEY, float32_safe
-from scart_bench.generator.dataset import DatasetError, append_flights, open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import DatasetError, append_flights, open_dataset
+from scart_bench.dataset.compact import COMPACT_VERSION, META_KEY, float32_safe
 from scart_bench.generator.generate import generate_dataset
 
 
@@ -93,7 +93,7 @@ def test_layout_choices_and_old_datasets(both_layouts, tmp_path, capsys):
     assert not (tmp_path / "x").exists()
     # flights appended to a paper-layout dataset keep its layout
     ds = open_dataset(both_layouts["paper"])
-    from scart_bench.generator.dataset import flight_record
+    from scart_bench.dataset import flight_record
 
     topics = {t: ds.topic("normal-0000", t) for t in ds.topics("normal-0000")}
     target = tmp_path / "paper_copy"
@@ -134,7 +134,7 @@ def test_a_simulator_topic_stores_only_the_fields_the_attack_changed(both_layout
     whose zeros turned into -0.0 included, are stored, and every value reads back exactly."""
     import shutil
 
-    from scart_bench.generator.dataset import flight_record
+    from scart_bench.dataset import flight_record
 
     ds = open_dataset(both_layouts["compact"])
     nav = {t: ds.topic("normal-0000", t) for t in ds.topics("normal-0000")}

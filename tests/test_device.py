@@ -47,9 +47,9 @@ def test_unknown_device_is_refused_and_the_run_config_records_it(tmp_path):
 
 
 def test_the_cli_option_reaches_the_run_config():
-    from scart_bench.benchmark.cli import build_parser
+    from scart_bench.cli.main import build_parser
 
     args = build_parser().parse_args(["run", "--device", "cpu", "--detectors", "statistical"])
-    from scart_bench.benchmark.cli_run import run_config
+    from scart_bench.cli.run import run_config
 
     assert run_config(args).device == "cpu"

@@ -13,7 +13,6 @@ import pytest
 from run_fixtures import plugin, write_dataset
 
 from scart_bench.benchmark import flight_cache, runner
-from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.flight_cache import (
     CacheInvalid,
     CacheUnsupported,
@@ -26,7 +25,8 @@ from scart_bench.benchmark.jobs import JobSpec, run_job
 from scart_bench.benchmark.protocol import Splits
 from scart_bench.benchmark.selection import resolve_detectors, with_params
 from scart_bench.benchmark.store import RunStore
-from scart_bench.generator.dataset import Dataset, open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import Dataset, open_dataset
 
 ZS = plugin("ZScore")
 

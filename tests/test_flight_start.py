@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
+from scart_bench.generator.flight_software.startup import ARM_AFTER_ORIGIN_S, flight_start, startup_times
 from scart_bench.generator.params import ControllerParams, MissionParams
-from scart_bench.generator.records import flight_views
-from scart_bench.generator.simulate import FlightConfig, simulate
-from scart_bench.generator.startup import ARM_AFTER_ORIGIN_S, flight_start, startup_times
+from scart_bench.generator.telemetry.tables import flight_views
 
 SEEDS = [101, 102, 103, 104, 105, 106]
 
@@ -102,8 +102,8 @@ def test_start_times_are_drawn_per_seed_and_the_instant_start_stays_available():
 def test_dataset_json_says_which_defaults_made_it_and_old_datasets_still_read(tmp_path):
     import json
 
-    from scart_bench.generator.dataset import open_dataset
-    from scart_bench.generator.flight import FLIGHT_DEFAULTS
+    from scart_bench.dataset import open_dataset
+    from scart_bench.generator.engine.flight_batch import FLIGHT_DEFAULTS
     from scart_bench.generator.generate import generate_dataset
 
     out = generate_dataset("quick", tmp_path / "ds", n_normal=1, with_attacks=False,

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from scart_bench.errors import ScartBenchError  # noqa: E402
-from scart_bench.generator.importers import load_flight_file  # noqa: E402
+from scart_bench.generator.logs.importers import load_flight_file  # noqa: E402
 from scart_bench.generator.scart.actions import ACTIONS  # noqa: E402
 from scart_bench.generator.scart.conditions import CONDITIONS  # noqa: E402
 from scart_bench.generator.scart.scenario import Scenario, scenario_from_dict  # noqa: E402

@@ -11,13 +11,13 @@ import pandas as pd
 import pytest
 from conftest import truth
 
-from scart_bench.benchmark.cli import main
-from scart_bench.generator.dataset import DatasetWriter, open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import DatasetWriter, open_dataset
+from scart_bench.dataset.schema import HOME_LAT, HOME_LON, TOPICS, TRUTH_FIELDS
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.geo import latlon_to_ned
 from scart_bench.generator.params import MissionParams
-from scart_bench.generator.records import normal_record
-from scart_bench.generator.simulate import FlightConfig, simulate
-from scart_bench.generator.topics import HOME_LAT, HOME_LON, TOPICS, TRUTH_FIELDS
+from scart_bench.generator.telemetry.tables import normal_record
 
 F = {name: i for i, name in enumerate(TRUTH_FIELDS)}
 SHORT = FlightConfig(mission=MissionParams(max_duration_s=12.0))

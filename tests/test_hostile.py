@@ -15,8 +15,8 @@ import pyarrow.parquet as pq
 import pytest
 from run_fixtures import plugin, write_dataset
 
-from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.store import RunStore
+from scart_bench.cli.main import main
 from scart_bench.generator.scart.scenario import scenario_from_dict
 from scart_bench.generator.scart.spec import ScenarioError
 from scart_bench.names import IdError, check_id, inside
@@ -271,7 +271,7 @@ def flight_csv(tmp_path_factory) -> Path:
 
 
 def test_a_second_dataset_writer_is_refused(tmp_path, flight_csv, capsys):
-    from scart_bench.generator.dataset import dataset_lock
+    from scart_bench.dataset import dataset_lock
 
     out = tmp_path / "attacked"
     with dataset_lock(out):
@@ -285,7 +285,7 @@ def test_a_second_dataset_writer_is_refused(tmp_path, flight_csv, capsys):
 def test_attack_overwrite_that_fails_half_way_keeps_the_old_dataset(tmp_path, flight_csv, monkeypatch, capsys):
     import errno
 
-    import scart_bench.generator.dataset as dataset_mod
+    import scart_bench.dataset as dataset_mod
 
     out = tmp_path / "attacked"
     assert main(_attack_args(flight_csv, out)) == 0
@@ -306,7 +306,7 @@ def test_attack_overwrite_that_fails_half_way_keeps_the_old_dataset(tmp_path, fl
 def test_generate_overwrite_that_fails_at_the_end_keeps_the_old_dataset(tmp_path, monkeypatch):
     import errno
 
-    from scart_bench.generator.dataset import DatasetWriter
+    from scart_bench.dataset import DatasetWriter
 
     out = tmp_path / "ds"
     assert main(["generate", "--out", str(out), "--flights", "1", "--normal-only"]) == 0
@@ -352,7 +352,7 @@ def test_killing_generate_leaves_no_writer_process_behind(tmp_path):
 
 def test_a_csv_with_two_readings_at_one_time_is_refused(tmp_path, capsys):
     from scart_bench.errors import ScartBenchError
-    from scart_bench.generator.importers import load_flight_file
+    from scart_bench.generator.logs.importers import load_flight_file
     from scart_bench.generator.scart.spec import ScenarioError  # noqa: F401 (same error family)
 
     f = tmp_path / "imu.csv"
@@ -367,7 +367,7 @@ def test_a_csv_with_two_readings_at_one_time_is_refused(tmp_path, capsys):
 def test_csv_dataset_ids_read_back_as_text(tmp_path):
     from run_fixtures import _topics
 
-    from scart_bench.generator.dataset import DatasetWriter, FlightRecord, open_dataset
+    from scart_bench.dataset import DatasetWriter, FlightRecord, open_dataset
 
     rng = np.random.default_rng(0)
     w = DatasetWriter(tmp_path / "ds", fmt="csv")
@@ -424,7 +424,7 @@ def test_a_csv_with_100k_columns_is_refused_quickly(tmp_path):
     import time
 
     from scart_bench.errors import ScartBenchError
-    from scart_bench.generator.importers import load_flight_file
+    from scart_bench.generator.logs.importers import load_flight_file
 
     f = tmp_path / "wide.csv"
     n = 100_000

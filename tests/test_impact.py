@@ -6,13 +6,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from scart_bench.dataset import DatasetWriter, open_dataset
 from scart_bench.generator.attacks import SCENARIO_DIR, simulation_flights
-from scart_bench.generator.dataset import DatasetWriter, open_dataset
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.impact import IMPACT_COLUMNS, TWIN_TOPIC, impact
-from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.scenario import scenario_from_dict
-from scart_bench.generator.simulate import FlightConfig, simulate
+from scart_bench.generator.telemetry.tables import flight_views
 from scart_bench.reports.figures import NORMAL_COLOUR, flight_path
 
 NOISE_ON_ATTITUDE = {

@@ -11,8 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scart_bench.generator.compact import float32_safe
-from scart_bench.generator.dataset import (
+from scart_bench.dataset import (
     DatasetError,
     DatasetWriter,
     FlightRecord,
@@ -20,14 +19,15 @@ from scart_bench.generator.dataset import (
     label_rows,
     open_dataset,
 )
-from scart_bench.generator.importers import (
+from scart_bench.dataset.compact import float32_safe
+from scart_bench.dataset.schema import HOME_LAT, HOME_LON, TOPICS
+from scart_bench.generator.logs.importers import (
     TIME_COLUMNS,
     load_flight_file,
     sanitize_field_name,
     sanitize_topic_name,
     ulog_info,
 )
-from scart_bench.generator.topics import HOME_LAT, HOME_LON, TOPICS
 
 ULOG_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ulog"
 RFLYMAD = ULOG_DIR / "rflymad_TestCase_1_1000000000.ulg"

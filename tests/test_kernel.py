@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scart_bench.generator import batch as kernel_batch
+from scart_bench.dataset.schema import TOPICS
+from scart_bench.generator.engine import compiled as kernel_batch
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.params import MissionParams
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import scenario_from_dict
-from scart_bench.generator.simulate import FlightConfig, simulate
-from scart_bench.generator.topics import TOPICS
 
 TOPIC_FIELDS = {name: i for i, name in enumerate(TOPICS["gps_raw_int"].field_names)}
 
@@ -126,7 +126,7 @@ def _link_attack(sid: str, point: str, start_s: float, action: dict, seconds: fl
 def test_kernel_matches_the_reference_under_attacks_on_the_control_link():
     """Forged disarm (a fall and a crash), land, return and reposition, a refused command, a tampered
     mission, a link loss into the datalink failsafe, replay and flooding: both engines react alike."""
-    from scart_bench.generator.control import ControlParams
+    from scart_bench.generator.flight_software.commander import ControlParams
 
     cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=24.0), control=ControlParams(datalink_loss_s=2.0))
     scenarios = [

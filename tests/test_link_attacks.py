@@ -1,6 +1,6 @@
 """Attacks on the control link: forged commands, mission tampering, link loss, replay and flooding.
 
-The flight controller reacts as PX4 would (generator.control); the navigator sees what reaches it.
+The flight controller reacts as PX4 would (generator.flight_software.commander); the navigator sees what reaches it.
 """
 
 from __future__ import annotations
@@ -10,12 +10,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from scart_bench.generator.control import ControlParams
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
+from scart_bench.generator.flight_software.commander import ControlParams
 from scart_bench.generator.params import MissionParams
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import scenario_from_dict
 from scart_bench.generator.scart.spec import ScenarioError
-from scart_bench.generator.simulate import FlightConfig, simulate
 
 #: The attacks start at 29 s: the vehicle (seed 11: armed at 11.6 s, after its GPS fix and the
 #: estimator's origin) is on the first leg of the square (at 10 m).
@@ -209,8 +209,8 @@ def test_flood_delays_then_drops_real_messages_exactly_in_the_labelled_rows(repl
 def test_replay_and_flood_on_a_recorded_flight_in_csv_mode(tmp_path):
     """csv mode applies replay, flood and link loss to a recorded flight (nothing reacts); forged
     commands and mission tampering need the closed loop and are refused with a clear error."""
-    from scart_bench.generator.dataset import DatasetError
-    from scart_bench.generator.offline import attack_file
+    from scart_bench.dataset import DatasetError
+    from scart_bench.generator.logs.offline import attack_file
 
     log = tmp_path / "flight.csv"
     t = np.arange(0, 20.0, 0.02)
@@ -232,7 +232,7 @@ def test_replay_and_flood_on_a_recorded_flight_in_csv_mode(tmp_path):
     with pytest.raises(DatasetError, match="inject_command.*simulation mode"):
         attack_file(log, sc, tmp_path / "d")
     # in a grid, the closed-loop configurations get no copy and the link ones are written
-    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.dataset import open_dataset
 
     grid = tmp_path / "grid.toml"
     text = open("data/scenarios/control_link.toml").read()
@@ -278,8 +278,8 @@ def test_a_benchmark_run_on_a_dataset_with_control_link_attacks_reports_them(tmp
 
     import pandas as pd
 
-    from scart_bench.benchmark.cli import main
-    from scart_bench.generator.dataset import open_dataset
+    from scart_bench.cli.main import main
+    from scart_bench.dataset import open_dataset
 
     sys.path.insert(0, str(Path(__file__).parent))
     from run_fixtures import plugin

@@ -9,13 +9,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.store import RunStore
+from scart_bench.cli.main import main
+from scart_bench.dataset import DatasetError, append_flights, combine, flight_record, open_dataset
 from scart_bench.detectors.base import NON_FEATURE_FIELDS, Detector, DetectorError, feature_columns
 from scart_bench.detectors.statistical import Statistical
-from scart_bench.generator.dataset import DatasetError, append_flights, combine, flight_record, open_dataset
-from scart_bench.generator.importers import load_flight_file
-from scart_bench.generator.offline import auto_splits, import_ids, import_logs
+from scart_bench.generator.logs.importers import load_flight_file
+from scart_bench.generator.logs.offline import auto_splits, import_ids, import_logs
 
 # CI clones the repository with shared/ beside it
 SHARED = Path(__file__).parents[1].parent / "shared/data/ulog"

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from run_fixtures import write_dataset
 
-from scart_bench.benchmark.cli import main
+from scart_bench.cli.main import main
 
 INSTALLED = any(ep.name == "zscore" for ep in entry_points(group="scart_bench.detectors"))
 pytestmark = pytest.mark.skipif(
@@ -19,7 +19,7 @@ pytestmark = pytest.mark.skipif(
 
 
 def test_installed_plugin_is_listed_with_its_package():
-    out = subprocess.run([sys.executable, "-m", "scart_bench.benchmark.cli", "detectors"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "scart_bench.cli", "detectors"], capture_output=True, text=True,
                          check=True).stdout
     line = next(line for line in out.splitlines() if line.startswith("zscore"))
     assert "scart-bench-example-detector" in line

@@ -263,8 +263,8 @@ def test_run_with_the_detectors_own_rule(tmp_path):
     scores differs; the run folder says where each validation maximum sat."""
     from run_fixtures import write_dataset
 
-    from scart_bench.benchmark.cli import main
     from scart_bench.benchmark.store import RunStore
+    from scart_bench.cli.main import main
 
     ds = write_dataset(tmp_path / "ds")
     fast = ["--param", "telemanom.l_s=25", "--param", "telemanom.hidden=[16, 16]", "--param", "telemanom.epochs=2",

@@ -22,15 +22,15 @@ from conftest import truth
 
 pytest.importorskip("pymavlink")
 
-from scart_bench.benchmark.cli import main  # noqa: E402
-from scart_bench.generator.dataset import DatasetWriter, open_dataset  # noqa: E402
+from scart_bench.cli.main import main  # noqa: E402
+from scart_bench.dataset import DatasetWriter, open_dataset  # noqa: E402
+from scart_bench.dataset.schema import TOPICS, TRUTH_FIELDS  # noqa: E402
 from scart_bench.generator.mavlink.codec import CODECS, KNOWN, Packer, split_frames  # noqa: E402
 from scart_bench.generator.mavlink.link import MavlinkLink  # noqa: E402
 from scart_bench.generator.mavlink.proxy import MavlinkProxy  # noqa: E402
 from scart_bench.generator.mavlink.recording import save_recording  # noqa: E402
-from scart_bench.generator.records import flight_views, normal_record  # noqa: E402
 from scart_bench.generator.scart.scenario import load_scenarios  # noqa: E402
-from scart_bench.generator.topics import TOPICS, TRUTH_FIELDS  # noqa: E402
+from scart_bench.generator.telemetry.tables import flight_views, normal_record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SPOOF = ROOT / "data" / "scenarios" / "gps_spoof.toml"
@@ -52,7 +52,7 @@ def reference():
 @pytest.fixture(scope="module")
 def loopback():
     """Seed 5 flown by the generator over MAVLink/UDP through the proxy running gps_spoof.toml."""
-    from scart_bench.generator.simulate import simulate
+    from scart_bench.generator.engine.simulate import simulate
 
     with MavlinkLink(keep_raw=True) as link:
         proxy = MavlinkProxy(LOCAL, link.mission_computer_address, load_scenarios(SPOOF), seed=SEED,
@@ -335,7 +335,7 @@ def _free_port() -> int:
 def _proxy_cli(port: int, forward_port: int, out, *extra) -> tuple[subprocess.Popen, str]:
     """``scart-bench proxy --record OUT`` in its own process, returned once it listens, with what it
     wrote to stderr until then."""
-    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
+    cmd = [sys.executable, "-m", "scart_bench.cli", "proxy", "--listen", f"udp:127.0.0.1:{port}",
            "--forward", f"udp:127.0.0.1:{forward_port}", "--scenario", str(SPOOF), "--record", str(out), *extra]
     proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -402,7 +402,7 @@ def test_bad_input_exits_2_with_one_clear_line(args, words, capsys):
 
 
 def test_without_pymavlink_the_error_says_how_to_install():
-    code = ("import sys; sys.modules['pymavlink'] = None; from scart_bench.benchmark.cli import main; "
+    code = ("import sys; sys.modules['pymavlink'] = None; from scart_bench.cli.main import main; "
             f"sys.exit(main(['proxy', '--scenario', {str(SPOOF)!r}]))")
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "pip install scart-bench[mavlink]" in res.stderr, res.stderr

@@ -15,11 +15,11 @@ from conftest import truth
 
 pytest.importorskip("pymavlink")
 
+from scart_bench.dataset.schema import TRUTH_FIELDS  # noqa: E402
 from scart_bench.generator.mavlink.codec import CODECS, KNOWN, Packer, split_frames  # noqa: E402
 from scart_bench.generator.mavlink.link import MavlinkLink  # noqa: E402
 from scart_bench.generator.mavlink.proxy import MavlinkProxy, ProxyError  # noqa: E402
 from scart_bench.generator.scart.scenario import scenario_from_dict  # noqa: E402
-from scart_bench.generator.topics import TRUTH_FIELDS  # noqa: E402
 
 SEED = 5
 X, Y, Z = (TRUTH_FIELDS.index(k) for k in ("x", "y", "z"))
@@ -51,7 +51,7 @@ def reference():
 
 
 def _loopback(scenario):
-    from scart_bench.generator.simulate import simulate
+    from scart_bench.generator.engine.simulate import simulate
 
     with MavlinkLink() as link:
         proxy = MavlinkProxy(LOCAL, link.mission_computer_address, [scenario], seed=SEED).start()

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from perf import realism
-from scart_bench.benchmark.cli import main
+from scart_bench.cli.main import main
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.params import GPS_ACCURACY, MissionParams, SensorParams, with_gps_accuracy
 from scart_bench.generator.profiles import PROFILES
-from scart_bench.generator.records import flight_views
-from scart_bench.generator.simulate import FlightConfig, simulate
+from scart_bench.generator.telemetry.tables import flight_views
 
 ULOGS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ulog"
 RFLYMAD = ULOGS / "rflymad_TestCase_1_1000000000.ulg"

@@ -26,9 +26,9 @@ import pandas as pd
 import pytest
 from run_fixtures import ATTACK_US, plugin, write_dataset
 
-from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.intervals import wilson
-from scart_bench.generator.dataset import open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import open_dataset
 from scart_bench.reports.figures import ATTACK_WINDOW_COLOUR, axes_extent, column_of, label_windows
 from scart_bench.reports.leaderboard import build_leaderboard, headline
 

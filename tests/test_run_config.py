@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from run_fixtures import write_dataset
 
-from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.store import read_npz
+from scart_bench.cli.main import main
 
 
 @pytest.fixture(scope="module")

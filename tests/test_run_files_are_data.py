@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from run_fixtures import plugin, write_dataset
 
-from scart_bench.benchmark.cli import main
+from scart_bench.cli.main import main
 
 ZS = plugin("ZScore")
 

@@ -19,9 +19,9 @@ import pytest
 from run_fixtures import ATTACKS, plugin, write_dataset
 from sklearn.metrics import roc_auc_score
 
-from scart_bench.benchmark.cli import main
 from scart_bench.benchmark.scoring import DEFAULT_METRICS, TIMING_COLUMNS
 from scart_bench.benchmark.store import RunStore, read_npz
+from scart_bench.cli.main import main
 
 ZS, DIFF = plugin("ZScore"), plugin("Diff")
 OK_PAIR = ["--detectors", "zscore_test,diff_test", "--plugin", ZS, "--plugin", DIFF]

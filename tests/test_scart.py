@@ -10,14 +10,14 @@ import pandas as pd
 import pytest
 from conftest import distance_to_path, truth
 
-from scart_bench.benchmark.cli import main
-from scart_bench.generator.dataset import LABEL_COLUMNS, open_dataset
+from scart_bench.cli.main import main
+from scart_bench.dataset import LABEL_COLUMNS, open_dataset
+from scart_bench.dataset.schema import TRUTH_FIELDS
 from scart_bench.generator.modes import csv_mode
-from scart_bench.generator.records import flight_views
 from scart_bench.generator.scart.grid import load_configurations, load_grid
 from scart_bench.generator.scart.scenario import ScenarioError, load_scenarios, scenario_from_dict
 from scart_bench.generator.scart.units import M_PER_DEG_LAT, M_PER_DEG_LON
-from scart_bench.generator.topics import TRUTH_FIELDS
+from scart_bench.generator.telemetry.tables import flight_views
 from scart_bench.names import check_id
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "ulog"

@@ -17,8 +17,8 @@ import pytest
 pytest.importorskip("pymavlink")
 from pymavlink import mavutil  # noqa: E402
 
-from scart_bench.benchmark.cli import main  # noqa: E402
-from scart_bench.generator.dataset import open_dataset  # noqa: E402
+from scart_bench.cli.main import main  # noqa: E402
+from scart_bench.dataset import open_dataset  # noqa: E402
 from scart_bench.generator.mavlink.recording import save_recording  # noqa: E402
 from scart_bench.generator.scart.scenario import load_scenarios  # noqa: E402
 from scart_bench.generator.sitl.server import SitlServer  # noqa: E402
@@ -319,7 +319,7 @@ def test_cli_lockstep_waits_for_a_client_and_records_a_normal_flight(tmp_path):
     import sys
 
     port, out = _free_port(), tmp_path / "normal"
-    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}", "--lockstep",
+    cmd = [sys.executable, "-m", "scart_bench.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}", "--lockstep",
            "--duration", "4", "--record", str(out), "--split", "train", "--flight-id", "n1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -360,7 +360,7 @@ def test_without_pymavlink_the_error_says_how_to_install():
     import subprocess
     import sys
 
-    code = ("import sys; sys.modules['pymavlink'] = None; from scart_bench.benchmark.cli import main; "
+    code = ("import sys; sys.modules['pymavlink'] = None; from scart_bench.cli.main import main; "
             "sys.exit(main(['sitl', '--duration', '1']))")
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "pip install scart-bench[mavlink]" in res.stderr, res.stderr
@@ -663,7 +663,7 @@ def _fly_cli_with_mavsdk(tmp_path, *extra: str) -> tuple[dict, str]:
     import sys
 
     port = _free_port()
-    cmd = [sys.executable, "-m", "scart_bench.benchmark.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}", "--lockstep",
+    cmd = [sys.executable, "-m", "scart_bench.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}", "--lockstep",
            "--seed", "1", *extra]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})

@@ -19,8 +19,8 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="the sitl needs pymavlink (pip install scart-bench[mavlink])")
 
-from scart_bench.benchmark.cli import main  # noqa: E402
-from scart_bench.generator.dataset import open_dataset  # noqa: E402
+from scart_bench.cli.main import main  # noqa: E402
+from scart_bench.dataset import open_dataset  # noqa: E402
 from scart_bench.generator.sitl.journal import STATE, journal_root  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

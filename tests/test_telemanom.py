@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 import torch
 
+from scart_bench.dataset.schema import HOME_ALT, HOME_LAT, HOME_LON
 from scart_bench.detectors.base import DetectorError, flight_score
 from scart_bench.detectors.telemanom import Telemanom, dynamic_threshold, ewma, find_z
-from scart_bench.generator.topics import HOME_ALT, HOME_LAT, HOME_LON
 
 RATE_HZ = 50.0
 M_PER_DEG_LAT = 111_320.0

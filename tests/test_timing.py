@@ -1,4 +1,4 @@
-"""Realistic message timing (generator.timing): jitter, drops, late messages, GPS after its fix."""
+"""Realistic message timing (generator.telemetry.timing): jitter, drops, late messages, GPS after its fix."""
 
 from __future__ import annotations
 
@@ -9,14 +9,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scart_bench.benchmark.cli import main
+from scart_bench.cli.main import main
+from scart_bench.dataset import open_dataset
 from scart_bench.generator.attacks import SCENARIO_DIR
-from scart_bench.generator.dataset import open_dataset
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.generate import generate_dataset
 from scart_bench.generator.params import MissionParams
-from scart_bench.generator.records import flight_views
-from scart_bench.generator.simulate import FlightConfig, simulate
-from scart_bench.generator.timing import GPS_FIX_S, fix_times_us, message_timing
+from scart_bench.generator.telemetry.tables import flight_views
+from scart_bench.generator.telemetry.timing import GPS_FIX_S, fix_times_us, message_timing
 
 REAL = FlightConfig(mission=MissionParams(max_duration_s=20.0), timing="realistic")
 IDEAL = FlightConfig(mission=MissionParams(max_duration_s=20.0), timing="ideal")

@@ -8,13 +8,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scart_bench.benchmark.cli import main
+from scart_bench.cli.main import main
+from scart_bench.dataset import DatasetError, open_dataset
 from scart_bench.detectors.statistical import Statistical
-from scart_bench.generator.dataset import DatasetError, open_dataset
-from scart_bench.generator.importers import load_flight_file
-from scart_bench.generator.records import flight_views
-from scart_bench.generator.simulate import STEP_US
-from scart_bench.generator.uorb import OMITTED, SITE_DEPENDENT, UORB_TOPICS, uorb_table, uorb_view
+from scart_bench.generator.logs.importers import load_flight_file
+from scart_bench.generator.params import STEP_US
+from scart_bench.generator.telemetry.tables import flight_views
+from scart_bench.generator.telemetry.uorb import OMITTED, SITE_DEPENDENT, UORB_TOPICS, uorb_table, uorb_view
 
 SHARED = Path(__file__).parents[1].parent / "shared/data/ulog"
 RFLYMAD = SHARED / "rflymad_TestCase_1_1000000000.ulg"
@@ -25,7 +25,7 @@ LABELS = ["Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind"]
 EXPECTED_TOPICS = ("sensor_combined", "vehicle_attitude", "vehicle_local_position", "vehicle_global_position",
                    "vehicle_gps_position", "vehicle_air_data", "battery_status")
 #: The importer's fields for the RflyMAD log that the view leaves out: written out here, so that a
-#: field dropped from the view without saying why fails this test (reasons: generator.uorb.OMITTED).
+#: field dropped from the view without saying why fails this test (reasons: generator.telemetry.uorb.OMITTED).
 _BATTERY_SMART = ("discharged_mah scale temperature cell_count max_cell_voltage_delta average_power available_energy "
                   "remaining_capacity design_capacity nominal_voltage capacity cycle_count run_time_to_empty "
                   "average_time_to_empty serial_number manufacture_date state_of_health max_error interface_error "
@@ -226,8 +226,8 @@ def test_a_flight_without_a_uorb_topic_is_refused_naming_it(attacked_views):
 def test_baro_is_on_its_own_20hz_clock_with_the_log_rates_jitter():
     """vehicle_air_data at ~20 Hz (the shared logs: 18.3-20 Hz), not on every IMU row; its interval
     jitter is between the SIL log's and the CubeOrange's (0.025-0.2), and the values are the baro's."""
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
     from scart_bench.generator.params import MissionParams
-    from scart_bench.generator.simulate import FlightConfig, simulate
 
     _, sim = flight_views(simulate([31], FlightConfig(mission=MissionParams(max_duration_s=20.0))), 0)
     view = uorb_view(sim)

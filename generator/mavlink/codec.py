@@ -7,7 +7,7 @@ Frames of message ids the dialect does not know are accepted on their framing al
 cannot check their CRC) and passed on unchanged. Everything else is malformed: counted and
 dropped.
 
-Topics: :data:`CODECS` maps each link topic of ``generator.topics`` to one MAVLink message and
+Topics: :data:`CODECS` maps each link topic of ``scart_bench.dataset.schema`` to one MAVLink message and
 converts both ways, with MAVLink's scaled integers (degE7, mm, cm/s, cdeg) on the wire and
 physical units in the arrays. ``docs/proxy.md`` lists the mapping field by field.
 """
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.mavlink import require_pymavlink
-from scart_bench.generator.topics import TOPICS
 
 mavlink = require_pymavlink()
 from pymavlink.generator.mavcrc import x25crc  # noqa: E402  (after the clear error above)
@@ -168,7 +168,7 @@ class TopicCodec:
     """One link topic carried by one MAVLink message.
 
     ``decode(msg, state)`` gives the topic's values (physical units, field order of
-    generator.topics); ``fields(values, t_us)`` gives the MAVLink fields that carry them
+    scart_bench.dataset.schema); ``fields(values, t_us)`` gives the MAVLink fields that carry them
     (already quantised as on the wire), including the time field; ``time_field`` names the
     message's timestamp and its scale to microseconds.
     """
@@ -346,7 +346,7 @@ def _codec(topic: str, message: str, time_field: str | None, scale: int, decode,
     return TopicCodec(topic, message, msgid, time_field, scale, decode, fields)
 
 
-#: topic -> codec, for every link topic of scart_bench.generator.topics
+#: topic -> codec, for every link topic of scart_bench.dataset.schema
 CODECS: dict[str, TopicCodec] = {c.topic: c for c in (
     _codec("attitude", "ATTITUDE", "time_boot_ms", 1000, _attitude, _attitude_fields),
     _codec("highres_imu", "HIGHRES_IMU", "time_usec", 1, _imu, _imu_fields),

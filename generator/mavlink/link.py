@@ -1,6 +1,6 @@
 """The built-in generator speaking MAVLink 2 over UDP: flight-controller and mission-computer endpoints.
 
-:class:`MavlinkLink` plugs into :func:`scart_bench.generator.simulate.simulate` as its hooks object (the
+:class:`MavlinkLink` plugs into :func:`scart_bench.generator.engine.simulate.simulate` as its hooks object (the
 ``layer`` argument) at the points ``link`` and ``command``. At every step with telemetry, the
 flight-controller endpoint (system 1, component 1) encodes the step's messages
 (:data:`scart_bench.generator.mavlink.codec.CODECS`), a HEARTBEAT once a second, and a SYSTEM_TIME that
@@ -105,7 +105,7 @@ class _Endpoint:
 
 
 class MavlinkLink:
-    """Hooks for :func:`scart_bench.generator.simulate.simulate` that carry the link over MAVLink/UDP through a proxy.
+    """Hooks for :func:`scart_bench.generator.engine.simulate.simulate` that carry the link over MAVLink/UDP through a proxy.
 
     ``mission_computer`` is where the mission-computer endpoint listens (the proxy's forward
     address); the flight-controller endpoint binds an ephemeral port and sends to the proxy set
@@ -219,7 +219,7 @@ class MavlinkLink:
         self._send(mc, frames, self.command_peer)
         got, _ = self.fc.receive_step(t_us, MISSION_COMPUTER, self.timeout_s, self.keep_raw)
         # a COMMAND_LONG other than the mission computer's arm request is a command for the flight
-        # controller's commander (generator.control), which decides whether to obey it
+        # controller's commander (generator.flight_software.commander), which decides whether to obey it
         commands = [m for i, m in got if i == COMMAND_LONG_ID and not (m.command == ARM_DISARM and m.param1 > 0.5)]
         out = self._collect(messages, [(i, m) for i, m in got if not any(m is c for c in commands)], self.fc)
         for topic, vals in messages.items():

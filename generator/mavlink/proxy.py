@@ -35,8 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scart_bench.dataset.schema import TOPICS
 from scart_bench.errors import ScartBenchError
-from scart_bench.generator.control import empty_command
+from scart_bench.generator.flight_software.commander import empty_command
 from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN, parse_endpoint  # noqa: F401  (re-exported)
 from scart_bench.generator.mavlink.codec import (
     BY_MSGID,
@@ -52,7 +53,6 @@ from scart_bench.generator.mavlink.codec import (
 )
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
-from scart_bench.generator.topics import TOPICS
 
 #: the injection points a proxy on the link can serve
 LINK_POINTS = ("link", "command")
@@ -464,7 +464,7 @@ class MavlinkProxy:
         return self.layer.windows(0, self.end_us)
 
     def record(self, flight_id: str, extra_config: dict | None = None):
-        """The proxied flight as a :class:`scart_bench.generator.dataset.FlightRecord` (both views, labels, events)."""
+        """The proxied flight as a :class:`scart_bench.dataset.FlightRecord` (both views, labels, events)."""
         from scart_bench.generator.mavlink.recording import proxy_record
 
         return proxy_record(self, flight_id, extra_config or {})

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import (
+from scart_bench.dataset import (
     DatasetError,
     FlightRecord,
     append_flights,
@@ -31,8 +31,8 @@ from scart_bench.generator.dataset import (
     is_dataset,
     open_dataset,
 )
+from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.modes import scenario_manifest
-from scart_bench.generator.topics import TOPICS
 
 LIVE_SOURCE = "mavlink-proxy"
 
@@ -122,7 +122,7 @@ class RecordingCheckpoint:
             self.write()
 
     def write(self) -> None:
-        from scart_bench.generator.dataset import DatasetWriter, replacing
+        from scart_bench.dataset import DatasetWriter, replacing
 
         self._last = time.monotonic()
         record = proxy_record(self.proxy, self.flight_id, {
@@ -156,7 +156,7 @@ class RecordingCheckpoint:
 
 def _record_of(ds, flight_id: str) -> FlightRecord:
     """A written flight read back as the record it was written from."""
-    from scart_bench.generator import compact
+    from scart_bench.dataset import compact
 
     views = {v: {t: ds.topic(flight_id, t, v) for t in ds.topics(flight_id, v)} for v in ("navigator", "simulator")}
     meta = compact.read_meta(ds.flight_dir(flight_id) / "navigator.parquet")

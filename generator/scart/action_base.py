@@ -10,12 +10,12 @@ from scart_bench.generator import geo
 from scart_bench.generator.scart import units
 from scart_bench.generator.scart.spec import Param
 
-_TARGET = Param("target", list, required=True, help='list of "topic" or "topic.field"', item=str, min_items=1)
+TARGET = Param("target", list, required=True, help='list of "topic" or "topic.field"', item=str, min_items=1)
 #: Deepest history an action may reach back (messages): 30 min of a 50 Hz topic.
 MAX_HISTORY_MESSAGES = 90_000
 #: Longest delay or window an action may hold (s).
 MAX_DELAY_S = 1800.0
-_DIRECTION = Param("direction_deg", float, 45.0, help="heading of a displacement, 0 = north")
+DIRECTION = Param("direction_deg", float, 45.0, help="heading of a displacement, 0 = north")
 
 
 class Action:
@@ -168,5 +168,5 @@ def from_metres(ctx, values: np.ndarray, work: np.ndarray, pair: tuple[int, int]
     return out
 
 
-def _keep(n: int) -> np.ndarray:
+def keep_where(n: int) -> np.ndarray:
     return np.ones(n, dtype=bool)

@@ -17,13 +17,13 @@ from scipy.special import ndtr
 
 from scart_bench.generator.scart import units
 from scart_bench.generator.scart.action_base import (  # noqa: F401  (re-exported: the public names live on here)
-    _DIRECTION,
-    _TARGET,
+    DIRECTION,
     MAX_DELAY_S,
     MAX_HISTORY_MESSAGES,
+    TARGET,
     Action,
-    _keep,
     from_metres,
+    keep_where,
     to_metres,
 )
 from scart_bench.generator.scart.link_actions import LINK_ACTIONS
@@ -35,7 +35,7 @@ class AddWhiteNoise(Action):
 
     name = "add_white_noise"
     metric = True
-    spec = (_TARGET, Param("std", float, required=True, minimum=0.0, exclusive_min=True))
+    spec = (TARGET, Param("std", float, required=True, minimum=0.0, exclusive_min=True))
     random = True
 
     def idle_draws(self, topic):
@@ -43,7 +43,7 @@ class AddWhiteNoise(Action):
 
     def alter(self, ctx, topic, cur, active):
         z = ctx.normal(self, topic, cur.shape[1])
-        return cur + z * self.p("std") * self.scales(topic), _keep(cur.shape[0])
+        return cur + z * self.p("std") * self.scales(topic), keep_where(cur.shape[0])
 
 
 class RandomChange(Action):
@@ -51,7 +51,7 @@ class RandomChange(Action):
 
     name = "random_change"
     metric = True
-    spec = (_TARGET, Param("range", float, required=True, minimum=0.0, exclusive_min=True))
+    spec = (TARGET, Param("range", float, required=True, minimum=0.0, exclusive_min=True))
     random = True
 
     def idle_draws(self, topic):
@@ -59,28 +59,28 @@ class RandomChange(Action):
 
     def alter(self, ctx, topic, cur, active):
         u = ndtr(ctx.normal(self, topic, cur.shape[1]))
-        return cur + (2 * u - 1) * self.p("range") * self.scales(topic), _keep(cur.shape[0])
+        return cur + (2 * u - 1) * self.p("range") * self.scales(topic), keep_where(cur.shape[0])
 
 
 class Duplicate(Action):
     """Replays the value received ``k`` messages earlier (the paper's Duplicate)."""
 
     name = "duplicate"
-    spec = (_TARGET, Param("k", int, required=True, minimum=1, maximum=MAX_HISTORY_MESSAGES))
+    spec = (TARGET, Param("k", int, required=True, minimum=1, maximum=MAX_HISTORY_MESSAGES))
 
     def lookback(self, topic, rate_hz):
         return int(np.max(self.params["k"])) + 1
 
     def alter(self, ctx, topic, cur, active):
         old = ctx.history.get(topic).back(ctx.per_batch(self.params["k"], 0))
-        return old[ctx.rows][:, list(self.fields[topic])], _keep(cur.shape[0])
+        return old[ctx.rows][:, list(self.fields[topic])], keep_where(cur.shape[0])
 
 
 class DisconnectSensor(Action):
     """Drops messages (with ``probability``; 1 drops all: the sensor is disconnected)."""
 
     name = "disconnect_sensor"
-    spec = (_TARGET, Param("probability", float, 1.0, minimum=0.0, maximum=1.0))
+    spec = (TARGET, Param("probability", float, 1.0, minimum=0.0, maximum=1.0))
     random = True
 
     def idle_draws(self, topic):
@@ -95,7 +95,7 @@ class AvgSensors(Action):
     """Replaces the value by the mean of the last ``window`` messages (a smoothing attack)."""
 
     name = "avg_sensors"
-    spec = (_TARGET, Param("window", int, required=True, minimum=2, maximum=MAX_HISTORY_MESSAGES))
+    spec = (TARGET, Param("window", int, required=True, minimum=2, maximum=MAX_HISTORY_MESSAGES))
 
     def lookback(self, topic, rate_hz):
         return int(np.max(self.params["window"])) + 1
@@ -103,7 +103,7 @@ class AvgSensors(Action):
     def alter(self, ctx, topic, cur, active):
         n = np.broadcast_to(np.asarray(self.params["window"]).reshape(-1), ctx.rows.shape)
         mean = ctx.history.get(topic).mean_last(n, ctx.rows)
-        return mean[:, list(self.fields[topic])], _keep(cur.shape[0])
+        return mean[:, list(self.fields[topic])], keep_where(cur.shape[0])
 
 
 #: Course-over-ground fields (radians, 0 = north) that gps_spoof turns with the velocity.
@@ -119,7 +119,7 @@ class GpsSpoof(Action):
     """
 
     name = "gps_spoof"
-    spec = (_TARGET, Param("rate_deg_s", float, required=True, minimum=0.0, exclusive_min=True),
+    spec = (TARGET, Param("rate_deg_s", float, required=True, minimum=0.0, exclusive_min=True),
             Param("max_deg", float, 90.0, minimum=0.0, maximum=180.0))
 
     def apply(self, ctx, topic, values, active):
@@ -149,16 +149,16 @@ class GpsSpoof(Action):
             if names[i] in COURSE_FIELDS:
                 out[:, i] = np.mod(work[:, i] + theta, 2 * math.pi)
         if pair is not None:
-            return from_metres(ctx, values, out, pair, idx, active), _keep(values.shape[0])
+            return from_metres(ctx, values, out, pair, idx, active), keep_where(values.shape[0])
         values = np.where(active[:, None], out, values)
-        return values, _keep(values.shape[0])
+        return values, keep_where(values.shape[0])
 
 
 class Off(Action):
     """PX4 failure "off": the messages stop."""
 
     name = "off"
-    spec = (_TARGET,)
+    spec = (TARGET,)
 
     def alter(self, ctx, topic, cur, active):
         return cur, np.zeros(cur.shape[0], dtype=bool)
@@ -168,10 +168,10 @@ class Stuck(Action):
     """PX4 failure "stuck": the value freezes at its value when the attack started."""
 
     name = "stuck"
-    spec = (_TARGET,)
+    spec = (TARGET,)
 
     def alter(self, ctx, topic, cur, active):
-        return self.start_values(ctx, topic, cur), _keep(cur.shape[0])
+        return self.start_values(ctx, topic, cur), keep_where(cur.shape[0])
 
 
 class Garbage(Action):
@@ -179,7 +179,7 @@ class Garbage(Action):
 
     name = "garbage"
     metric = True
-    spec = (_TARGET, Param("range", float, 1000.0, minimum=0.0, exclusive_min=True))
+    spec = (TARGET, Param("range", float, 1000.0, minimum=0.0, exclusive_min=True))
     random = True
 
     def idle_draws(self, topic):
@@ -187,7 +187,7 @@ class Garbage(Action):
 
     def alter(self, ctx, topic, cur, active):
         u = ndtr(ctx.normal(self, topic, cur.shape[1]))
-        return (2 * u - 1) * self.p("range") * self.scales(topic), _keep(cur.shape[0])
+        return (2 * u - 1) * self.p("range") * self.scales(topic), keep_where(cur.shape[0])
 
 
 class Wrong(Action):
@@ -195,17 +195,17 @@ class Wrong(Action):
 
     name = "wrong"
     metric = True
-    spec = (_TARGET, Param("offset", float, required=True), _DIRECTION)
+    spec = (TARGET, Param("offset", float, required=True), DIRECTION)
 
     def alter(self, ctx, topic, cur, active):
-        return self.start_values(ctx, topic, cur) + self.p("offset") * self.signed(topic), _keep(cur.shape[0])
+        return self.start_values(ctx, topic, cur) + self.p("offset") * self.signed(topic), keep_where(cur.shape[0])
 
 
 class Slow(Action):
     """PX4 failure "slow": only every ``factor``-th message gets through."""
 
     name = "slow"
-    spec = (_TARGET, Param("factor", int, required=True, minimum=2, maximum=MAX_HISTORY_MESSAGES))
+    spec = (TARGET, Param("factor", int, required=True, minimum=2, maximum=MAX_HISTORY_MESSAGES))
 
     def alter(self, ctx, topic, cur, active):
         k = self.messages_since_start(ctx, topic)
@@ -216,7 +216,7 @@ class Delayed(Action):
     """PX4 failure "delayed": each message carries the value of ``delay_s`` seconds earlier."""
 
     name = "delayed"
-    spec = (_TARGET, Param("delay_s", float, required=True, minimum=0.0, exclusive_min=True, maximum=MAX_DELAY_S))
+    spec = (TARGET, Param("delay_s", float, required=True, minimum=0.0, exclusive_min=True, maximum=MAX_DELAY_S))
 
     def lookback(self, topic, rate_hz):
         return int(math.ceil(float(np.max(self.params["delay_s"])) * rate_hz)) + 2
@@ -224,14 +224,14 @@ class Delayed(Action):
     def alter(self, ctx, topic, cur, active):
         delay_us = np.round(np.asarray(self.params["delay_s"], dtype=float) * 1e6).astype(np.int64)
         old = ctx.history.get(topic).at_time(ctx.t_us - ctx.per_batch(delay_us, 0))
-        return old[ctx.rows][:, list(self.fields[topic])], _keep(cur.shape[0])
+        return old[ctx.rows][:, list(self.fields[topic])], keep_where(cur.shape[0])
 
 
 class Intermittent(Action):
     """PX4 failure "intermittent": the messages drop out for ``off_fraction`` of every ``period_s``."""
 
     name = "intermittent"
-    spec = (_TARGET, Param("period_s", float, 1.0, minimum=0.0, exclusive_min=True),
+    spec = (TARGET, Param("period_s", float, 1.0, minimum=0.0, exclusive_min=True),
             Param("off_fraction", float, 0.5, minimum=0.0, maximum=1.0))
 
     def alter(self, ctx, topic, cur, active):
@@ -245,21 +245,21 @@ class Bias(Action):
 
     name = "bias"
     metric = True
-    spec = (_TARGET, Param("offset", float, required=True), _DIRECTION)
+    spec = (TARGET, Param("offset", float, required=True), DIRECTION)
 
     def alter(self, ctx, topic, cur, active):
-        return cur + self.p("offset") * self.signed(topic), _keep(cur.shape[0])
+        return cur + self.p("offset") * self.signed(topic), keep_where(cur.shape[0])
 
 
 class Scaling(Action):
     """Scales the change since attack start by ``factor`` (unit-free: v0 + factor (v - v0))."""
 
     name = "scaling"
-    spec = (_TARGET, Param("factor", float, required=True))
+    spec = (TARGET, Param("factor", float, required=True))
 
     def alter(self, ctx, topic, cur, active):
         v0 = self.start_values(ctx, topic, cur)
-        return v0 + self.p("factor") * (cur - v0), _keep(cur.shape[0])
+        return v0 + self.p("factor") * (cur - v0), keep_where(cur.shape[0])
 
 
 class Sinusoid(Action):
@@ -267,13 +267,13 @@ class Sinusoid(Action):
 
     name = "sinusoid"
     metric = True
-    spec = (_TARGET, Param("amplitude", float, required=True),
-            Param("frequency_hz", float, 0.5, minimum=0.0, exclusive_min=True), _DIRECTION)
+    spec = (TARGET, Param("amplitude", float, required=True),
+            Param("frequency_hz", float, 0.5, minimum=0.0, exclusive_min=True), DIRECTION)
 
     def alter(self, ctx, topic, cur, active):
         tt = (ctx.t_us - ctx.start_us) / 1e6
         wave = np.sin(2 * math.pi * np.asarray(self.params["frequency_hz"]).reshape(-1) * tt)
-        return cur + (self.p("amplitude")[:, 0] * wave)[:, None] * self.signed(topic), _keep(cur.shape[0])
+        return cur + (self.p("amplitude")[:, 0] * wave)[:, None] * self.signed(topic), keep_where(cur.shape[0])
 
 
 class Drift(Action):
@@ -282,14 +282,14 @@ class Drift(Action):
 
     name = "drift"
     metric = True
-    spec = (_TARGET, Param("rate", float, required=True), _DIRECTION)
+    spec = (TARGET, Param("rate", float, required=True), DIRECTION)
 
     def alter(self, ctx, topic, cur, active):
         names = self.field_names[topic]
         tt = np.maximum(ctx.t_us - ctx.start_us, 0) / 1e6
         vel = np.array([units.is_velocity(topic, names[i]) for i in self.fields[topic]])
         k = self.p("rate") * self.signed(topic)
-        return cur + np.where(vel[None, :], k, k * tt[:, None]), _keep(cur.shape[0])
+        return cur + np.where(vel[None, :], k, k * tt[:, None]), keep_where(cur.shape[0])
 
 
 ACTIONS: dict[str, type[Action]] = {

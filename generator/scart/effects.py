@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.generator.disturbances import SENSOR_INSTANCES, Disturbances, Jammer, MagneticSource
+from scart_bench.generator.physics.disturbances import SENSOR_INSTANCES, Disturbances, Jammer, MagneticSource
 from scart_bench.generator.scart.spec import Param
 
 #: Full-charge voltage of the 4S battery; the maximum rotor speed scales with the voltage (KV * V).

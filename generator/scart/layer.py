@@ -21,11 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scart_bench.generator.control import CONTROL_TOPICS
-from scart_bench.generator.disturbances import Disturbances
+from scart_bench.generator.flight_software.commander import CONTROL_TOPICS
 from scart_bench.generator.geo import origin_ecef
-from scart_bench.generator.link import field_names as builtin_fields
-from scart_bench.generator.noise import NoiseStream
+from scart_bench.generator.physics.disturbances import Disturbances
+from scart_bench.generator.physics.noise import NoiseStream
 from scart_bench.generator.scart.actions import ACTIONS, Action
 from scart_bench.generator.scart.conditions import CONDITIONS, PURE_CONDITIONS, Condition
 from scart_bench.generator.scart.effects import EFFECTS
@@ -38,6 +37,7 @@ from scart_bench.generator.scart.scenario import (
     scenario_topics,
 )
 from scart_bench.generator.scart.spec import ScenarioError
+from scart_bench.generator.telemetry.schedule import field_names as builtin_fields
 
 
 def _stack(items: list[dict]) -> dict:

@@ -2,7 +2,7 @@
 
 - ``inject_command`` (``command`` point): a forged COMMAND_LONG to the flight controller (disarm,
   land, return, hold, set mode, reposition). The flight controller's commander
-  (generator.control) accepts it only when PX4 would.
+  (generator.flight_software.commander) accepts it only when PX4 would.
 - ``mission_tamper`` (``command`` point): mission items the navigator receives are moved (shifted
   by metres, or replaced by a position).
 - ``link_loss``, ``replay``, ``flood`` (``link`` point, both directions: telemetry to the navigator
@@ -19,7 +19,8 @@ import math
 
 import numpy as np
 
-from scart_bench.generator.control import (
+from scart_bench.dataset.schema import COMMAND_TOPICS
+from scart_bench.generator.flight_software.commander import (
     CONTROL_TOPICS,
     FORCE_DISARM,
     MAV_CMD_COMPONENT_ARM_DISARM,
@@ -38,7 +39,6 @@ from scart_bench.generator.control import (
 from scart_bench.generator.geo import HOME_ALT, ned_to_latlon
 from scart_bench.generator.scart.action_base import MAX_DELAY_S, Action
 from scart_bench.generator.scart.spec import Param, ScenarioError
-from scart_bench.generator.topics import COMMAND_TOPICS
 
 #: Actions on the flight controller or the navigator themselves: only the closed loop (simulation
 #: mode) can show them, and they change the simulator view (the vehicle) rather than a message.

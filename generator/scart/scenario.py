@@ -32,14 +32,14 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from scart_bench.generator.control import CONTROL_TOPICS
-from scart_bench.generator.link import SENSOR_TOPICS
+from scart_bench.dataset.schema import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
+from scart_bench.generator.flight_software.commander import CONTROL_TOPICS
 from scart_bench.generator.scart.actions import ACTIONS
 from scart_bench.generator.scart.conditions import CONDITIONS
 from scart_bench.generator.scart.effects import EFFECTS, PHYSICAL_POINTS
 from scart_bench.generator.scart.meanings import resolve_condition_topic, resolve_target
 from scart_bench.generator.scart.spec import ScenarioError, read_toml, validate_params
-from scart_bench.generator.topics import COMMAND_TOPICS, TELEMETRY_TOPICS, TOPICS
+from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS
 from scart_bench.names import IdError, check_id
 
 INJECTION_POINTS = ("link", "sensor", "command", "environment", "vehicle")

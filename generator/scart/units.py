@@ -1,6 +1,6 @@
 """Converting attack magnitudes given in physical units (m, m/s, rad, ...) into a field's unit.
 
-A field's quantity comes from scart_bench.generator.topics for the project's own topics and is guessed
+A field's quantity comes from scart_bench.dataset.schema for the project's own topics and is guessed
 from the field name for imported logs (PX4 uORB names); a scenario may override it.
 
 Latitude/longitude fields are never scaled by a fixed number of metres per degree: actions and
@@ -14,8 +14,8 @@ from __future__ import annotations
 import functools
 import re
 
+from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.geo import metres_per_degree
-from scart_bench.generator.topics import TOPICS
 
 #: Metres per degree at the generator's home (WGS-84): for tests and plots only, never for attacks.
 M_PER_DEG_LAT, M_PER_DEG_LON = (float(v) for v in metres_per_degree())
@@ -52,7 +52,7 @@ _GUESSES = [
 
 @functools.lru_cache(maxsize=4096)
 def quantity(topic: str, field: str) -> str:
-    """The physical quantity of ``topic.field`` (see scart_bench.generator.topics.Field.quantity); cached, as
+    """The physical quantity of ``topic.field`` (see scart_bench.dataset.schema.Field.quantity); cached, as
     actions ask on every message."""
     t = TOPICS.get(topic)
     if t is not None and field in t.field_names:

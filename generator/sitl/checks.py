@@ -25,6 +25,7 @@ import math
 
 import numpy as np
 
+from scart_bench.dataset.schema import HOME_ALT
 from scart_bench.generator.sitl.bounds import (  # noqa: F401  (re-exported: the checks' bounds)
     MAX_HEIGHT_M,
     MAX_RANGE_M,
@@ -42,7 +43,6 @@ from scart_bench.generator.sitl.commander import (
     RELATIVE_FRAMES,
     MissionItem,
 )
-from scart_bench.generator.topics import HOME_ALT
 
 #: PX4 SITL's mission capacity: NUM_MISSIONS_SUPPORTED on POSIX builds is UINT16_MAX - 1
 MAX_MISSION_ITEMS = 65534

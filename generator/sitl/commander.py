@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scart_bench.dataset.schema import HOME_ALT
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.sitl.bounds import target_ok
-from scart_bench.generator.topics import HOME_ALT
 
 # -- PX4 custom modes ------------------------------------------------------------------------------
 MAIN_MANUAL, MAIN_ALTCTL, MAIN_POSCTL, MAIN_AUTO, MAIN_ACRO, MAIN_OFFBOARD, MAIN_STABILIZED = 1, 2, 3, 4, 5, 6, 7

@@ -1,40 +1,39 @@
 """One simulated vehicle stepped at 250 Hz: the generator's physics, sensors, estimator and controller.
 
-The step pipeline is :func:`scart_bench.generator.simulate.simulate`'s for a batch of one flight, driven
+The step pipeline is :func:`scart_bench.generator.engine.simulate.simulate`'s for a batch of one flight, driven
 from outside one step at a time: wind -> vehicle dynamics -> sensors -> estimator -> telemetry,
 then (at 50 Hz) a velocity/yaw setpoint into the controller, then attitude control, battery and
-the ground truth. Telemetry is composed with :func:`scart_bench.generator.link.compose` at the rates of
-``generator.topics``, so a recorded flight has the schedule of the generated datasets.
+the ground truth. Telemetry is composed with :func:`scart_bench.generator.telemetry.schedule.compose` at the rates of
+``scart_bench.dataset.schema``, so a recorded flight has the schedule of the generated datasets.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.generator.autopilot import Controller, Estimator
-from scart_bench.generator.disturbances import Disturbances
+from scart_bench.dataset.schema import HOME_ALT, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
+from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
 from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
-from scart_bench.generator.link import FCSnapshot, compose
-from scart_bench.generator.noise import NoiseStream
 from scart_bench.generator.params import (
+    DT,
+    NAV_RATE_HZ,
+    STEP_US,
     ControllerParams,
     EstimatorParams,
     MissionParams,
     SensorParams,
     VehicleParams,
 )
-from scart_bench.generator.rotation import euler_from_quat, quat_to_rot
-from scart_bench.generator.sensors import Sensors
-from scart_bench.generator.topics import HOME_ALT, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
-from scart_bench.generator.vehicle import Vehicle, VehicleState, Wind
-
-DT = 1.0 / SIM_RATE_HZ
-STEP_US = int(round(1e6 * DT))
-NAV_RATE_HZ = 50.0
+from scart_bench.generator.physics.disturbances import Disturbances
+from scart_bench.generator.physics.noise import NoiseStream
+from scart_bench.generator.physics.rotation import euler_from_quat, quat_to_rot
+from scart_bench.generator.physics.sensors import Sensors
+from scart_bench.generator.physics.vehicle import Vehicle, VehicleState, Wind
+from scart_bench.generator.telemetry.schedule import FCSnapshot, compose
 
 
 def is_due(rate_hz: float, step: int) -> bool:
-    """Whether a message of ``rate_hz`` is published at ``step`` (the schedule of ``scart_bench.generator.link.due_steps``)."""
+    """Whether a message of ``rate_hz`` is published at ``step`` (the schedule of ``scart_bench.generator.telemetry.schedule.due_steps``)."""
     if step == 0:
         return True
     return np.floor(step * rate_hz / SIM_RATE_HZ + 1e-9) != np.floor((step - 1) * rate_hz / SIM_RATE_HZ + 1e-9)
@@ -115,9 +114,9 @@ class Plant:
 
         ``env``: this step's physical disturbances from environment and vehicle scenarios (wind,
         magnetic sources, GPS jamming and RF spoofing, motor efficiency, battery sag), applied as
-        :func:`scart_bench.generator.simulate.simulate` applies them; sensor-instance loss is not modelled here.
+        :func:`scart_bench.generator.engine.simulate.simulate` applies them; sensor-instance loss is not modelled here.
         ``sensor_hook(messages) -> {topic: (values, delivered)}``: the ``sensor`` injection point,
-        between the sensors and the estimator (topics of ``scart_bench.generator.link.SENSOR_TOPICS``); an
+        between the sensors and the estimator (topics of ``scart_bench.generator.telemetry.schedule.SENSOR_TOPICS``); an
         undelivered sample is not fused, as in simulation mode.
         """
         k = self.step_index

@@ -15,9 +15,9 @@ from datetime import UTC, datetime
 import numpy as np
 import pandas as pd
 
-from scart_bench.generator.dataset import FlightRecord, insert_labels
-from scart_bench.generator.link import field_names
+from scart_bench.dataset import FlightRecord, insert_labels
 from scart_bench.generator.modes import scenario_manifest
+from scart_bench.generator.telemetry.schedule import field_names
 
 SOURCE = "scart-bench-sitl"
 

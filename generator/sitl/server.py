@@ -32,9 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scart_bench.generator.disturbances import Disturbances
+from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.mavlink import require_pymavlink
 from scart_bench.generator.mavlink.codec import CODECS
+from scart_bench.generator.params import DT, NAV_RATE_HZ
+from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.sitl import checks
@@ -58,8 +60,7 @@ from scart_bench.generator.sitl.commander import (
 )
 from scart_bench.generator.sitl.endpoint import SitlError, bind_udp
 from scart_bench.generator.sitl.missions import MissionProtocol
-from scart_bench.generator.sitl.plant import DT, NAV_RATE_HZ, Plant, is_due
-from scart_bench.generator.topics import TOPICS
+from scart_bench.generator.sitl.plant import Plant, is_due
 
 mavlink = require_pymavlink()
 
@@ -646,7 +647,7 @@ class SitlServer:
         return self.layer.windows(0, self.plant.t_us + 1)
 
     def record(self, flight_id: str, extra_config: dict | None = None, split: str = "test"):
-        """The flight so far as a :class:`scart_bench.generator.dataset.FlightRecord` (both views, truth, labels)."""
+        """The flight so far as a :class:`scart_bench.dataset.FlightRecord` (both views, truth, labels)."""
         from scart_bench.generator.sitl.record import sitl_record
 
         return sitl_record(self, flight_id, extra_config or {}, split)

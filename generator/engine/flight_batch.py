@@ -1,0 +1,187 @@
+"""What a batch of flights is made of, shared by both engines of :func:`scart_bench.generator.engine.simulate.simulate`
+(the compiled kernel in :mod:`scart_bench.generator.engine.compiled` and the numpy reference step): the flight
+config, the initial conditions drawn from the seeds, the attack-layer hooks protocol, the recorded
+result, and the sensor-instance fault helpers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from scart_bench.dataset.schema import SIM_RATE_HZ
+from scart_bench.generator.flight_software.commander import ControlParams
+from scart_bench.generator.flight_software.navigator import mission_waypoints
+from scart_bench.generator.flight_software.startup import battery_start, startup_times
+from scart_bench.generator.params import (
+    DT,
+    ControllerParams,
+    EstimatorParams,
+    MissionParams,
+    SensorParams,
+    VehicleParams,
+)
+from scart_bench.generator.physics.disturbances import Disturbances
+from scart_bench.generator.physics.sensors import Sensors
+from scart_bench.generator.physics.vehicle import VehicleState, Wind
+
+STATUS = ("landed", "timeout", "crashed")
+
+#: Which defaults a dataset's flights were made with (dataset.json ``flight_defaults``; a dataset
+#: without it was made with 1). 1: instant start (arming at 1 s, GPS from boot), 1 s hover,
+#: ideal timing, Gazebo GPS noise. 2: the PX4 start (ground phase, GPS fix and estimator origin
+#: before arming), 5 s hover, yaw within MPC_YAWRAUTO_MAX, realistic timing, EKF2's output
+#: predictor, PX4 SITL GPS noise, settling GPS accuracy and satellites, battery charge per flight.
+FLIGHT_DEFAULTS = 2
+
+
+def defaults_summary(cfg: FlightConfig) -> dict:
+    """What dataset.json records of the defaults a dataset was made with."""
+    return {"flight_defaults": FLIGHT_DEFAULTS, "timing": cfg.timing, "ground_phase": cfg.mission.ground_phase,
+            "takeoff_hold_s": cfg.mission.takeoff_hold_s}
+class AttackHooks(Protocol):
+    """What the simulator calls at its injection points (implemented by the SCART layer)."""
+
+    points: frozenset[str]
+
+    def on_messages(self, point: str, step: int, t_us: int, messages: dict[str, np.ndarray]
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Return, per topic, the (possibly altered) values and the per-flight delivered mask."""
+
+    def on_physics(self, step: int, t_us: int) -> Disturbances | dict:
+        """Physical disturbances for this step (environment attacks, faults), or an empty dict."""
+
+    def on_finish(self, step: int) -> None:
+        """Called once after the last step (``step``): close open attack windows, flush a link."""
+@dataclass
+class FlightConfig:
+    """Everything that defines a batch of flights besides the seeds."""
+
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    sensors: SensorParams = field(default_factory=SensorParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    controller: ControllerParams = field(default_factory=ControllerParams)
+    mission: MissionParams = field(default_factory=MissionParams)
+    #: the flight controller's commander: accepted commands, link-loss failsafe (generator.flight_software.commander)
+    control: ControlParams = field(default_factory=ControlParams)
+    #: how the written messages are stamped: "realistic" (jitter, drops, late topics) or "ideal"
+    #: (periodic from t = 0); generator.telemetry.timing, applied after flying
+    timing: str = "realistic"
+    #: also write the uORB view (PX4 topic names and units, generator.telemetry.uorb) of each flight; after flying
+    uorb: bool = False
+@dataclass
+class BatchResult:
+    """Recorded messages of a batch of flights.
+
+    ``simulator[topic]`` / ``navigator[topic]`` are ``(steps, values, delivered)`` with ``values``
+    shaped (N, n_messages, n_fields): the stream before and after the attack layer (identical
+    objects when no layer ran). ``truth`` is the true vehicle state at 50 Hz.
+    """
+
+    seeds: list[int]
+    simulator: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    navigator: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    exit_step: np.ndarray  # (N,) last recorded step of each flight
+    status: list[str]
+    waypoints: np.ndarray  # (N, K, 3) planned mission items
+    wind: np.ndarray  # (N, 3) mean wind
+    gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
+    n_steps: int
+    timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.telemetry.tables)
+    uorb: bool = False  # FlightConfig.uorb: the records carry the uORB view (generator.telemetry.uorb)
+
+    def __len__(self) -> int:
+        return len(self.seeds)
+def _battery_init(remaining: np.ndarray) -> np.ndarray:
+    """(N, 3) voltage, current, remaining of 4S packs at rest with the given charge (0-1)."""
+    remaining = np.asarray(remaining, dtype=float)
+    b = np.zeros((remaining.shape[0], 3))
+    b[:, 0] = 12.8 + 4.0 * remaining  # open-circuit voltage, as the battery model of both engines
+    b[:, 2] = remaining
+    return b
+@dataclass
+class Initial:
+    """Per-flight initial conditions, drawn from the flights' own generators (shared by both engines)."""
+
+    rngs: list[np.random.Generator]
+    wind: Wind
+    yaw0: np.ndarray
+    waypoints: np.ndarray
+    cruise: np.ndarray
+    sensors: Sensors
+    vehicle_state: VehicleState
+    sensor_state: object
+    max_steps: int
+    #: (N, 3) s after boot: GPS fix, estimator origin (GPS fused from then), arming (generator.flight_software.startup)
+    start: np.ndarray | None = None
+    #: (N, 3) battery state at boot: voltage, current, remaining
+    battery: np.ndarray | None = None
+def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
+    """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
+    n = len(seeds)
+    if n < 1:
+        raise ValueError("simulate needs at least one seed")
+    rngs = [np.random.default_rng(np.random.SeedSequence([int(s), 0x5CA7])) for s in seeds]
+    m = cfg.mission
+    u = np.array([g.uniform(size=6) for g in rngs])
+    wind_speed = m.wind_max * u[:, 0]
+    wind_dir = 2 * np.pi * u[:, 1]
+    wind_mean = np.column_stack([wind_speed * np.cos(wind_dir), wind_speed * np.sin(wind_dir), np.zeros(n)])
+    wind = Wind(mean=wind_mean, gust=np.zeros((n, 3)), sigma=m.gust_sigma_max * u[:, 2], tau=m.gust_tau)
+    yaw0 = (u[:, 3] - 0.5) * 0.5
+    waypoints, cruise = mission_waypoints(m, rngs)
+    sensors = Sensors(cfg.sensors, DT)
+    vs = VehicleState.zeros(n, yaw0)
+    ss = sensors.init_state(n, rngs)
+    start = startup_times(seeds, m.ground_phase, m.arm_delay_s)
+    ss.fix_at = start[:, 0].copy()
+    battery = _battery_init(battery_start(seeds))
+    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ),
+                   start, battery)
+def alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
+    """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
+    lost = env.lost(sensor) if env is not None else None
+    if lost is None:
+        return delivered
+    return ~lost if delivered is None else delivered & ~lost
+def instance_value(env: Disturbances, sensor: str, value: np.ndarray, previous: np.ndarray,
+                    scale: float = 1.0) -> np.ndarray:
+    """A sensor whose primary instance is lost: the secondary's reading (its own offset), or the
+    last reading frozen when there is no failover."""
+    name = "baro" if sensor == "baro_temp" else sensor
+    lost = env.sensor_lost.get(name)
+    if lost is None or not lost.any():
+        return value
+    fail = env.sensor_failover.get(name, np.zeros_like(lost))
+    out = np.array(value, dtype=float, copy=True)
+    offset = env.sensor_offset.get(name)
+    if sensor != "baro_temp" and offset is not None:
+        sec = lost & fail
+        if out.ndim == 1:
+            out[sec] += scale * offset[sec]
+        else:
+            out[sec, 0] += scale * offset[sec]  # the secondary instance's calibration differs on x
+    frozen = lost & ~fail
+    out[frozen] = np.asarray(previous)[frozen]
+    return out
+def instance_imu(env: Disturbances, accel: np.ndarray, gyro: np.ndarray, prev) -> tuple[np.ndarray, np.ndarray]:
+    pa, pg = prev
+    return instance_value(env, "accel", accel, pa), instance_value(env, "gyro", gyro, pg)
+def instance_gps(env: Disturbances, gps: dict) -> dict:
+    """The GPS receiver lost: a secondary receiver's fix (offset north), or no GPS at all."""
+    lost = env.sensor_lost.get("gps")
+    if lost is None or not lost.any():
+        return gps
+    fail = env.sensor_failover.get("gps", np.zeros_like(lost))
+    gps = {k: np.array(v, copy=True) for k, v in gps.items()}
+    offset = env.sensor_offset.get("gps")
+    if offset is not None:
+        gps["pos"][lost & fail, 0] += offset[lost & fail]
+    gone = lost & ~fail
+    gps["fix_type"][gone] = 0.0  # MAVLink GPS_FIX_TYPE_NO_GPS
+    gps["satellites"][gone] = 0.0
+    gps["eph"][gone], gps["epv"][gone] = 99.99, 99.99
+    gps["vel"][gone] = 0.0
+    return gps

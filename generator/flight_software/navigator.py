@@ -1,0 +1,143 @@
+"""The mission computer (the paper's "Navigator"): flies the mission by what it perceives.
+
+It reads telemetry from the link (LOCAL_POSITION_NED and ATTITUDE), and sends offboard velocity
+and yaw setpoints back to the flight controller. Because it steers by the position it *receives*,
+an attack on the link changes the real path while the navigator's own view stays on course.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scart_bench.generator.params import MissionParams
+from scart_bench.generator.physics.rotation import wrap_pi
+
+PHASE_IDLE, PHASE_TAKEOFF, PHASE_MISSION, PHASE_LAND = 0, 1, 2, 3
+
+
+@dataclass
+class NavigatorState:
+    """Per-flight mission state and the latest telemetry received."""
+
+    phase: np.ndarray  # (N,) int
+    seq: np.ndarray  # (N,) index of the current mission item
+    hold_until: np.ndarray  # (N,) s
+    yaw_sp: np.ndarray  # (N,) rad
+    pos: np.ndarray  # (N, 3) last received LOCAL_POSITION_NED position
+    vel: np.ndarray  # (N, 3)
+    yaw: np.ndarray  # (N,) last received ATTITUDE yaw
+    xt_int: np.ndarray  # (N,) integral of the cross-track error on the current leg (m s)
+
+
+def mission_waypoints(mission: MissionParams, rngs: list[np.random.Generator]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-flight mission items (N, K, 3) NED and cruise speeds (N,), with small jitter.
+
+    Items: take-off point above home, the four corners of the square at mission altitude,
+    then home at mission altitude (the return leg); landing follows the last item.
+    """
+    base = [(0.0, 0.0)] + [tuple(c) for c in mission.corners] + [(0.0, 0.0)]
+    n = len(rngs)
+    wps = np.zeros((n, len(base), 3))
+    speeds = np.zeros(n)
+    for i, g in enumerate(rngs):
+        jitter = g.uniform(-mission.jitter_m, mission.jitter_m, size=(len(base), 3))
+        jitter[0, :2] = 0.0
+        jitter[-1, :2] = 0.0
+        wps[i, :, :2] = np.array(base) + jitter[:, :2]
+        wps[i, :, 2] = -(mission.altitude + jitter[:, 2])
+        speeds[i] = mission.cruise_speed + g.uniform(-mission.jitter_speed, mission.jitter_speed)
+    return wps, speeds
+
+
+class Navigator:
+    """Mission state machine for a batch: arm, take off, mission items, land."""
+
+    def __init__(self, mission: MissionParams, waypoints: np.ndarray, cruise: np.ndarray,
+                 arm_s: np.ndarray | None = None):
+        self.m = mission
+        self.wps = waypoints
+        self.cruise = cruise
+        #: (N,) when each flight arms (generator.flight_software.startup); default: the mission's arm_delay_s
+        self.arm_s = np.full(waypoints.shape[0], mission.arm_delay_s) if arm_s is None else np.asarray(arm_s)
+
+    def init_state(self, n: int, yaw0: np.ndarray) -> NavigatorState:
+        return NavigatorState(
+            phase=np.zeros(n, dtype=np.int64), seq=np.zeros(n, dtype=np.int64), hold_until=np.zeros(n),
+            yaw_sp=yaw0.copy(), pos=np.zeros((n, 3)), vel=np.zeros((n, 3)), yaw=yaw0.copy(),
+            xt_int=np.zeros(n),
+        )
+
+    def receive(self, s: NavigatorState, topic: str, values: np.ndarray, delivered: np.ndarray,
+                fields: tuple[str, ...]) -> None:
+        """Take in a telemetry message (only rows whose message was delivered)."""
+        if topic == "local_position_ned":
+            s.pos[delivered] = values[delivered][:, 0:3]
+            s.vel[delivered] = values[delivered][:, 3:6]
+        elif topic == "attitude":
+            s.yaw[delivered] = values[delivered][:, fields.index("yaw")]
+
+    def step(self, s: NavigatorState, t: float) -> np.ndarray:
+        """The setpoint message (N, 6): vx, vy, vz, yaw, seq, armed."""
+        m = self.m
+        n = s.phase.shape[0]
+        out = np.zeros((n, 6))
+        armed = t >= self.arm_s
+        start = (s.phase == PHASE_IDLE) & (t >= self.arm_s + 0.5)
+        s.phase[start] = PHASE_TAKEOFF
+        k_last = self.wps.shape[1] - 1
+        target = self.wps[np.arange(n), np.minimum(s.seq, k_last)]
+        d = target - s.pos
+        dist_h = np.hypot(d[:, 0], d[:, 1])
+        flying = (s.phase == PHASE_TAKEOFF) | (s.phase == PHASE_MISSION)
+        speed = np.minimum(self.cruise, m.approach_gain * dist_h)
+        speed = np.where(s.phase == PHASE_TAKEOFF, np.minimum(speed, 1.0), speed)
+        dir_h = d[:, :2] / np.maximum(dist_h, 1e-6)[:, None]
+        vh = dir_h * speed[:, None]
+        # on a leg, follow the line from the previous item (PI on the cross-track error), as a
+        # mission computer does; the integral carries over legs (a steady sideways push stays one)
+        prev = self.wps[np.arange(n), np.clip(s.seq - 1, 0, k_last)]
+        leg = target[:, :2] - prev[:, :2]
+        leg_len = np.linalg.norm(leg, axis=1)
+        u = leg / np.maximum(leg_len, 1e-6)[:, None]
+        normal = np.column_stack([-u[:, 1], u[:, 0]])
+        xt = np.einsum("ni,ni->n", s.pos[:, :2] - prev[:, :2], normal)
+        on_leg = (s.phase == PHASE_MISSION) & (leg_len > 1.0)
+        dt = 1.0 / 50.0
+        s.xt_int = np.where(on_leg, np.clip(s.xt_int + xt * dt * (np.abs(xt) < 5.0), -10.0, 10.0), 0.0)
+        side = np.clip(-(0.8 * xt + 0.3 * s.xt_int), -0.7 * speed, 0.7 * speed)
+        along = np.sqrt(np.maximum(speed**2 - side**2, 0.0))
+        v_line = along[:, None] * dir_h + side[:, None] * normal
+        vh = np.where(on_leg[:, None], v_line, vh)
+        vz = np.clip(1.0 * d[:, 2], -m.climb_speed, 1.5)
+        out[:, 0:2] = np.where(flying[:, None], vh, 0.0)
+        out[:, 2] = np.where(flying, vz, 0.0)
+        turn = flying & (dist_h > 3.0) & (s.phase == PHASE_MISSION)
+        # turn towards the next item no faster than MPC_YAWRAUTO_MAX, as PX4's auto modes do
+        step_max = m.yaw_rate_max * dt
+        turn_by = np.clip(wrap_pi(np.arctan2(d[:, 1], d[:, 0]) - s.yaw_sp), -step_max, step_max)
+        s.yaw_sp = np.where(turn, wrap_pi(s.yaw_sp + turn_by), s.yaw_sp)
+        reached = flying & (dist_h < m.acceptance_radius) & (np.abs(d[:, 2]) < 0.5)
+        # take-off item: hold for takeoff_hold_s once reached
+        tk = reached & (s.phase == PHASE_TAKEOFF)
+        new_hold = tk & (s.hold_until == 0)
+        s.hold_until[new_hold] = t + m.takeoff_hold_s
+        go = tk & (s.hold_until > 0) & (t >= s.hold_until)
+        s.phase[go] = PHASE_MISSION
+        s.seq[go] += 1
+        adv = reached & (s.phase == PHASE_MISSION) & ~go
+        last = adv & (s.seq >= k_last)
+        s.seq[adv & ~last] += 1
+        s.phase[last] = PHASE_LAND
+        land = s.phase == PHASE_LAND
+        home = self.wps[:, -1, :2]
+        dh = home - s.pos[:, :2]
+        vh_land = np.clip(1.0 * dh, -1.0, 1.0)
+        out[land, 0:2] = vh_land[land]
+        alt = -s.pos[:, 2]
+        out[land, 2] = np.where(alt[land] > 3.0, 1.5, m.land_speed)
+        out[:, 3] = s.yaw_sp
+        out[:, 4] = s.seq
+        out[:, 5] = armed
+        return out

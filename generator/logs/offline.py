@@ -1,0 +1,303 @@
+"""Your own flights: import logs as normal flights of a dataset, and attack flights in csv mode.
+
+- :func:`import_logs`: PX4 ULogs, CSVs, Parquet files or flight folders become normal flights of a
+  dataset (new or existing), ids from the log names, added atomically.
+- :func:`attack_dataset`: labelled attacked copies of a dataset's normal flights (split ``test``
+  or ``csv_source``) added to the same dataset, ids ``csv-<source flight>-<scenario id>``.
+- :func:`attack_file`: the single-log form, one log into a new dataset of attacked copies.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import re
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from scart_bench.dataset import (
+    DatasetError,
+    DatasetWriter,
+    append_flights,
+    check_layout,
+    check_output_dir,
+    flight_record,
+    is_dataset,
+    open_dataset,
+    replacing,
+)
+from scart_bench.generator.logs.importers import load_flight_file
+from scart_bench.generator.modes import csv_mode, csv_record, with_labels
+from scart_bench.generator.scart.grid import load_configurations
+
+logger = logging.getLogger(__name__)
+
+#: Splits a log can be imported into; ``csv_source``: normal flights kept as csv-mode attack sources
+#: (neither trained on nor scored).
+IMPORT_SPLITS = ("train", "validation", "test", "csv_source")
+#: Shares of ``--split auto`` (train, validation, test; csv_source takes the rest).
+AUTO_SHARES = (0.5, 0.2, 0.15)
+
+
+def _config_id(job) -> str:
+    return "+".join(s.id for s in job)
+
+
+def _available(tables) -> dict[str, tuple[str, ...]]:
+    return {t: tuple(c for c in df.columns if c != "Timestamp" and c != "Is_Anomaly") for t, df in tables.items()}
+
+
+def _validate(jobs, tables, where: str) -> None:
+    available = _available(tables)
+    for job in jobs:
+        for sc in job:
+            sc.validate_topics(available, where=f"{sc.source} (on {where})")
+
+
+# ----------------------------------------------------------------------------------------------
+# import
+
+
+def _refuse_physical(jobs, scenario_path) -> None:
+    """A recording cannot be flown again: refuse configurations that only change the physics."""
+    physical = [j for j in jobs if all(sc.physical for sc in j)]
+    if len(physical) == len(jobs):
+        points = sorted({sc.injection_point for j in physical for sc in j})
+        raise DatasetError(f"{scenario_path}: {'/'.join(points)} scenarios change the physics, which a recorded "
+                           "flight cannot replay; use them in simulation mode (scart-bench generate --scenarios)")
+
+
+def _refuse_closed_loop(jobs, scenario_path) -> list:
+    """A recording has no flight controller to obey a forged command and no navigator to fly a tampered
+    mission: configurations with those actions get no copy (a warning names them); when no other
+    configuration is left, a clear error."""
+    from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
+
+    closed = [j for j in jobs if any(n in CLOSED_LOOP_ACTIONS for sc in j for n, _ in sc.actions)]
+    if not closed:
+        return jobs
+    names = sorted({n for j in closed for sc in j for n, _ in sc.actions if n in CLOSED_LOOP_ACTIONS})
+    why = (f"{', '.join(names)} act(s) on the flight controller or the navigator, which a recorded flight cannot "
+           "replay; use them in simulation mode (scart-bench generate --scenarios)")
+    if len(closed) == len(jobs):
+        raise DatasetError(f"{scenario_path}: {why}; replay, flood and link_loss apply to recordings")
+    logger.warning("%s: no copy of %s: %s", scenario_path, ", ".join(_config_id(j) for j in closed), why)
+    return [j for j in jobs if j not in closed]
+
+
+def _start_conditions(job) -> str:
+    """The start conditions of a configuration, for a message (``id: condition key=value``)."""
+    parts = []
+    for sc in job:
+        for name, p in sc.start:
+            args = " ".join(f"{k}={v}" for k, v in p.items() if v is not None)
+            parts.append(f"{sc.id}: {name} {args}".strip())
+    return "; ".join(parts) or "none"
+
+
+def log_name(path: Path) -> str:
+    """A log's name for flight ids: the file name without its extensions, in ``[a-z0-9_-]``."""
+    name = path.name if path.is_dir() else re.sub(r"(\.(ulg|csv|parquet|pq|gz|bz2|xz|zip|zst))+$", "",
+                                                   path.name, flags=re.IGNORECASE)
+    return re.sub(r"[^a-z0-9_-]+", "_", name.lower()).strip("_") or "log"
+
+
+def _seconds(v: float | None) -> str:
+    return "end" if v is None else f"{v:g}s".replace(".", "p")
+
+
+def import_ids(paths: list[Path], start_s: float | None = None, end_s: float | None = None) -> list[str]:
+    """Flight ids of imported logs: ``log-<name>``, plus ``-<start>s-<end>s`` (or ``-end``) when trimmed.
+
+    Stable (the same log and window always give the same id). Two logs of the same name are told
+    apart by their folder's name; if that is the same too, DatasetError.
+    """
+    window = "" if start_s is None and end_s is None else f"-{_seconds(start_s or 0.0)}-{_seconds(end_s)}"
+    plain = [f"log-{log_name(p)}{window}" for p in paths]
+    ids = [f"log-{log_name(p.resolve().parent)}-{log_name(p)}{window}" if plain.count(plain[i]) > 1 else plain[i]
+           for i, p in enumerate(paths)]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise DatasetError(f"logs give the same flight id {dup[0]!r}; rename one of them")
+    return ids
+
+
+def auto_splits(ids: list[str], seed: int) -> list[str]:
+    """``--split auto``: train / validation / test / csv_source by a seeded shuffle of the ids.
+
+    Deterministic for a seed and a set of ids (not their order). With 4 or more flights every one
+    of train, validation and test gets at least one.
+    """
+    n = len(ids)
+    key = lambda fid: hashlib.sha256(f"{seed}:{fid}".encode()).hexdigest()  # noqa: E731
+    order = sorted(range(n), key=lambda i: key(ids[i]))
+    n_train = max(1, round(AUTO_SHARES[0] * n))
+    n_val = min(max(1, round(AUTO_SHARES[1] * n)), max(n - n_train, 0))
+    n_test = min(max(1, round(AUTO_SHARES[2] * n)), max(n - n_train - n_val, 0))
+    out = [""] * n
+    for rank, i in enumerate(order):
+        out[i] = ("train" if rank < n_train else "validation" if rank < n_train + n_val
+                  else "test" if rank < n_train + n_val + n_test else "csv_source")
+    return out
+
+
+def non_finite_cells(tables: dict[str, pd.DataFrame]) -> dict[str, int]:
+    """NaN or +/-inf cells per ``topic.field`` column of a log's numeric fields (only those with any)."""
+    out: dict[str, int] = {}
+    for topic, df in tables.items():
+        for col in df.columns:
+            if col in ("Timestamp", "Index", "Is_Anomaly"):
+                continue
+            v = df[col]
+            if not pd.api.types.is_numeric_dtype(v):
+                continue
+            n = int((~np.isfinite(v.to_numpy(np.float64, na_value=np.nan))).sum())
+            if n:
+                out[f"{topic}.{col}"] = n
+    return out
+
+
+def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", topics: list[str] | None = None,
+                start_s: float | None = None, end_s: float | None = None, seed: int = 0, fmt: str = "parquet",
+                allow_corrupt: bool = False, say: Callable[[str], None] | None = None,
+                layout: str | None = None) -> list[str]:
+    """Add logs to dataset ``out`` (created if missing) as normal flights; returns their ids.
+
+    Each log (trimmed to ``[start_s, end_s)`` if given) becomes one flight whose navigator and
+    simulator views are the log's topic tables. Every log is read and checked before anything is
+    written; the flights are then appended atomically (the manifest is replaced last).
+    """
+    if split not in (*IMPORT_SPLITS, "auto"):
+        raise DatasetError(f"--split {split!r}: expected one of {', '.join(IMPORT_SPLITS)} or auto")
+    if not paths:
+        raise DatasetError("no log given to import")
+    paths = [Path(p) for p in paths]
+    ids = import_ids(paths, start_s, end_s)
+    out = Path(out)
+    if is_dataset(out):
+        taken = set(open_dataset(out).manifest["flight_id"].astype(str))
+        clash = [i for i in ids if i in taken]
+        if clash:
+            raise DatasetError(f"{out}: flight {clash[0]!r} is already in the dataset (imported before?); "
+                               "flight ids come from the log names and --start/--end")
+    splits = auto_splits(ids, seed) if split == "auto" else [split] * len(ids)
+    loaded = []
+    say = say or (lambda msg: None)
+    for p in paths:  # read everything first: a bad log fails before anything is written
+        tables = load_flight_file(p, topics, allow_corrupt=allow_corrupt, start_s=start_s, end_s=end_s)
+        loaded.append(tables)
+        counts = non_finite_cells(tables)
+        if counts:
+            shown = ", ".join(f"{c} {n}" for c, n in list(counts.items())[:8]) + (" ..." if len(counts) > 8 else "")
+            say(f"import: warning: {p}: {sum(counts.values())} NaN/inf cell(s) in {len(counts)} column(s) ({shown}); "
+                "detectors treat them as missing values")
+
+    def records() -> Iterator:
+        for p, fid, sp, tables in zip(paths, ids, splits, loaded):
+            say(f"import: {p} -> {fid} ({sp})")
+            config = {"mode": "import", "input": str(p), "topics": topics, "window_s": [start_s, end_s],
+                      "input_origin_us": {t: df.attrs.get("origin_us") for t, df in tables.items()}}
+            yield flight_record(fid, with_labels(tables), with_labels(tables),
+                                {"mode": "normal", "split": sp, "seed": seed, "source_flight": str(p)},
+                                json.loads(json.dumps(config, default=str)))
+
+    append_flights(out, records(), fmt=fmt, info={"profile": "own-logs", "seed": seed}, layout=layout)
+    return ids
+
+
+# ----------------------------------------------------------------------------------------------
+# attack
+
+
+def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tuple[str, ...] = ("test",),
+                   seed: int = 0, say: Callable[[str], None] | None = None) -> list[str]:
+    """Add labelled attacked copies of the dataset's normal flights of split ``sources`` to it.
+
+    Every configuration of the scenario (or grid) file is replayed on every source flight; ids
+    ``csv-<source flight>-<configuration id>``. All scenarios are checked against every source's
+    topics before anything is written (a topic a source lacks is an error naming it). A copy in
+    which the attack never started (e.g. its trigger never held on that log) is not added, with a
+    warning. Returns the ids added.
+    """
+    ds = open_dataset(dataset)
+    bad = [s for s in sources if s not in ("test", "csv_source", "validation", "train")]
+    if bad:
+        raise DatasetError(f"--sources {bad[0]!r}: expected test and/or csv_source")
+    m = ds.manifest
+    rows = m[(m["mode"].astype(str) == "normal") & m["split"].astype(str).isin(sources)]
+    if rows.empty:
+        raise DatasetError(f"{ds.path}: no normal flight with split {' or '.join(sources)} to attack; import logs with "
+                           f"--split {sources[0]} (or --split auto)")
+    jobs = load_configurations(Path(scenario_path), check_topics=False)
+    _refuse_physical(jobs, scenario_path)
+    jobs = _refuse_closed_loop(jobs, scenario_path)
+    flights = []
+    for fid in rows["flight_id"].astype(str):
+        tables = load_flight_file(ds.flight_dir(fid))
+        _validate(jobs, tables, f"flight {fid}")
+        flights.append((fid, tables, int(rows.loc[rows["flight_id"].astype(str) == fid, "seed"].iloc[0] or 0)))
+    say = say or (lambda msg: None)
+    added: list[str] = []
+
+    def records() -> Iterator:
+        for fid, tables, _ in flights:
+            results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
+            for job, result in zip(jobs, results):
+                cid = f"csv-{fid}-{_config_id(job)}"
+                if not result[1]:
+                    logger.warning("%s: the attack %s never started on flight %s (its start conditions never "
+                                   "held); no copy added", scenario_path, _config_id(job), fid)
+                    continue
+                say(f"attack: {fid} x {_config_id(job)} -> {cid}")
+                added.append(cid)
+                yield csv_record(cid, tables, result, job, seed, fid,
+                                 {"input": f"{ds.path}/flights/{fid}", "source_flight": fid})
+
+    append_flights(ds.path, records())
+    if not added:
+        raise DatasetError(f"{scenario_path}: the attack never started on any source flight; nothing was added "
+                           f"(start conditions: {_start_conditions(jobs[0])})")
+    return added
+
+
+def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",
+                seed: int = 0, overwrite: bool = False, topics: list[str] | None = None,
+                allow_corrupt: bool = False, layout: str | None = None) -> Path:
+    """Replay ``input_path`` (CSV, ULog, Parquet or a dataset flight folder) through the scenario(s).
+
+    A scenario file's scenarios are applied together to one attacked copy; a grid or sweep file
+    gives one attacked copy per configuration. Everything is validated before anything is written.
+    """
+    input_path, out = Path(input_path), Path(out)
+    check_layout(fmt, layout)
+    check_output_dir(out, overwrite=overwrite)
+    jobs = load_configurations(Path(scenario_path), check_topics=False)
+    _refuse_physical(jobs, scenario_path)
+    jobs = _refuse_closed_loop(jobs, scenario_path)
+    tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
+    _validate(jobs, tables, str(input_path))
+    results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
+    started = [(job, result) for job, result in zip(jobs, results) if result[1]]
+    for job, result in zip(jobs, results):
+        if started and not result[1]:
+            logger.warning("%s: the attack %r never started on %s (its start conditions never held); no copy",
+                           scenario_path, _config_id(job), input_path)
+    if not started:
+        raise DatasetError(f"{scenario_path}: the attack never started on {input_path}: its start conditions "
+                           f"({_start_conditions(jobs[0])}) never held within the log; nothing was written")
+    jobs, results = [j for j, _ in started], [r for _, r in started]
+    origins = {t: df.attrs.get("origin_us") for t, df in tables.items()}
+    # built beside ``out`` and moved into place when complete: --overwrite never loses the old
+    # dataset to a failure (a full disk) half-way
+    with replacing(out) as partial:
+        writer = DatasetWriter(partial, fmt=fmt, layout=layout,
+                               info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_path)})
+        for job, result in zip(jobs, results):
+            config = json.loads(json.dumps({"input": str(input_path), "input_origin_us": origins}, default=str))
+            writer.write(csv_record("csv-" + _config_id(job), tables, result, job, seed, str(input_path), config))
+        writer.close()
+    return out

@@ -1,0 +1,139 @@
+"""Sensor models with PX4 Gazebo-classic defaults: IMU, magnetometer, barometer and GPS.
+
+Each model turns the true vehicle state into what the flight controller's estimator receives.
+Noise comes from the per-flight NoiseStream slice handed to each call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scart_bench.generator.flight_software.startup import gps_quality
+from scart_bench.generator.geo import HOME_ALT, pressure_at
+from scart_bench.generator.params import GRAVITY, SensorParams
+from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
+from scart_bench.generator.physics.rotation import rotate_t
+
+
+@dataclass
+class SensorState:
+    """Slowly varying sensor errors of a batch (leading flight axis)."""
+
+    accel_bias: np.ndarray  # (N, 3) m/s^2
+    gyro_bias: np.ndarray  # (N, 3) rad/s
+    baro_offset: np.ndarray  # (N,) Pa
+    gps_bias: np.ndarray  # (N, 3) m, NED
+    satellites: np.ndarray  # (N,) satellites in view
+    truth_buffer: np.ndarray  # (delay_steps, N, 6) true pos/vel, for the GPS delay
+    temperature: np.ndarray  # (N,) degC
+    last_fix: np.ndarray | None = None  # (N, 3) last fixed position, reported while the fix is lost
+    fix_at: np.ndarray | None = None  # (N,) s, the receiver's first fix (generator.flight_software.startup); None: from boot
+
+
+class Sensors:
+    """All sensors of a batch of vehicles; call the sample methods at their own rates."""
+
+    def __init__(self, params: SensorParams, dt: float):
+        self.params = params
+        self.dt = dt
+        self.delay_steps = max(1, int(round(params.gps_delay_s / dt)))
+        self.mag_field = np.array(params.mag_field_ned)
+
+    def init_state(self, n: int, rngs: list[np.random.Generator]) -> SensorState:
+        p = self.params
+        u = np.array([g.standard_normal(12) for g in rngs])  # (N, 12)
+        return SensorState(
+            accel_bias=0.02 * u[:, 0:3],
+            gyro_bias=0.002 * u[:, 3:6],
+            baro_offset=p.baro_drift_pa * u[:, 6],
+            gps_bias=np.column_stack([p.gps_bias_h * u[:, 7], p.gps_bias_h * u[:, 8], p.gps_bias_v * u[:, 9]]),
+            satellites=np.clip(np.round(12 + 1.5 * u[:, 10]), 8, 16),
+            truth_buffer=np.zeros((self.delay_steps, n, 6)),
+            temperature=20.0 + 3.0 * u[:, 11],
+        )
+
+    def imu(self, st: SensorState, accel_ned: np.ndarray, omega: np.ndarray, R: np.ndarray,
+            noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Accelerometer (specific force, FRD) and gyro samples; advances the bias random walks."""
+        p, dt = self.params, self.dt
+        fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
+        a_ab = np.exp(-dt / p.accel_bias_tau)
+        a_gb = np.exp(-dt / p.gyro_bias_tau)
+        st.accel_bias = a_ab * st.accel_bias + p.accel_bias_random_walk * np.sqrt(dt) * noise[:, 6:9]
+        st.gyro_bias = a_gb * st.gyro_bias + p.gyro_bias_random_walk * np.sqrt(dt) * noise[:, 9:12]
+        acc = fs + st.accel_bias + p.accel_noise_density * np.sqrt(1 / dt) * noise[:, 0:3]
+        gyro = omega + st.gyro_bias + p.gyro_noise_density * np.sqrt(1 / dt) * noise[:, 3:6]
+        return acc, gyro
+
+    def mag(self, R: np.ndarray, noise: np.ndarray, disturbance: np.ndarray | None = None) -> np.ndarray:
+        """Magnetometer (gauss, FRD); ``disturbance`` (N, 3) is a local field added to the earth's (NED)."""
+        field = np.broadcast_to(self.mag_field, (R.shape[0], 3))
+        if disturbance is not None:
+            field = field + disturbance
+        return rotate_t(R, field) + self.params.mag_noise * noise
+
+    def baro(self, st: SensorState, pos: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Static pressure (Pa) and temperature (degC)."""
+        press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + self.params.baro_noise_pa * noise[:, 0]
+        temp = st.temperature - 0.0065 * (-pos[:, 2]) + 0.05 * noise[:, 1]
+        return press, temp
+
+    def push_truth(self, st: SensorState, step: int, pos: np.ndarray, vel: np.ndarray) -> None:
+        """Store the true state; the GPS reports it ``delay_steps`` later."""
+        st.truth_buffer[step % self.delay_steps, :, :3] = pos
+        st.truth_buffer[step % self.delay_steps, :, 3:] = vel
+
+    def gps(self, st: SensorState, step: int, noise: np.ndarray, dt_gps: float,
+            env: Disturbances | None = None) -> dict[str, np.ndarray]:
+        """GPS fix of the delayed true state: NED position (m), NED velocity, accuracies.
+
+        ``env`` carries RF-level attacks: a spoofer's offsets (and its simulated constellation)
+        and jamming, which costs satellites and accuracy and, below 4 satellites, the fix.
+        """
+        p = self.params
+        old = st.truth_buffer[(step + 1) % self.delay_steps] if step + 1 >= self.delay_steps else st.truth_buffer[0]
+        a = np.exp(-dt_gps / p.gps_bias_tau)
+        scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
+        st.gps_bias = a * st.gps_bias + np.sqrt(1 - a * a) * scale * noise[:, 0:3]
+        white = np.array([p.gps_noise_h, p.gps_noise_h, p.gps_noise_v]) * noise[:, 3:6]
+        vel_noise = p.gps_vel_noise * noise[:, 6:9]
+        sats = st.satellites
+        growth = None
+        if env is not None:
+            sats = np.where(env.gps_spoofed, env.gps_spoof_satellites, st.satellites)
+            sats, growth = gps_signal_quality(sats, env.gps_js_db)
+            white = white * growth[:, None]
+            vel_noise = vel_noise * growth[:, None]
+        pos = old[:, :3] + st.gps_bias + white
+        vel = old[:, 3:] + vel_noise
+        n = pos.shape[0]
+        eph = np.full(n, np.hypot(p.gps_noise_h, p.gps_bias_h)) * (12.0 / np.maximum(sats, 1.0))
+        epv = np.full(n, np.hypot(p.gps_noise_v, p.gps_bias_v)) * (12.0 / np.maximum(sats, 1.0))
+        fix = np.full(n, 3.0)
+        settling = None
+        if st.fix_at is not None:  # a receiver that starts: no fix yet, then satellites and accuracy settle
+            settling, sats, scale = gps_quality(step * self.dt, st.fix_at, st.satellites, sats)
+            eph = np.hypot(p.gps_noise_h, p.gps_bias_h) * (12.0 / np.maximum(sats, 1.0)) * scale
+            epv = np.hypot(p.gps_noise_v, p.gps_bias_v) * (12.0 / np.maximum(sats, 1.0)) * scale
+        if env is not None:
+            pos = pos + env.gps_offset
+            vel = vel + env.gps_vel_offset
+            eph, epv = eph * growth, epv * growth
+            fixed = sats >= 4
+            fix = np.where(fixed, 3.0, 1.0)  # MAVLink GPS_FIX_TYPE: 3 = 3D fix, 1 = no fix
+            if st.last_fix is None:
+                st.last_fix = pos.copy()
+            st.last_fix[fixed] = pos[fixed]
+            if not fixed.all():
+                lost = ~fixed
+                pos[lost] = st.last_fix[lost]
+                vel[lost] = 0.0
+                eph[lost], epv[lost] = 99.99, 99.99
+        if settling is not None and not settling.all():
+            early = ~settling
+            fix = np.where(early, 1.0, fix)  # MAVLink GPS_FIX_TYPE_NO_FIX until the first fix
+            eph, epv = np.where(early, 99.99, eph), np.where(early, 99.99, epv)
+        return {"pos": pos, "vel": vel, "eph": eph, "epv": epv, "satellites": np.asarray(sats, dtype=float).copy(),
+                "fix_type": fix}

@@ -1,0 +1,113 @@
+"""Rigid-body 6-DOF quadrotor (3DR Iris) with first-order motor lag, rotor drag and wind.
+
+All arrays carry a leading flight axis. The state is stepped at a fixed rate with
+semi-implicit Euler on the translational and rotational velocities.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scart_bench.generator.params import GRAVITY, VehicleParams
+from scart_bench.generator.physics.rotation import cross, quat_integrate, quat_to_rot, rotate, rotate_t
+
+
+@dataclass
+class VehicleState:
+    """True state of a batch of vehicles."""
+
+    pos: np.ndarray  # (N, 3) m, NED relative to home
+    vel: np.ndarray  # (N, 3) m/s, NED
+    quat: np.ndarray  # (N, 4) body (FRD) -> NED
+    omega: np.ndarray  # (N, 3) rad/s, body rates
+    rotor_speed: np.ndarray  # (N, 4) rad/s
+    accel: np.ndarray  # (N, 3) m/s^2, NED acceleration of the last step
+    on_ground: np.ndarray  # (N,) bool
+
+    @classmethod
+    def zeros(cls, n: int, yaw: np.ndarray | None = None) -> VehicleState:
+        quat = np.zeros((n, 4))
+        if yaw is None:
+            quat[:, 0] = 1.0
+        else:
+            quat[:, 0] = np.cos(yaw / 2)
+            quat[:, 3] = np.sin(yaw / 2)
+        return cls(
+            pos=np.zeros((n, 3)), vel=np.zeros((n, 3)), quat=quat, omega=np.zeros((n, 3)),
+            rotor_speed=np.zeros((n, 4)), accel=np.zeros((n, 3)), on_ground=np.ones(n, dtype=bool),
+        )
+
+
+@dataclass
+class Wind:
+    """Per-flight mean wind plus Ornstein-Uhlenbeck gusts (NED, m/s)."""
+
+    mean: np.ndarray  # (N, 3)
+    gust: np.ndarray  # (N, 3)
+    sigma: np.ndarray  # (N,) gust standard deviation
+    tau: float  # s
+
+    def step(self, noise: np.ndarray, dt: float) -> np.ndarray:
+        """Advance the gusts with standard normals ``noise`` (N, 3); returns the wind (N, 3)."""
+        a = np.exp(-dt / self.tau)
+        noise = noise * np.array([1.0, 1.0, 0.3])
+        self.gust = a * self.gust + np.sqrt(1 - a * a) * self.sigma[:, None] * noise
+        return self.mean + self.gust
+
+
+class Vehicle:
+    """Quadrotor dynamics; ``step`` advances a VehicleState by one time step."""
+
+    def __init__(self, params: VehicleParams):
+        self.params = params
+        self.inertia = np.array(params.inertia)
+        self.alloc = params.allocation()
+        self.alloc_inv = np.linalg.inv(self.alloc)
+
+    def step(self, s: VehicleState, rotor_cmd: np.ndarray, wind: np.ndarray, dt: float,
+             efficiency: np.ndarray | None = None) -> np.ndarray:
+        """Advance one step. ``rotor_cmd`` (N, 4) rad/s; returns the rotation matrices used."""
+        p = self.params
+        up = rotor_cmd > s.rotor_speed
+        tau = np.where(up, p.time_constant_up, p.time_constant_down)
+        s.rotor_speed += (rotor_cmd - s.rotor_speed) * (dt / tau)
+        thrusts = p.motor_constant * s.rotor_speed**2
+        if efficiency is not None:
+            thrusts = thrusts * efficiency
+        wrench = thrusts @ self.alloc.T  # (N, 4): thrust, tau_x, tau_y, tau_z
+        R = quat_to_rot(s.quat)
+        v_air_b = rotate_t(R, s.vel - wind)
+        drag_b = -p.rotor_drag_coefficient * s.rotor_speed.sum(axis=1)[:, None] * v_air_b
+        drag_b[:, 2] = 0.0
+        drag_b -= p.body_drag * np.abs(v_air_b) * v_air_b
+        force_b = drag_b
+        force_b[:, 2] -= wrench[:, 0]
+        accel = rotate(R, force_b) / p.mass
+        accel[:, 2] += GRAVITY
+        # ground: the vehicle rests on it until the thrust lifts it off
+        resting = s.on_ground & (accel[:, 2] >= 0)
+        accel[resting] = 0.0
+        s.vel += accel * dt
+        s.pos += s.vel * dt
+        touching = s.pos[:, 2] >= 0.0
+        s.on_ground = touching
+        if touching.any():
+            s.pos[touching, 2] = 0.0
+            s.vel[touching] = 0.0
+        s.accel = accel
+        J = self.inertia
+        torque = wrench[:, 1:]
+        w = s.omega
+        gyro = cross(w, w * J)
+        s.omega = w + (torque - gyro) / J * dt
+        s.omega[touching] = 0.0
+        s.quat = quat_integrate(s.quat, s.omega, dt)
+        if touching.any():
+            # resting on the ground: level, keep heading
+            q = s.quat[touching]
+            yaw = np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+            s.quat[touching] = np.column_stack([np.cos(yaw / 2), np.zeros_like(yaw), np.zeros_like(yaw),
+                                                np.sin(yaw / 2)])
+        return R

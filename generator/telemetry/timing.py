@@ -1,0 +1,91 @@
+"""Message timing as a real PX4 link shows it: jitter, dropped and late messages, late-starting sensors.
+
+The flight itself is flown on the ideal schedule (every topic periodic from t = 0, which the
+closed loop and the attack layer see); this module changes only *when the written messages are
+stamped* and *which of them are written*, as the telemetry rows become tables
+(:func:`scart_bench.generator.telemetry.tables.topic_table`). It applies the same timing to the navigator
+and the simulator view of a flight, so the two still line up row for row.
+
+``FlightConfig.timing``:
+
+- ``"realistic"`` (the default): per topic (:data:`REALISTIC`), every message's timestamp moves by a zero-mean
+  offset (normal, clipped at +-0.45 period) sized so that the interval coefficient of variation is
+  that of the RflyMAD SIL log (``perf/realism.py``: jitter CV); a message is dropped, or written
+  late (0.5-0.9 period after its time), with the topic's probabilities (from the CubeOrange
+  hardware log; the SIL log has neither); the GPS topics start when the receiver has its fix and
+  the global position when the estimator has its origin, at the flight's own times
+  (:func:`generator.flight_software.startup.flight_start`, the times the closed loop flies by: SIL log 4.6 s and
+  8.9 s). The truth and the setpoint are not messages of the link: unchanged;
+- ``"ideal"``: nothing changes (every topic periodic from t = 0; GPS messages before the fix are
+  written, with fix type 1 "no fix").
+
+Everything is drawn from the flight's seed and the topic's name only (one generator per flight,
+topic and purpose, each used in one call), so a flight's timing is the same in any batch and on
+every run.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+
+import numpy as np
+
+from scart_bench.generator.flight_software import startup
+
+TIMINGS = ("ideal", "realistic")
+
+#: per link topic: (interval coefficient of variation, drop probability, late probability).
+#: The CV is the RflyMAD SIL log's (altitude as the attitude); drops and late messages are the
+#: CubeOrange hardware log's (the SIL log has none): 0.8 % of the local position and baro
+#: intervals are a missed message, 0.08 % of the IMU's, and 4.4 % of the local position's are
+#: 1.25-1.75 periods long (a late message); the GPS and battery topics lose none.
+REALISTIC = {
+    "highres_imu": (0.386, 0.0008, 0.0), "attitude": (0.092, 0.0008, 0.0), "altitude": (0.092, 0.0008, 0.0),
+    "local_position_ned": (0.059, 0.008, 0.044), "global_position_int": (0.112, 0.0, 0.0),
+    "gps_raw_int": (0.018, 0.0, 0.0), "scaled_pressure": (0.025, 0.008, 0.0), "battery_status": (0.071, 0.0, 0.0),
+}
+GPS_FIX_S = startup.GPS_FIX_S
+GLOBAL_AFTER_FIX_S = startup.ORIGIN_AFTER_FIX_S
+GPS_TOPICS = ("gps_raw_int", "global_position_int")
+_CLIP = 0.45
+
+
+def check_timing(timing: str) -> str:
+    if timing not in TIMINGS:
+        raise ValueError(f"timing must be one of {', '.join(TIMINGS)}, got {timing!r}")
+    return timing
+
+
+def _rng(seed: int, key: str, purpose: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(seed), zlib.crc32(key.encode()), purpose]))
+
+
+def fix_times_us(seed: int) -> dict[str, int]:
+    """When the GPS topics of a flight start (µs): the fix, then the global position (the
+    estimator's origin), as the flight's ground phase has them (generator.flight_software.startup)."""
+    fix, glob, _ = startup.flight_start(seed)
+    return {"gps_raw_int": int(round(fix * 1e6)), "global_position_int": int(round(glob * 1e6))}
+
+
+def message_timing(timing: str, seed: int, topic: str, ts_us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(stamped timestamps µs, kept) of a topic's messages at their ideal times ``ts_us`` (every
+    message the flight's schedule holds, in order). ``kept`` is False for a dropped message or
+    one before its sensor is ready. The stamped times may not be sorted (a late message)."""
+    ts = np.asarray(ts_us, dtype=np.int64)
+    n = ts.size
+    if check_timing(timing) == "ideal" or topic not in REALISTIC or n < 2:
+        return ts, np.ones(n, bool)
+    from scart_bench.dataset.schema import TOPICS
+
+    period = 1e6 / TOPICS[topic].rate_hz  # nominal: the schedule's own intervals vary on the step clock
+    cv, drop_p, late_p = REALISTIC[topic]
+    sigma = cv * period / math.sqrt(2.0)
+    offset = np.clip(_rng(seed, topic, 1).standard_normal(n) * sigma, -_CLIP * period, _CLIP * period)
+    u = _rng(seed, topic, 2).random((n, 2))  # drop/late draw, late amount
+    late = (u[:, 0] >= drop_p) & (u[:, 0] < drop_p + late_p)
+    offset = np.where(late, (0.5 + 0.4 * u[:, 1]) * period, offset)
+    kept = u[:, 0] >= drop_p
+    if topic in GPS_TOPICS:
+        kept &= ts >= fix_times_us(seed)[topic]
+    return np.maximum(ts + np.round(offset).astype(np.int64), 0), kept

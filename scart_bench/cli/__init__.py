@@ -1,0 +1,1 @@
+"""The ``scart-bench`` command line: :mod:`.main` builds the parser, one module per sub-command."""

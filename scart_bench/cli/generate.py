@@ -1,0 +1,69 @@
+"""``scart-bench generate``: fly normal and attacked flights and write a dataset."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shutil
+from pathlib import Path
+
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, log
+from scart_bench.generator.profiles import PROFILES
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from scart_bench.generator.generate import generate_dataset
+
+    if args.profile not in PROFILES:
+        raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
+    if args.flights is not None and args.flights < 1:
+        raise UsageError(f"--flights must be at least 1, got {args.flights}")
+    check_seed(args.seed)
+    from scart_bench.generator.params import GPS_ACCURACY
+
+    profile = PROFILES[args.profile]
+    if args.gps_accuracy is not None:
+        if args.gps_accuracy not in GPS_ACCURACY:
+            raise UsageError(f"--gps-accuracy {args.gps_accuracy!r}: expected one of {', '.join(GPS_ACCURACY)}")
+        profile = dataclasses.replace(profile, gps_accuracy=args.gps_accuracy)
+    if args.timing is not None:
+        from scart_bench.generator.telemetry.timing import TIMINGS
+
+        if args.timing not in TIMINGS:
+            raise UsageError(f"--timing {args.timing!r}: expected one of {', '.join(TIMINGS)}")
+        profile = dataclasses.replace(profile, timing=args.timing)
+    out = Path(args.out)
+    existed = out.exists()
+    try:
+        generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
+                         overwrite=args.overwrite, with_attacks=not args.normal_only, log=log,
+                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
+                         uorb=args.uorb or None)
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
+        raise
+    print(f"dataset written to {out}")
+    return 0
+
+
+def register(sub) -> None:
+    g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
+    g.add_argument("--profile", default="quick",
+                   help=f"{' | '.join(PROFILES)}: flight counts and attack grid (default quick)")
+    g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    g.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP)
+    g.add_argument("--flights", type=int, default=None, help="number of normal flights (default: the profile's)")
+    g.add_argument("--normal-only", action="store_true", help="only normal flights, no attacks")
+    g.add_argument("--scenarios", default=None, help="a scenario, grid or sweep file (TOML) for the attacked "
+                   "flights, instead of the profile's grid")
+    g.add_argument("--gps-accuracy", default=None, help="simulator | real_receiver: the GPS accuracy of the "
+                   "flights (default: the profile's; see docs/realism.md)")
+    g.add_argument("--timing", default=None, help="ideal | realistic: message timing of the written flights "
+                   "(realistic: jitter, drops, late messages, GPS after its fix; default: the profile's)")
+    g.add_argument("--uorb", action="store_true", help="also write each flight's uORB view (sensors/uorb/: PX4 "
+                   "topic names, fields and units, to score real ULogs; see docs/own_logs.md)")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
+    g.set_defaults(func=cmd_generate)

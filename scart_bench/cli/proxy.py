@@ -1,0 +1,151 @@
+"""``scart-bench proxy``: the SCART layer live on a MAVLink link, with recording and online detection.
+
+The engine is :mod:`scart_bench.generator.mavlink.proxy`; this module parses the options, loads the
+scenario, fits the detector of a benchmark run (runs keep scores, not fitted models: the named
+detector is fitted again on the run's training flights with the run's parameters and seed, and
+its row threshold is calibrated from the run's saved validation scores with the run's protocol),
+runs the proxy until Ctrl-C (or ``--duration``) and writes the recording.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from scart_bench.cli.common import UsageError
+from scart_bench.names import check_id
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _require_mavlink():
+    try:
+        from scart_bench.generator.mavlink import proxy
+    except ImportError as exc:
+        raise UsageError(f"the MAVLink proxy needs pymavlink, which is not installed: "
+                         f"pip install scart-bench[mavlink] ({exc})") from exc
+    return proxy
+
+
+def cmd_proxy(args: argparse.Namespace) -> int:
+    px = _require_mavlink()
+    from scart_bench.dataset import is_dataset
+    from scart_bench.generator.mavlink.recording import (
+        RecordingCheckpoint,
+        new_flight_id,
+        recover_recordings,
+        save_recording,
+    )
+    from scart_bench.generator.scart.scenario import load_scenarios
+
+    listen = px.parse_endpoint(args.listen, "--listen")
+    forward = px.parse_endpoint(args.forward, "--forward")
+    if not Path(args.scenario).is_file():
+        raise UsageError(f"--scenario {args.scenario}: no such file")
+    if (args.detector is None) != (args.run is None):
+        raise UsageError("--detector and --run go together: the detector is the one fitted in that benchmark run")
+    if not (math.isfinite(args.checkpoint) and args.checkpoint > 0):
+        raise UsageError(f"--checkpoint {args.checkpoint}: expected a positive, finite number of seconds")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise UsageError(f"--duration {args.duration}: expected a positive, finite number of seconds")
+    if args.flight_id is not None:
+        check_id(args.flight_id, "--flight-id")
+    record = Path(args.record) if args.record else None
+    if record is not None and record.exists():
+        if not record.is_dir():
+            raise UsageError(f"--record {record}: exists and is not a folder")
+        if any(record.iterdir()) and not is_dataset(record):
+            raise UsageError(f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
+                             "give a new folder or an existing dataset to add the flight to")
+    scenarios = load_scenarios(args.scenario)
+    monitor = None
+    if args.detector:
+        from scart_bench.benchmark.live import monitor_from_run
+
+        monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
+
+    if record is not None:
+        recover_recordings(record, log=_log)  # flights a killed proxy --record left as checkpoints
+    proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=record is not None,
+                            listeners=[monitor] if monitor is not None else [], log=_log).open()
+    fid = (args.flight_id or new_flight_id(record)) if record is not None else None
+    extra = {"scenario_file": str(args.scenario)}
+    checkpoint = (RecordingCheckpoint(proxy, record, fid, extra, period_s=args.checkpoint, log=_log)
+                  if record is not None else None)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    timer = threading.Timer(args.duration, stop.set) if args.duration else None
+    host, port = proxy.listen_address
+    _log(f"proxy: listening on udp:{host}:{port}, forwarding to udp:{forward[0]}:{forward[1]}; scenario "
+         f"{', '.join(s.id for s in scenarios)} on {', '.join(sorted(proxy.layer_topics)) or 'no topic'}; "
+         "Ctrl-C stops")
+    t0 = time.monotonic()
+    try:
+        if timer is not None:
+            timer.start()
+        proxy.serve(stop, on_idle=checkpoint.maybe if checkpoint is not None else None)
+    finally:
+        if timer is not None:
+            timer.cancel()
+        for s, h in old.items():
+            signal.signal(s, h)
+        proxy.close()
+    wall = time.monotonic() - t0
+    _log(f"proxy: stopped after {wall:.1f} s: {px.stats_line(proxy.stats, wall)}")
+    for s, e in proxy.windows():
+        _log(f"proxy: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
+    if monitor is not None:
+        monitor.flush()
+        _log(f"proxy: {monitor.summary()}")
+    if record is not None:
+        if monitor is not None:
+            extra["detector"] = {"name": args.detector, "run": str(args.run), "threshold": monitor.threshold,
+                                 "alarm_rows": len(monitor.alarms)}
+        path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), record, fmt=args.format)
+        checkpoint.discard()  # written whole: the checkpoint goes (a failed write above keeps it)
+        print(f"flight {fid} recorded in {record} ({path.name})")
+    return 0
+
+
+def register(sub) -> None:
+    from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN
+
+    p = sub.add_parser("proxy", help="live MAVLink man-in-the-middle: run a scenario on an autopilot link",
+                       description="A MAVLink 2 proxy between an autopilot (telemetry in on --listen) and a "
+                       "mission computer (--forward): the scenario's topics are decoded, attacked by the SCART "
+                       "layer and re-encoded; all other traffic, both ways, passes byte-identical. Needs "
+                       "pymavlink (pip install scart-bench[mavlink]).")
+    p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="udp:HOST:PORT",
+                   help=f"where the autopilot sends its telemetry (default {DEFAULT_LISTEN}; loopback unless "
+                        "told otherwise)")
+    p.add_argument("--forward", default=DEFAULT_FORWARD, metavar="udp:HOST:PORT",
+                   help=f"where the mission computer listens (default {DEFAULT_FORWARD})")
+    p.add_argument("--scenario", required=True, metavar="FILE", help="a scenario file (TOML), points link/command")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scenario's random draws (default 0)")
+    p.add_argument("--record", metavar="DIR", help="write the flight (both views, labels) into this dataset: "
+                   "added to an existing dataset, or a new one")
+    p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
+    p.add_argument("--flight-id", help="flight id of the recording (default live-<UTC time>)")
+    p.add_argument("--checkpoint", type=float, default=5.0, metavar="SECONDS",
+                   help="with --record: write the flight seen so far beside the dataset this often (default 5), "
+                        "so a killed proxy loses at most that much; the next proxy --record adds it, marked "
+                        "incomplete")
+    p.add_argument("--detector", metavar="NAME", help="score the navigator-side stream with this detector of --run")
+    p.add_argument("--run", metavar="RUN", help="the benchmark run folder the detector comes from")
+    p.add_argument("--plugin", action="append", metavar="SPEC",
+                   help="load a plugin detector from module:Class or file.py:Class (a run folder's record of "
+                        "plugin files is never imported)")
+    p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this many seconds (default: Ctrl-C)")
+    p.set_defaults(func=cmd_proxy)

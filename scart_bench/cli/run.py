@@ -1,0 +1,154 @@
+"""``scart-bench run``: run or resume a benchmark, print and save its tables."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from scart_bench.cli.common import EXIT_JOBS_FAILED, print_tables
+from scart_bench.generator.profiles import PROFILES
+
+
+def _patterns(values: list[str] | None) -> list[str] | None:
+    out = [p.strip() for v in (values or []) for p in v.split(",") if p.strip()]
+    return out or None
+
+
+#: run option -> the RunConfig field it sets (the run file uses the field names)
+_OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "out": "out",
+            "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
+            "timeout": "timeout", "seed": "seed", "features": "features",
+            "exclude": "exclude", "device": "device"}
+
+
+def run_config(args: argparse.Namespace):
+    """The RunConfig of ``scart-bench run``: the ``--config`` file, overridden by the options given."""
+    import dataclasses
+
+    from scart_bench.benchmark.config import RunConfig, merge_params, read_run_file
+    from scart_bench.benchmark.selection import parse_params
+    from scart_bench.errors import RunError
+
+    cfg = RunConfig()
+    if args.config:
+        try:
+            cfg = RunConfig(**read_run_file(args.config))
+        except RunError as exc:
+            msg = str(exc)
+            raise RunError(msg if msg.startswith("--config") else f"--config {args.config}: {msg}") from None
+    given: dict = {}
+    for option, key in _OPTIONS.items():
+        value = getattr(args, option)
+        if value is None or value is False:
+            continue
+        if option in ("features", "exclude"):
+            value = _patterns(value)
+        given[key] = [value] if option == "detectors" else value
+    given["params"] = merge_params(cfg.params, parse_params(args.param or []))
+    given["protocol"] = protocol_options(cfg.protocol, args)
+    given["plugins"] = _trusted_plugins(cfg.plugins, list(args.plugin or []), args)
+    return dataclasses.replace(cfg, **given)
+
+
+def _trusted_plugins(from_file: list[str], from_command_line: list[str], args: argparse.Namespace) -> list[str]:
+    """The plugins to load: those named on the command line, plus a run file's only with
+    ``--trust-plugins``. A run file (or a shared run folder's config.json) is data: importing a
+    plugin it names would run that file's code, so it is refused, naming the plugin and the flag."""
+    from scart_bench.benchmark.selection import absolute_plugin
+    from scart_bench.errors import RunError
+
+    named = {absolute_plugin(p) for p in from_command_line}
+    untrusted = [p for p in from_file if absolute_plugin(p) not in named]
+    if untrusted and not getattr(args, "trust_plugins", False):
+        raise RunError(f"--config {args.config}: it names the plugin {untrusted[0]!r}, whose code would run when "
+                       "it is imported; a run file is read as data only. Load it with --plugin "
+                       f"{untrusted[0]} (or pass --trust-plugins to load every plugin the file names)")
+    return list(dict.fromkeys([*from_command_line, *untrusted]))
+
+
+def protocol_options(protocol, args: argparse.Namespace):
+    """The run's protocol with ``--alpha``, ``--burn-in`` and ``--threshold`` applied."""
+    import dataclasses
+
+    from scart_bench.benchmark.protocol import ProtocolError
+    from scart_bench.errors import RunError
+
+    try:
+        if getattr(args, "alpha", None) is not None:
+            protocol = dataclasses.replace(
+                protocol, flight_rule=dataclasses.replace(protocol.flight_rule, kind="conformal", alpha=args.alpha),
+                row_rule=dataclasses.replace(protocol.row_rule, kind="conformal", alpha=args.alpha))
+        if getattr(args, "burn_in", None) is not None:
+            protocol = dataclasses.replace(protocol, burn_in_s=args.burn_in)
+        if getattr(args, "threshold", None) is not None:
+            protocol = dataclasses.replace(protocol, alarm_rule=args.threshold)
+    except ProtocolError as exc:
+        raise RunError(f"--alpha / --burn-in / --threshold: {exc}") from None
+    return protocol
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from scart_bench.benchmark.runner import run_benchmark
+
+    outcome = run_benchmark(run_config(args))
+    print_tables(outcome.path, outcome.metrics)
+    failed = outcome.metrics[outcome.metrics["status"].isin(("ERROR", "TIMEOUT"))]
+    if len(failed):
+        names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
+        print(f"scart-bench run: {len(failed)} job(s) did not finish OK: {names}; everything else is written "
+              "(rerun with --resume to run only those again)", file=sys.stderr)
+        return EXIT_JOBS_FAILED
+    return 0
+
+
+def register(sub) -> None:
+    r = sub.add_parser("run", help="train and score detectors on a dataset; print and save the tables")
+    r.add_argument("--config", type=Path, metavar="FILE",
+                   help="a run file (TOML: detectors, params, profile or dataset, seed, protocol, ...) or a run "
+                        "folder's config.json; the options below override it")
+    r.add_argument("--detectors", metavar="all|NAME,...",
+                   help="detectors to run: 'all' (default) or a comma-separated list of names")
+    r.add_argument("--param", action="append", metavar="DETECTOR.KEY=VALUE",
+                   help="a detector parameter, e.g. goad.n_trans=64 or telemanom.epochs=5 (repeatable); "
+                        "VALUE is a TOML literal (64, 0.5, true, [32, 32], \"cpu\")")
+    r.add_argument("--profile", choices=PROFILES,
+                   help="dataset size profile (default quick); sets the default dataset, run folder and timeout")
+    r.add_argument("--dataset", type=Path, metavar="DIR",
+                   help="an existing dataset folder (default: data/datasets/<profile>-seed<N>, generated when missing)")
+    r.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/<profile>-seed<N>)")
+    r.add_argument("--resume", action="store_true",
+                   help="keep jobs that finished OK with the same parameters; run only the others")
+    r.add_argument("--executor", choices=("local", "dask"),
+                   help="local worker processes (default) or dask.distributed")
+    r.add_argument("--scheduler", metavar="ADDRESS",
+                   help="dask scheduler address, e.g. tcp://host:8786 (default: a LocalCluster with --jobs workers)")
+    r.add_argument("--jobs", type=int, metavar="N", help="jobs run in parallel (default 1)")
+    r.add_argument("--timeout", type=float, metavar="SECONDS",
+                   help="per-job limit; a job past it is killed and reported TIMEOUT "
+                        "(default 1800 quick, 7200 standard, 21600 paper)")
+    r.add_argument("--seed", type=int, help="dataset and detector seed (default 0)")
+    r.add_argument("--plugin", action="append", metavar="SPEC",
+                   help="load a detector from module:Class or path/to/file.py:Class (repeatable)")
+    r.add_argument("--features", action="append", metavar="GLOB,...",
+                   help="use only these columns as features, e.g. 'vehicle_gps_position.*' (repeatable; default: "
+                        "the feature rule: every topic.field column in all training flights that is not a "
+                        "timestamp, counter, id, reset counter or control/state flag (armed, mode, mission item) and "
+                        "not constant)")
+    r.add_argument("--exclude", action="append", metavar="GLOB,...",
+                   help="drop these columns from the features, e.g. 'battery_status.*' (repeatable)")
+    r.add_argument("--device", choices=("auto", "cpu", "cuda"),
+                   help="torch device of the detectors that take one (deepsvdd, rdp, rca, goad, neutral, "
+                        "telemanom): auto (default: cuda when available, else cpu), cpu or cuda")
+    r.add_argument("--trust-plugins", action="store_true", dest="trust_plugins",
+                   help="also load the plugins a --config file names (by default only --plugin options are "
+                        "imported: a run file is data)")
+    r.add_argument("--alpha", type=float, metavar="RATE",
+                   help="target per-flight false-alarm rate of every detector's threshold (default 0.05): the "
+                        "conformal order statistic of the validation flights' scores")
+    r.add_argument("--burn-in", type=float, metavar="SECONDS", dest="burn_in",
+                   help="seconds after arming in which rows neither calibrate nor alarm (default 8)")
+    r.add_argument("--threshold", choices=("calibrated", "own"),
+                   help="calibrated (default): score > the calibrated threshold; own: each detector's own alarm "
+                        "rule where it has one (Telemanom's dynamic threshold, Statistical's vote)")
+    r.set_defaults(func=cmd_run)

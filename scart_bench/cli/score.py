@@ -1,0 +1,34 @@
+"""``scart-bench score RUN``: recompute every metric of a run folder from its saved scores."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from scart_bench.cli.common import EXIT_JOBS_FAILED, UsageError, print_tables
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from scart_bench.benchmark.runner import score_run
+
+    if args.jobs is not None and args.jobs < 1:
+        raise UsageError(f"scart-bench score --jobs {args.jobs}: expected a whole number >= 1")
+    metrics = score_run(args.run, processes=args.jobs)
+    print_tables(Path(args.run), metrics)
+    failed = metrics[metrics["status"] != "OK"]
+    if len(failed):  # as `run` does: tables that look complete must not hide a job without scores
+        names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
+        print(f"scart-bench score: {len(failed)} job(s) have no usable scores: {names}; their rows show the "
+              "status (rerun the run with --resume to finish them)", file=sys.stderr)
+        return EXIT_JOBS_FAILED
+    return 0
+
+
+def register(sub) -> None:
+    s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores")
+    s.add_argument("run", type=Path, metavar="RUN", help="a run folder (runs/<name>)")
+    s.add_argument("--jobs", type=int, metavar="N",
+                   help="detectors scored at a time, each in its own process (default: the run's --jobs); "
+                        "the tables are the same for any N")
+    s.set_defaults(func=cmd_score)

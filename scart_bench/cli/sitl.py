@@ -1,0 +1,142 @@
+"""``scart-bench sitl``: a simulated PX4-like vehicle that any MAVLink tool can fly, with the SCART layer.
+
+The engine is :mod:`scart_bench.generator.sitl.server`; this module parses the options, loads the
+scenario, runs the vehicle until Ctrl-C (or ``--duration`` of simulated time) and writes the
+recording.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from scart_bench.cli.common import UsageError
+
+DEFAULT_LISTEN = "udp:127.0.0.1:14580"
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def cmd_sitl(args: argparse.Namespace) -> int:
+    from scart_bench.generator.mavlink import parse_endpoint
+    from scart_bench.generator.sitl.endpoint import bind_udp
+
+    listen = parse_endpoint(args.listen, "--listen")
+    remote = parse_endpoint(args.remote, "--remote") if args.remote else None
+    _check_options(args)
+    sock = bind_udp(listen)  # before the slow imports: a datagram arriving meanwhile waits in the socket
+    try:
+        return _run(args, listen, remote, sock)
+    finally:
+        sock.close()
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    if args.scenario is not None and not Path(args.scenario).is_file():
+        raise UsageError(f"--scenario {args.scenario}: no such file")
+    if args.duration is not None and args.duration <= 0:
+        raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
+    if args.speed <= 0:
+        raise UsageError(f"--speed {args.speed}: expected a positive factor (1.0 = real time)")
+
+
+def _run(args: argparse.Namespace, listen, remote, sock) -> int:
+    try:
+        from scart_bench.generator.sitl.server import SitlServer
+    except ImportError as exc:
+        raise UsageError(f"the sitl needs pymavlink, which is not installed: pip install scart-bench[mavlink] "
+                         f"({exc})") from exc
+    from scart_bench.dataset import is_dataset
+    from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
+    from scart_bench.generator.scart.scenario import load_scenarios
+    from scart_bench.generator.sitl.journal import Journal, recover
+
+    record = Path(args.record) if args.record else None
+    if record is not None and record.exists():
+        if not record.is_dir():
+            raise UsageError(f"--record {record}: exists and is not a folder")
+        if any(record.iterdir()) and not is_dataset(record):
+            raise UsageError(f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
+                             "give a new folder or an existing dataset to add the flight to")
+    scenarios = load_scenarios(args.scenario) if args.scenario else []
+    if scenarios and args.split != "test":
+        raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
+    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock)
+    fid = None
+    if record is not None:
+        recover(record, lambda rec: save_recording(rec, record, fmt=args.format), _log)
+        fid = args.flight_id or new_flight_id(record, prefix="sitl")
+        sitl.journal = Journal(record, fid, {"scenario_file": args.scenario}, args.split, _log)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    host, port = sitl.address
+    pace = "lockstep (as fast as it can, from the first client message)" if args.lockstep else \
+        f"{args.speed:g} x real time"
+    attack = ", ".join(s.id for s in scenarios) or "none"
+    _log(f"sitl: listening on udp:{host}:{port}" + (f", sending to udp:{remote[0]}:{remote[1]}" if remote else "")
+         + f"; PX4-like quadrotor, system 1 component 1; {pace}; scenario {attack}; Ctrl-C stops")
+    t0 = time.monotonic()
+    try:
+        sitl.serve(stop, speed=None if args.lockstep else args.speed, duration_s=args.duration)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        sitl.close()
+    wall = time.monotonic() - t0
+    _log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
+    for s, e in sitl.windows():
+        _log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
+    if record is None:
+        return 0
+    if sitl.plant.step_index == 0:
+        sitl.journal.remove()
+        _log("sitl: nothing to record: the simulation never ran (no client was heard in --lockstep)")
+        return 0
+    sitl.journal.flush(sitl)
+    try:
+        path = save_recording(sitl.record(fid, {"scenario_file": args.scenario}, split=args.split), record,
+                              fmt=args.format)
+    except OSError:
+        _log(f"sitl: the flight could not be written into {record}; its journal {sitl.journal.folder} keeps it and "
+             f"the next `scart-bench sitl --record {record}` adds it as flight {fid}, marked incomplete")
+        raise
+    sitl.journal.remove()
+    print(f"flight {fid} recorded in {record} ({path.name})")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("sitl", help="a simulated PX4-like vehicle any MAVLink tool can fly (SCART layer on its link)",
+                       description="One simulated quadrotor (the generator's physics, sensors, estimator and "
+                       "controller) behind a MAVLink 2 endpoint that speaks like PX4: heartbeat and telemetry, "
+                       "commands, missions, parameters and offboard setpoints. A --scenario runs on its link "
+                       "(telemetry to the client, setpoints to the controller) or on its physics. Needs "
+                       "pymavlink. See docs/sitl.md.")
+    p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="udp:HOST:PORT",
+                   help=f"where the vehicle binds; clients connect here (default {DEFAULT_LISTEN})")
+    p.add_argument("--remote", metavar="udp:HOST:PORT",
+                   help="also send telemetry here from the start (PX4's -o port, e.g. udp:127.0.0.1:14540 for "
+                        "MAVSDK's default udpin://0.0.0.0:14540)")
+    p.add_argument("--scenario", metavar="FILE",
+                   help="a scenario file (TOML): link, command, sensor, environment or vehicle point")
+    p.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall-clock second (default 1)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="no wall-clock pacing: run as fast as the simulation can, from the first client message")
+    p.add_argument("--seed", type=int, default=0, help="seed of the wind, sensor errors and scenario draws")
+    p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this much simulated time")
+    p.add_argument("--record", metavar="DIR", help="write the flight (both views, truth, labels) into this dataset")
+    p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
+    p.add_argument("--flight-id", help="flight id of the recording (default sitl-<UTC time>)")
+    p.add_argument("--split", choices=("train", "validation", "test"), default="test",
+                   help="split of a recorded normal flight (attacked flights are always test)")
+    p.set_defaults(func=cmd_sitl)

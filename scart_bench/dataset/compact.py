@@ -1,0 +1,262 @@
+"""The compact flight layout: one Parquet file per view per flight, topics stacked.
+
+A view (``navigator``, ``simulator``, ...) of one flight is one table: each topic's rows, one topic
+after the other, in the columns ``Topic`` (the topic's number), ``Timestamp``, the labels and one
+``topic.field`` column per field (null on the other topics' rows, which Parquet stores in a few
+bits). The file's metadata (key ``scart_bench``) holds, per topic, its row span and its columns with
+their dtypes, so every topic table reads back exactly as it was given, and the attack windows from
+which the combined tables' labels are made.
+
+Sizes: fields stored as float32 where that loses nothing a sensor resolves (every field of the
+generator's topics except latitude and longitude), written with byte-stream-split encoding and zstd,
+which together make a flight about a tenth of the per-topic layout. A simulator-view topic that is
+identical to the navigator's is not stored twice: the simulator file names it and the reader takes
+it from the navigator file. Likewise a simulator topic with the navigator's rows (the same
+timestamps) stores only the fields that differ (layout version 2): an attack on a topic usually
+alters a few of its fields, and the span names the fields read from the navigator file. Sharing
+is decided bit for bit, so every value reads back exactly as written.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from scart_bench.dataset.schema import TOPICS, TRUTH_FIELDS
+from scart_bench.errors import ScartBenchError
+
+META_KEY = b"scart_bench"
+#: Bumped when the compact file's layout changes; a reader refuses newer versions.
+COMPACT_VERSION = 2
+SHARED_COLUMNS = ("Timestamp", "Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
+#: Quantities that keep float64: float32 would round a latitude or longitude to about a metre.
+_WIDE_QUANTITIES = ("latitude", "longitude")
+
+
+class CompactError(ScartBenchError):
+    """A compact flight file is missing, damaged or of an unknown version."""
+
+
+def float32_safe(topic: str, field: str) -> bool:
+    """Whether ``topic.field`` is stored as float32: a field of the generator's own link topics or
+    true state, other than latitude/longitude (float32 keeps ~7 digits: 0.1 mm at 1 km, 6 mPa of
+    100 kPa, far below every sensor's noise). Fields of imported topics keep their type."""
+    base = topic[len("twin_"):] if topic.startswith("twin_") else topic
+    if base == "truth":
+        return field in TRUTH_FIELDS
+    t = TOPICS.get(base)
+    if t is None:
+        return False
+    for f in t.fields:
+        if f.name == field:
+            return f.quantity not in _WIDE_QUANTITIES
+    return False
+
+
+def _column_key(topic: str, col: str) -> str:
+    return col if col in SHARED_COLUMNS else f"{topic}.{col}"
+
+
+def _arrow(values: pd.Series, key: str, downcast: bool) -> pa.Array:
+    if downcast and values.dtype == np.float64:
+        return pa.array(values.to_numpy(np.float32), type=pa.float32())
+    if key in ("Anomaly_Ids", "Anomaly_Kind"):
+        if isinstance(values.dtype, pd.StringDtype) and values.dtype.storage == "pyarrow" and not values.hasnans:
+            # already Arrow text with nothing missing: the same array without a round trip through Python
+            arr = pa.array(values)
+            if arr.null_count == 0 and (pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type)):
+                return arr.cast(pa.string())
+        return pa.array(values.astype(object).where(values.notna(), "").astype(str).tolist(), type=pa.string())
+    return pa.Array.from_pandas(values)
+
+
+def same_bits(a: pd.Series, b: pd.Series) -> bool:
+    """Whether two columns hold the same values bit for bit, in the same dtype (unlike
+    ``Series.equals``, 0.0 and -0.0, or two NaNs of different payloads, differ)."""
+    if a.dtype != b.dtype or len(a) != len(b):
+        return False
+    x, y = a.to_numpy(), b.to_numpy()
+    if x.dtype.kind in "biufcmM":
+        return x.tobytes() == y.tobytes()
+    return a.reset_index(drop=True).equals(b.reset_index(drop=True))
+
+
+def shared_fields(df: pd.DataFrame, other: pd.DataFrame) -> list[str] | None:
+    """The columns of ``df`` that ``other`` holds bit for bit (timestamps and labels included),
+    or None when the two tables' rows differ (other length or other timestamps)."""
+    if len(df) != len(other) or "Timestamp" not in df or "Timestamp" not in other:
+        return None
+    if not same_bits(df["Timestamp"], other["Timestamp"]):
+        return None
+    return [str(c) for c in df.columns if c in other.columns and same_bits(df[c], other[c])]
+
+
+def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = None,
+               shared: dict[str, tuple[str, list[str]]] | None = None) -> tuple[pa.Table, dict]:
+    """One view's topics as a stacked Arrow table plus its metadata. ``reuse`` maps a topic name
+    to the view that holds it instead (not stored here); ``shared`` maps a stored topic to
+    ``(view, fields)``: fields (not timestamps or labels) that view's same topic holds for the
+    same rows, which are not stored here."""
+    reuse = reuse or {}
+    shared = shared or {}
+    stored = [name for name in topics if name not in reuse]
+    spans: list[dict] = []
+    chunks: dict[str, list] = {}  # column -> [(row offset, array)]
+    types: dict[str, pa.DataType] = {}
+    owner: dict[str, str] = {}
+    offset = 0
+    for name in stored:
+        df = topics[name]
+        if not isinstance(df, pd.DataFrame):
+            raise CompactError(f"topic {name!r}: expected a table, got {type(df).__name__}")
+        cols = []
+        elsewhere_view, elsewhere = shared.get(name, ("", []))
+        elsewhere = [c for c in elsewhere if c not in SHARED_COLUMNS]
+        for col in df.columns:
+            key = _column_key(name, str(col))
+            if str(col) in elsewhere:
+                cols.append([str(col), str(df[col].dtype)])
+                continue
+            if owner.setdefault(key, name) != name and key not in SHARED_COLUMNS:
+                raise CompactError(f"topic {name!r} column {col!r}: the name {key!r} is taken by topic {owner[key]!r}")
+            arr = _arrow(df[col], key, float32_safe(name, str(col)))
+            if key in types and types[key] != arr.type:
+                try:
+                    arr = arr.cast(types[key])
+                except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as exc:
+                    raise CompactError(f"topic {name!r} column {col!r}: type {arr.type} does not match "
+                                       f"{types[key]} of the other topics") from exc
+            types.setdefault(key, arr.type)
+            chunks.setdefault(key, []).append((offset, arr))
+            cols.append([str(col), str(df[col].dtype)])
+        span = {"name": name, "offset": offset, "rows": len(df), "columns": cols}
+        if elsewhere:
+            span["shared"] = {"view": elsewhere_view, "columns": elsewhere}
+        spans.append(span)
+        offset += len(df)
+    total = offset
+    arrays, names = [pa.array(np.repeat(np.arange(len(stored), dtype=np.int16),
+                                        [s["rows"] for s in spans]) if stored else [], type=pa.int16())], ["Topic"]
+    order = [k for k in SHARED_COLUMNS if k in chunks] + [k for k in chunks if k not in SHARED_COLUMNS]
+    for key in order:
+        parts, at = [], 0
+        for start, arr in chunks[key]:
+            if start > at:
+                parts.append(pa.nulls(start - at, types[key]))
+            parts.append(arr)
+            at = start + len(arr)
+        if at < total:
+            parts.append(pa.nulls(total - at, types[key]))
+        arrays.append(pa.concat_arrays(parts) if parts else pa.array([], types[key]))
+        names.append(key)
+    meta = {"version": COMPACT_VERSION, "topics": list(topics), "stored": spans, "reuse": reuse}
+    return pa.Table.from_arrays(arrays, names=names), meta
+
+
+def write_view(path: Path, topics: dict[str, pd.DataFrame], windows: list, reuse: dict[str, str] | None = None,
+               shared: dict[str, tuple[str, list[str]]] | None = None) -> None:
+    """Write one view's topics to ``path``: Parquet, zstd level 3, floats byte-stream-split and the
+    integer timestamps delta-packed: both shrink what zstd is given (perf.generate_speed prints
+    the size on disk)."""
+    table, meta = stack_view(topics, reuse, shared)
+    meta["windows"] = [list(w) for w in windows]
+    table = table.replace_schema_metadata({META_KEY: json.dumps(meta, default=_json_default).encode()})
+    encodings = {f.name: "BYTE_STREAM_SPLIT" for f in table.schema if pa.types.is_floating(f.type)}
+    encodings.update({f.name: "DELTA_BINARY_PACKED" for f in table.schema
+                      if f.name == "Timestamp" and pa.types.is_integer(f.type)})
+    texts = [f.name for f in table.schema if pa.types.is_string(f.type) or f.name == "Topic"]
+    pq.write_table(table, path, compression="zstd", compression_level=3, use_dictionary=texts,
+                   column_encoding=encodings or None)
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def read_meta(path: Path) -> dict:
+    """The metadata of a compact view file (CompactError naming the file when it is not one)."""
+    try:
+        schema = pq.read_schema(path)
+    except FileNotFoundError:
+        raise CompactError(f"{path}: missing") from None
+    except Exception as exc:  # pyarrow raises its own types for a damaged file
+        raise CompactError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from None
+    raw = (schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise CompactError(f"{path}: not a scart-bench flight view (no {META_KEY.decode()} metadata)")
+    meta = json.loads(raw)
+    if int(meta.get("version", 0)) > COMPACT_VERSION:
+        raise CompactError(f"{path}: written by a newer scart-bench (layout version {meta['version']}, this one "
+                           f"reads up to {COMPACT_VERSION}); upgrade scart-bench or regenerate the dataset")
+    return meta
+
+
+def read_topics(path: Path, names: list[str] | None = None, meta: dict | None = None,
+                arrays: bool = False) -> dict[str, pd.DataFrame]:
+    """The stored topic tables of a view file (all, or those in ``names``), exactly as written
+    except that float32 fields come back as float64 (their float32 values); fields shared with
+    another view are read from that view's file beside this one. ``arrays``: each topic as a dict
+    of column arrays (no table is built)."""
+    meta = meta or read_meta(path)
+    spans = {s["name"]: s for s in meta["stored"]}
+    want = [n for n in (names if names is not None else list(spans)) if n in spans]
+    if not want:
+        return {}
+    keys = ["Topic"]
+    elsewhere: dict[str, list[str]] = {}  # other view -> topics with fields kept there
+    for n in want:
+        shared = spans[n].get("shared")
+        if shared:
+            if f"{shared['view']}.parquet" == path.name:
+                raise CompactError(f"{path}: topic {n!r} names its own file as the one holding its fields")
+            elsewhere.setdefault(shared["view"], []).append(n)
+        for col, _ in spans[n]["columns"]:
+            key = _column_key(n, col)
+            if key not in keys and not (shared and col in shared["columns"]):
+                keys.append(key)
+    try:
+        table = pq.read_table(path, columns=keys)
+    except Exception as exc:
+        raise CompactError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from None
+    others = {n: got for view, topics in elsewhere.items()
+              for n, got in read_topics(path.parent / f"{view}.parquet", topics, arrays=True).items()}
+    out = {}
+    for n in want:
+        span = spans[n]
+        part = table.slice(span["offset"], span["rows"])
+        kept = set(span["shared"]["columns"]) if span.get("shared") else set()
+        other = others.get(n, {})
+        for col in kept:
+            if col not in other or len(other[col]) != span["rows"]:
+                raise CompactError(f"{path}: topic {n!r} field {col!r} is kept in the "
+                                   f"{span['shared']['view']} view, which does not hold it for the same rows")
+        data = {col: other[col] if col in kept else _to_numpy(part.column(_column_key(n, col)), dtype)
+                for col, dtype in span["columns"]}
+        if arrays:
+            out[n] = data
+            continue
+        df = pd.DataFrame(data, index=pd.RangeIndex(span["rows"]), copy=False)
+        for col, dtype in span["columns"]:
+            if str(df[col].dtype) != dtype:  # text columns: restore the written dtype (object or str)
+                try:
+                    df[col] = df[col].astype(dtype)
+                except (TypeError, ValueError):
+                    pass
+        out[n] = df
+    return out
+
+
+def _to_numpy(arr: pa.ChunkedArray, dtype: str) -> np.ndarray:
+    if pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type):
+        return np.array(["" if v is None else v for v in arr.to_pylist()], dtype=object)
+    values = arr.to_numpy(zero_copy_only=False)
+    if pa.types.is_floating(arr.type):
+        return values.astype(dtype if dtype.startswith("float") else np.float64)
+    return values

@@ -1,0 +1,279 @@
+"""Writing datasets: a flight folder in either layout, and a whole dataset written or appended to atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from scart_bench.dataset import compact
+from scart_bench.dataset.labels import combine
+from scart_bench.dataset.locks import dataset_lock, exit_with_parent, recover
+from scart_bench.dataset.read import open_dataset
+from scart_bench.dataset.record import (
+    FORMATS,
+    MANIFEST_COLUMNS,
+    TRUTH_TOPICS,
+    DatasetError,
+    FlightRecord,
+    check_layout,
+    is_dataset,
+    json_default,
+)
+from scart_bench.dataset.tables import flight_checksum, write_table
+from scart_bench.names import check_id, inside
+
+
+def check_output_dir(out: Path, overwrite: bool = False) -> None:
+    """Refuse an output folder that holds something other than a dataset, or is unwritable."""
+    out = Path(out)
+    recover(out)
+    if out.exists():
+        if not out.is_dir():
+            raise DatasetError(f"{out}: exists and is not a folder")
+        entries = [p.name for p in out.iterdir()]
+        if entries and not is_dataset(out):
+            raise DatasetError(f"{out}: exists, is not empty and is not a scart-bench dataset (no manifest); "
+                               "choose a new folder")
+        if entries and not overwrite:
+            raise DatasetError(f"{out}: a dataset is already there; pass --overwrite to replace it")
+    parent = out if out.exists() else out.parent
+    while not parent.exists():
+        parent = parent.parent
+    try:  # a real write: os.access says yes to root even where nothing can be written
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as exc:
+        raise DatasetError(f"{out}: folder {parent} is not writable ({exc.strerror})") from exc
+
+
+class DatasetWriter:
+    """Writes flights one by one and the manifest last (call ``close`` to complete).
+
+    The only writer of manifests. A new dataset: a writer that is not closed leaves no
+    manifest, so the folder never looks complete. ``append=True`` adds flights to the dataset
+    at ``out`` (a new one if there is none): its format is kept, a flight id already there is
+    refused before anything is written, and the manifest is replaced atomically at ``close``,
+    so the dataset is complete before and after; ``abort`` removes the flights it wrote.
+    """
+
+    def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
+                 overwrite: bool = False, workers: int = 0, append: bool = False, layout: str | None = None):
+        if fmt not in FORMATS:
+            raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+        self.out = Path(out)
+        self.fmt = fmt
+        self.layout = check_layout(fmt, layout)
+        self.info = dict(info or {})
+        self.existing: pd.DataFrame | None = None
+        self.written: list[str] = []
+        self._lock = dataset_lock(self.out).acquire() if append else None
+        if append and is_dataset(self.out):
+            ds = open_dataset(self.out)
+            self.existing = ds.manifest
+            self.fmt = ds.info.get("format", "csv" if (self.out / "manifest.csv").exists() else "parquet")
+            self.layout = ds.info.get("layout", "paper")  # datasets from before the compact layout
+            self.info = {**ds.info, **{k: v for k, v in self.info.items() if k not in ds.info}}
+        else:
+            check_output_dir(self.out, overwrite=overwrite)
+            if self.out.exists() and any(self.out.iterdir()):
+                for name in ("manifest.parquet", "manifest.csv"):
+                    (self.out / name).unlink(missing_ok=True)
+                shutil.rmtree(self.out / "flights", ignore_errors=True)
+        (self.out / "flights").mkdir(parents=True, exist_ok=True)
+        self.ids: set[str] = set() if self.existing is None else set(self.existing["flight_id"].astype(str))
+        self.rows: list[dict] = []
+        self.workers = int(workers)
+        self._pending: list = []
+        self._pool = None
+        if self.workers > 0:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=exit_with_parent, initargs=(os.getpid(),))
+
+    def write(self, record: FlightRecord) -> None:
+        """Write one flight's raw, sensors and combined folders (in a worker process if any)."""
+        check_id(record.flight_id, "flight id")  # before any path is made from it
+        if record.flight_id in self.ids:
+            raise DatasetError(f"{self.out}: a flight {record.flight_id!r} is already in the dataset; "
+                               "flight ids must be unique")
+        self.ids.add(record.flight_id)
+        self.written.append(record.flight_id)
+        if self.existing is not None:  # a folder left by an append that never finished
+            shutil.rmtree(inside(self.out / "flights", record.flight_id), ignore_errors=True)
+        if self._pool is None:
+            self.rows.append(write_flight(self.out, self.fmt, record, self.layout))
+            return
+        while len(self._pending) >= 2 * self.workers:  # bound the records held in memory
+            self.rows.append(self._pending.pop(0).result())
+        self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record, self.layout))
+
+    def add_written(self, rows: list[dict]) -> None:
+        """Take the manifest rows of flights written into this dataset by another process (after
+        the flights written through this writer, in order)."""
+        ids = [str(r["flight_id"]) for r in rows]
+        taken = sorted(set(ids) & self.ids)
+        if taken or len(set(ids)) != len(ids):
+            raise DatasetError(f"{self.out}: flight ids written twice: {', '.join(taken[:5]) or 'within the rows'}")
+        while self._pending:
+            self.rows.append(self._pending.pop(0).result())
+        self.ids.update(ids)
+        self.written.extend(ids)
+        self.rows.extend(rows)
+
+    def abort(self) -> None:
+        """Stop without writing a manifest: a new dataset stays incomplete; an appended-to dataset
+        keeps its manifest and loses the flights this writer wrote."""
+        if self._pool is not None:
+            for f in self._pending:
+                f.cancel()
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+            self._pending = []
+        if self.existing is not None:
+            for fid in self.written:
+                shutil.rmtree(inside(self.out / "flights", fid), ignore_errors=True)
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def close(self) -> Path:
+        """Write dataset.json and, last, the manifest. Returns the manifest path."""
+        if self._pool is not None:
+            try:
+                self.rows.extend(f.result() for f in self._pending)
+            finally:
+                self._pending = []
+                self._pool.shutdown()
+                self._pool = None
+        (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt, "layout": self.layout}, indent=2,
+                                                          sort_keys=True, default=json_default))
+        manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
+        if self.existing is not None:
+            old = self.existing.reindex(columns=list(MANIFEST_COLUMNS))
+            manifest = pd.concat([old, manifest], ignore_index=True) if len(manifest) else old
+        for col in ("attack_start_us", "attack_end_us"):
+            manifest[col] = pd.to_numeric(manifest[col]).astype("Int64")
+        for col in ("effect_rows", "effect_fields"):
+            manifest[col] = pd.to_numeric(manifest[col], errors="coerce").astype("Int64")
+        manifest["no_effect"] = manifest["no_effect"].astype(object).where(manifest["no_effect"].notna(), False)
+        manifest["no_effect"] = manifest["no_effect"].astype(bool)
+        manifest["detectability"] = pd.to_numeric(manifest["detectability"], errors="coerce").astype(np.float64)
+        for col in ("impact_max_dev_m", "impact_final_dev_m", "impact_landing_dist_m"):
+            manifest[col] = pd.to_numeric(manifest[col], errors="coerce").astype(np.float64)
+        for col in ("impact_mission_completed", "impact_crashed"):
+            manifest[col] = manifest[col].astype("boolean")
+        final = self.out / f"manifest.{self.fmt}"
+        tmp = self.out / f".manifest.tmp.{self.fmt}"
+        try:
+            if self.fmt == "parquet":
+                manifest.to_parquet(tmp, index=False)
+            else:
+                manifest.to_csv(tmp, index=False)
+            os.replace(tmp, final)
+        finally:
+            tmp.unlink(missing_ok=True)
+            self._release()
+        return final
+
+
+def _views(record: FlightRecord) -> list[tuple[str, dict[str, pd.DataFrame]]]:
+    views = [("navigator", record.navigator), ("simulator", record.simulator)]
+    if record.uorb is not None:
+        views.append(("uorb", record.uorb))
+    return views
+
+
+def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper") -> dict:
+    """Write one flight (raw folder plus its views, in ``layout``); returns its manifest row."""
+    if not any(k not in TRUTH_TOPICS for k in record.navigator):
+        raise DatasetError(f"flight {record.flight_id!r}: cannot combine a flight with no topics")
+    root = inside(out / "flights", check_id(record.flight_id, "flight id"))
+    (root / "raw").mkdir(parents=True, exist_ok=True)
+    (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
+                                                         default=json_default))
+    events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
+    events.to_csv(root / "raw" / "events.csv", index=False)
+    if layout == "compact":
+        _write_compact(root, record)
+    else:
+        _write_paper(root, fmt, record)
+    row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
+    row["flight_id"] = record.flight_id
+    row["checksum"] = flight_checksum(root)
+    row["rows"] = _most_frequent_rows({k: v for k, v in record.navigator.items() if k not in TRUTH_TOPICS})
+    if record.windows:
+        row["attack_start_us"] = int(min(w[0] for w in record.windows))
+        row["attack_end_us"] = int(max(w[1] for w in record.windows))
+    return row
+
+
+def _most_frequent_rows(topics: dict[str, pd.DataFrame]) -> int:
+    """Rows of the view's most_frequent table (distinct timestamps of its most frequent topic)."""
+    if not topics:
+        return 0
+    counts = [(name, pd.Index(df["Timestamp"]).nunique()) for name, df in topics.items()]
+    return max(counts, key=lambda item: item[1])[1]
+
+
+def _write_paper(root: Path, fmt: str, record: FlightRecord) -> None:
+    for view, topics in _views(record):
+        (root / "sensors" / view).mkdir(parents=True, exist_ok=True)
+        for name, df in topics.items():
+            write_table(df, root / "sensors" / view / name, fmt)
+        if view == "uorb":
+            continue  # the uORB view has no combined tables in the paper's layout
+        (root / "combined").mkdir(exist_ok=True)
+        link_topics = {k: v for k, v in topics.items() if k not in TRUTH_TOPICS}
+        for table, df in combine(link_topics, record.windows).items():
+            write_table(df, root / "combined" / f"{view}_{table}", fmt)
+
+
+def _write_compact(root: Path, record: FlightRecord) -> None:
+    windows = [list(w) for w in record.windows]
+    for view, topics in _views(record):
+        reuse, shared = {}, {}
+        if view == "simulator":  # what the attack did not touch is the navigator's: stored once
+            for name, df in topics.items():
+                same = compact.shared_fields(df, record.navigator[name]) if name in record.navigator else None
+                if same is None:
+                    continue
+                if same == list(df.columns) == list(record.navigator[name].columns):
+                    reuse[name] = "navigator"
+                elif same:
+                    shared[name] = ("navigator", same)
+        tmp = root / f".{view}.parquet.tmp"
+        compact.write_view(tmp, topics, windows, reuse, shared)
+        os.replace(tmp, root / f"{view}.parquet")
+
+
+def append_flights(out: str | Path, records: Iterable[FlightRecord], fmt: str = "parquet",
+                   info: dict | None = None, layout: str | None = None) -> Path:
+    """Add flights to the dataset at ``out`` (created when there is none), atomically.
+
+    ``records`` may be a generator (one flight in memory at a time). A repeated flight id, or any
+    error while the records are made or written, removes the flights written so far and leaves
+    the dataset as it was; the manifest is replaced last, in one rename. Returns the manifest path.
+    """
+    writer = DatasetWriter(out, fmt=fmt, info=info, append=True, layout=layout)
+    try:
+        for r in records:
+            writer.write(r)
+    except BaseException:
+        writer.abort()
+        if writer.existing is None:  # nothing was there before: leave nothing behind
+            shutil.rmtree(writer.out / "flights", ignore_errors=True)
+            (writer.out / "dataset.json").unlink(missing_ok=True)
+        raise
+    return writer.close()
