@@ -112,14 +112,13 @@ def run_job(spec: JobSpec) -> JobResult:
     fit_s = score_s = float("nan")
     try:
         det = _load_class(spec)(**spec.overrides)
-        if spec.features:
-            det.features = list(spec.features)
-        if spec.exclude:
-            det.exclude = list(spec.exclude)
+        # the run's feature rule is an argument of fit (a plugin's own fit may take no such argument
+        # when the run sets no rule)
+        rule = {k: list(v) for k, v in (("features", spec.features), ("exclude", spec.exclude)) if v}
         ds = open_flights(spec)
         train = [ds.flight(fid) for fid in spec.train]
         t0 = time.perf_counter()
-        det.fit(train)
+        det.fit(train, **rule)
         fit_s = time.perf_counter() - t0
         del train
         scores: dict[str, np.ndarray] = {}

@@ -106,10 +106,6 @@ class Splits:
         """Flights a fitted detector scores: validation, then the test flights."""
         return self.validation + self.test_normal + self.test_attacked
 
-    def role_of(self) -> dict[str, str]:
-        return {fid: role for role in ROLES for fid in getattr(self, role)}
-
-
 def assign_roles(manifest: pd.DataFrame) -> pd.Series:
     """The role of each manifest row (see the module docstring)."""
     missing = [c for c in ("flight_id", "mode", "split") if c not in manifest.columns]
@@ -175,12 +171,6 @@ def conformal_rank(n: int, alpha: float) -> int:
     validation flight scores (may exceed ``n``: no order statistic reaches ``alpha``)."""
     # a tiny tolerance keeps exact products such as 101 * 0.95 = 95.95 from rounding up twice
     return int(math.ceil((n + 1) * (1.0 - alpha) - 1e-9))
-
-
-def conformal_rate(n: int, alpha: float) -> float:
-    """The false-alarm rate the conformal threshold guarantees for a new flight: ``1 - k / (n + 1)``."""
-    k = min(conformal_rank(n, alpha), n)
-    return 1.0 - k / (n + 1.0)
 
 
 @dataclass(frozen=True)

@@ -336,7 +336,6 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
                       int(rows_scored), protocol, "own" if own else "calibrated")
 
 
-OUTCOMES = ("detected", "at_end", "late", "missed")
 #: Per attacked flight, the largest counted score (own rule: 1.0 where a row alarms, else 0.0) in
 #: each part of the flight: before onset, inside the windows, in the end transient, after it.
 ZONES = ("pre_max", "window_max", "end_max", "after_max")

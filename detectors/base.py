@@ -110,10 +110,14 @@ class Detector(BaseEstimator):
     ``_score(X)`` on float64 arrays of the selected, standardised columns. The base class
     handles column selection, missing-value filling, standardisation and input checks.
 
-    Parameters shared by all detectors (define them in the subclass ``__init__``):
-    ``columns`` (list of column names or None for the features chosen by
-    :func:`feature_columns`) and ``random_state``. The run may also set the attributes
-    ``features`` / ``exclude`` (glob patterns, ``scart-bench run --features/--exclude``).
+    What a run passes a detector, and nothing else (the conformance kit checks it):
+
+    - constructor parameters (define them in the subclass ``__init__``): ``random_state`` (the run's
+      ``--seed``), ``columns`` (list of column names, or None for the features chosen by
+      :func:`feature_columns`), ``device`` for torch detectors (``--device``), and the detector's own
+      parameters (``--param NAME.KEY=VALUE``);
+    - arguments of :meth:`fit`: ``features`` / ``exclude``, the run's feature rule (glob patterns of
+      ``scart-bench run --features/--exclude``), used when ``columns`` is None.
 
     Feature preparation, the same for every detector: +/-inf is missing (NaN); mean and scale
     are NaN-aware statistics of the training rows; missing values are filled *after*
@@ -135,8 +139,13 @@ class Detector(BaseEstimator):
     relative_cost: float = 10.0
 
     # -- public API -------------------------------------------------------------------------
-    def fit(self, flights: list[pd.DataFrame]) -> Detector:
-        """Learn normal behaviour from a list of normal flights (combined tables)."""
+    def fit(self, flights: list[pd.DataFrame], *, features: list[str] | None = None,
+            exclude: list[str] | None = None) -> Detector:
+        """Learn normal behaviour from a list of normal flights (combined tables).
+
+        ``features`` keeps only the columns matching these glob patterns and ``exclude`` drops the
+        matching ones (the run's ``--features`` / ``--exclude``); both apply when ``columns`` is None.
+        """
         if isinstance(flights, pd.DataFrame):
             flights = [flights]
         flights = list(flights)
@@ -145,8 +154,7 @@ class Detector(BaseEstimator):
         cols = getattr(self, "columns", None)
         self.dropped_columns_: dict[str, list[str]] = {}
         if cols is None:
-            cols, self.dropped_columns_ = feature_columns(flights, getattr(self, "features", None),
-                                                          getattr(self, "exclude", None))
+            cols, self.dropped_columns_ = feature_columns(flights, features, exclude)
         cols = list(cols)
         if not cols:
             raise DetectorError(f"{self.name}: the training flights have no usable sensor columns (topic.field); "

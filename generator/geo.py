@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.dataset.schema import HOME_ALT, HOME_LAT, HOME_LON
+from scart_bench.dataset.schema import HOME_LAT, HOME_LON
 
 EARTH_RADIUS = 6371000.0  # m, CONSTANTS_RADIUS_OF_EARTH in PX4
 _LAT0 = np.deg2rad(HOME_LAT)
@@ -172,4 +172,3 @@ def altitude_at(pressure_pa: np.ndarray) -> np.ndarray:
     return (1.0 - (np.asarray(pressure_pa) / SEA_LEVEL_PRESSURE) ** (1.0 / 5.25588)) / 2.25577e-5
 
 
-HOME_PRESSURE = float(pressure_at(HOME_ALT))

@@ -158,6 +158,22 @@ def check_is_detector(s: _Subject) -> None:
     assert desc, f"{s.cls.__name__} has neither a `description` nor a docstring"
 
 
+def check_takes_what_the_run_passes(s: _Subject) -> None:
+    """What a run passes is declared: ``random_state`` and ``columns`` are constructor parameters, and
+    ``fit(flights, features=..., exclude=...)`` applies the run's feature rule."""
+    signature = inspect.signature(s.cls.__init__).parameters
+    for name in ("random_state", "columns"):
+        assert name in signature, f"{s.label}: __init__ lacks the parameter {name!r} the run passes"
+    fit_params = inspect.signature(s.cls.fit).parameters
+    for name in ("features", "exclude"):
+        assert name in fit_params, f"{s.label}.fit lacks the keyword argument {name!r} (the run's --{name})"
+    wanted = [c for c in s.fitted().columns_ if not c.endswith((":sin", ":cos"))][:3]
+    detector = s.fresh().fit(train_flights(), features=wanted, exclude=[wanted[-1]])
+    assert list(detector.columns_) == wanted[:-1], (
+        f"{s.label}: fit(features={wanted}, exclude={[wanted[-1]]}) used the columns {list(detector.columns_)}, "
+        f"expected {wanted[:-1]}")
+
+
 def check_init_only_stores_parameters(s: _Subject) -> None:
     """``__init__`` stores its arguments unchanged and sets no fitted attribute (scikit-learn rule)."""
     params = {**s.params, "random_state": 7, "columns": None}
@@ -262,6 +278,7 @@ def check_no_global_side_effects(s: _Subject) -> None:
 
 CHECKS: tuple[Callable[[_Subject], None], ...] = (
     check_is_detector,
+    check_takes_what_the_run_passes,
     check_init_only_stores_parameters,
     check_fit_leaves_parameters_unchanged,
     check_score_before_fit_raises,

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from scart_bench.dataset.schema import (
+    HOME_ALT,
     HOME_LAT,
     HOME_LON,
     SIM_RATE_HZ,
@@ -31,7 +32,7 @@ from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.flight_batch import alive, instance_gps, instance_imu, instance_value
 from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
-from scart_bench.generator.geo import HOME_ALT, latlon_to_ned, ned_to_latlon
+from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import DT, GRAVITY
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block

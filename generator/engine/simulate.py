@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.dataset.schema import SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_FIELDS, TRUTH_RATE_HZ
+from scart_bench.dataset.schema import HOME_ALT, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS, TRUTH_RATE_HZ
 from scart_bench.generator.engine.flight_batch import (  # noqa: F401 (re-exported: the public names live on here)
     STATUS,
     AttackHooks,
@@ -26,7 +26,7 @@ from scart_bench.generator.engine.flight_batch import (  # noqa: F401 (re-export
 from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
 from scart_bench.generator.flight_software.navigator import Navigator
-from scart_bench.generator.geo import HOME_ALT, altitude_at, latlon_to_ned, ned_to_latlon
+from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import (  # noqa: F401 (re-exported)
     DT,
     GRAVITY,
@@ -385,4 +385,3 @@ def _fuse_rows(fn, es, values, ok) -> None:
     es.quat[~ok] = before[1][~ok]
 
 
-TRUTH_COLUMNS = TRUTH_FIELDS

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scart_bench.generator.geo import HOME_ALT, latlon_to_ned
+from scart_bench.dataset.schema import HOME_ALT
+from scart_bench.generator.geo import latlon_to_ned
 
 MODES = ("offboard", "hold", "return", "land", "goto", "disarmed")
 OFFBOARD, HOLD, RETURN, LAND, GOTO, DISARMED = range(len(MODES))

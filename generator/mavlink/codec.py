@@ -385,6 +385,3 @@ class Packer:
         return self.pack(msg, h.srcSystem, h.srcComponent, h.seq, version)
 
 
-def decode_values(codec: TopicCodec, msg, state: LinkState) -> np.ndarray:
-    """The topic values a message carries, float64 (n_fields,)."""
-    return np.asarray(codec.decode(msg, state), dtype=np.float64)

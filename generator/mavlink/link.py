@@ -131,10 +131,6 @@ class MavlinkLink:
     def mission_computer_address(self) -> tuple[str, int]:
         return self.mc.sock.getsockname()[:2]
 
-    @property
-    def flight_controller_address(self) -> tuple[str, int]:
-        return self.fc.sock.getsockname()[:2]
-
     def connect(self, proxy: tuple[str, int]) -> MavlinkLink:
         """Send telemetry to the proxy listening at ``proxy``."""
         self.proxy = tuple(proxy)

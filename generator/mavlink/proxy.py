@@ -209,11 +209,6 @@ class MavlinkProxy:
         """The bound listen address (the real port when 0 was asked for)."""
         return self._up.getsockname()[:2]
 
-    @property
-    def forward_side_address(self) -> tuple[str, int]:
-        """The address telemetry is sent from and commands come back to."""
-        return self._down.getsockname()[:2]
-
     def close(self) -> None:
         for s in (self._up, self._down):
             if s is not None:

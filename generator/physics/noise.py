@@ -54,16 +54,6 @@ NOISE_FIELDS: dict[str, slice] = {
 }
 
 
-def draw_block(rngs: list[np.random.Generator], rows: np.ndarray, steps: int, dim: int = NOISE_DIM) -> np.ndarray:
-    """(len(rows), steps, dim) standard normals, flight ``rows[j]`` from its own generator.
-
-    Draws the same stream as NoiseStream (a flight's draws do not depend on the block size).
-    """
-    out = np.empty((len(rows), steps, dim))
-    fill_block(rngs, rows, out)
-    return out
-
-
 def fill_block(rngs: list[np.random.Generator], rows: np.ndarray, out: np.ndarray) -> None:
     """Fill ``out[j]`` (steps, dim) with flight ``rows[j]``'s next normals (numpy releases the GIL)."""
     for j, i in enumerate(rows):

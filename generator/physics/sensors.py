@@ -10,8 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.dataset.schema import HOME_ALT
 from scart_bench.generator.flight_software.startup import gps_quality
-from scart_bench.generator.geo import HOME_ALT, pressure_at
+from scart_bench.generator.geo import pressure_at
 from scart_bench.generator.params import GRAVITY, SensorParams
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.rotation import rotate_t

@@ -358,15 +358,6 @@ def load_configurations(path: str | Path, check_topics: bool = True) -> list[lis
     return [load_scenarios(path, check_topics)]
 
 
-def load_any(path: str | Path) -> list[Scenario]:
-    """A scenario file or a grid file, by its top-level table."""
-    if is_grid(path):
-        return [sc for config in load_grid_configurations(path) for sc in config]
-    from scart_bench.generator.scart.scenario import load_scenarios
-
-    return load_scenarios(path)
-
-
 def is_grid(path: str | Path) -> bool:
     """True when the file is a grid file (has a [grid] table)."""
     return "grid" in read_toml(path)

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from scart_bench.dataset.schema import COMMAND_TOPICS
+from scart_bench.dataset.schema import COMMAND_TOPICS, HOME_ALT
 from scart_bench.generator.flight_software.commander import (
     CONTROL_TOPICS,
     FORCE_DISARM,
@@ -36,7 +36,7 @@ from scart_bench.generator.flight_software.commander import (
     PX4_SUB_LOITER,
     PX4_SUB_RTL,
 )
-from scart_bench.generator.geo import HOME_ALT, ned_to_latlon
+from scart_bench.generator.geo import ned_to_latlon
 from scart_bench.generator.scart.action_base import MAX_DELAY_S, Action
 from scart_bench.generator.scart.spec import Param, ScenarioError
 

@@ -165,10 +165,3 @@ def resolve_condition_topic(condition: str, params: dict, available: dict[str, t
                         f"can read; it looks for {', '.join(looked)}; the input has: {_describe(available)}")
 
 
-def meanings_markdown() -> str:
-    """The mapping table as Markdown (docs/scenarios.md)."""
-    lines = ["| quantity | field | resolves to (every one the input has) |", "|---|---|---|"]
-    for q, fields in QUANTITIES.items():
-        for f, cands in fields.items():
-            lines.append(f"| {q} | {f} | {', '.join(f'`{c}`' for c in cands)} |")
-    return "\n".join(lines) + "\n"

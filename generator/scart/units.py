@@ -86,11 +86,6 @@ def axis(topic: str, field: str) -> str:
     return _QUANTITY.get(quantity(topic, field), (1.0, "", 1.0))[1]
 
 
-def is_position(topic: str, field: str) -> bool:
-    return quantity(topic, field) in ("latitude", "longitude", "position_n", "position_e", "position_up",
-                                      "position_d")
-
-
 def is_velocity(topic: str, field: str) -> bool:
     return quantity(topic, field).startswith("velocity")
 

@@ -51,7 +51,6 @@ MAX_MISSION_ITEMS = 65534
 MISSION_ACCEPTED, MISSION_UNSUPPORTED_FRAME, MISSION_UNSUPPORTED = 0, 2, 3
 MISSION_INVALID_PARAM1, MISSION_INVALID_PARAM2 = 6, 7
 MISSION_INVALID_PARAM5_X, MISSION_INVALID_PARAM6_Y, MISSION_INVALID_PARAM7 = 10, 11, 12
-RESULT_ACCEPTED, RESULT_DENIED = 0, 2
 
 #: commands PX4 accepts in a mission item with a position (global frames; this sitl adds LOCAL_NED)
 POSITION_ITEM_COMMANDS = frozenset({
@@ -68,11 +67,6 @@ MISSION_FRAME_COMMANDS = frozenset({
     3000, 93, 20, 198, 197, 112, 114, 187, 212, 400,  # VTOL transition, delay, return, ROI, conditions, actuator
 })
 SPEED_NO_CHANGE, SPEED_DEFAULT = -1.0, -2.0
-
-
-def finite(*values: float) -> bool:
-    """True when every value is a finite number."""
-    return all(math.isfinite(v) for v in values)
 
 
 def lat_lon_result(lat: float, lon: float) -> int:

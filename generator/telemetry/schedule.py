@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scart_bench.dataset.schema import SIM_RATE_HZ, TOPICS
-from scart_bench.generator.geo import HOME_ALT, altitude_at, ned_to_latlon
-from scart_bench.generator.physics.rotation import euler_from_quat, wrap_pi
+from scart_bench.dataset.schema import HOME_ALT, SIM_RATE_HZ, TOPICS
+from scart_bench.generator.geo import altitude_at, ned_to_latlon
+from scart_bench.generator.physics.rotation import euler_from_quat
 
 #: Sensor-level topics (sensors -> flight-controller estimator), for the ``sensor`` injection point.
 SENSOR_TOPICS: dict[str, tuple[float, tuple[str, ...]]] = {
@@ -83,11 +83,6 @@ def compose(topic: str, s: FCSnapshot) -> np.ndarray:
     if topic == "battery_status":
         return s.battery.copy()
     raise KeyError(f"no composer for topic {topic!r}")
-
-
-def heading_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Smallest signed difference of two headings (rad)."""
-    return wrap_pi(a - b)
 
 
 def field_names(topic: str) -> tuple[str, ...]:

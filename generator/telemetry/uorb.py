@@ -236,11 +236,6 @@ def uorb_view(simulator: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
     return out
 
 
-def uorb_columns() -> list[str]:
-    """Every ``topic.field`` column of the uORB view (the columns a real ULog is scored on)."""
-    return [f"{t}.{f}" for t, topic in UORB_TOPICS.items() for f in topic.fields]
-
-
 def uorb_table(topics: dict[str, pd.DataFrame], windows=(), base_topic: str = "sensor_combined") -> pd.DataFrame:
     """A detector's table of a flight's uORB topics: generated (:func:`uorb_view`) or imported from a
     PX4 ULog (:func:`scart_bench.generator.logs.importers.load_flight_file`).
