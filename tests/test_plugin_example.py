@@ -1,4 +1,8 @@
-"""The example plugin package (examples/custom_detector), installed with pip as a user would."""
+"""The example plugin package (examples/custom_detector), installed with pip as a user would.
+
+``make test`` installs it into its own folder and puts that on PYTHONPATH, so that ``make run``'s
+table (the same venv, no PYTHONPATH) lists only the built-ins and the plugins a user installed.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +19,7 @@ from scart_bench.cli.main import main
 
 INSTALLED = any(ep.name == "zscore" for ep in entry_points(group="scart_bench.detectors"))
 pytestmark = pytest.mark.skipif(
-    not INSTALLED, reason="example plugin not installed: pip install -e examples/custom_detector (make test does)")
+    not INSTALLED, reason="example plugin not installed: pip install examples/custom_detector (make test does, into .venv/example-plugin on PYTHONPATH)")
 
 
 def test_installed_plugin_is_listed_with_its_package():

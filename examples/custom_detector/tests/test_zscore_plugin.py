@@ -2,7 +2,10 @@
 
 import numpy as np
 import pytest
-from scart_example_detector import RollingZScore
+
+pytest.importorskip("scart_example_detector", reason="the example plugin is not installed (make test installs it)")
+
+from scart_example_detector import RollingZScore  # noqa: E402
 
 from scart_bench.testing import attacked_flight, check_detector, detector_checks, normal_flights
 
