@@ -285,7 +285,7 @@ def test_a_second_dataset_writer_is_refused(tmp_path, flight_csv, capsys):
 def test_attack_overwrite_that_fails_half_way_keeps_the_old_dataset(tmp_path, flight_csv, monkeypatch, capsys):
     import errno
 
-    import scart_bench.dataset as dataset_mod
+    import scart_bench.dataset.write as dataset_mod
 
     out = tmp_path / "attacked"
     assert main(_attack_args(flight_csv, out)) == 0

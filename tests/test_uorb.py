@@ -174,9 +174,7 @@ def test_a_detector_fitted_on_generated_uorb_views_scores_the_real_log(normal_fl
     assert len(real.columns) == len(train[0].columns)
     # where the flight was flown (Zurich vs the log's site) is not behaviour: without those columns
     # far fewer of the real log's rows are alarms
-    site_free = Statistical(window=25)
-    site_free.exclude = list(SITE_DEPENDENT)
-    site_free.fit(train)
+    site_free = Statistical(window=25).fit(train, exclude=list(SITE_DEPENDENT))
     assert not any(c.endswith((".lat", ".lon", ".alt")) or c.startswith("vehicle_air_data") for c in site_free.columns_)
     assert np.mean(site_free.score(real) > 1) < np.mean(scores > 1)
 
