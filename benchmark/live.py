@@ -12,6 +12,11 @@ the detector on its trailing ``history_rows_`` rows (the rows that reproduce the
 detectors are causal) and an alarm is logged when the score exceeds the threshold, with the
 scoring latency and, while an attack window is open, the delay since the attack started.
 
+As in the benchmark's protocol (:mod:`scart_bench.benchmark.protocol`), with a ``burn_in_s`` rows before
+arming and in the ``burn_in_s`` after it are scored but never alarm: arming is the first message whose ``armed``
+field is set (the navigator's setpoint) or whose ``arming_state`` is 2; a stream that carries
+neither field is armed at its first row.
+
 The detector is duck-typed (``columns_``, ``score(DataFrame)``, optional ``history_rows_``).
 """
 
@@ -48,10 +53,11 @@ class StreamMonitor:
     """Scores the navigator-side stream online with a fitted detector and a row threshold."""
 
     def __init__(self, detector, threshold: float, name: str = "detector",
-                 log: Callable[[str], None] | None = None):
+                 log: Callable[[str], None] | None = None, burn_in_s: float = 0.0):
         self.detector = detector
         self.threshold = float(threshold)
         self.name = name
+        self.burn_in_s = float(burn_in_s)
         self.log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
         self.columns = list(detector.columns_)
         self.history = int(getattr(detector, "history_rows_", 0) or DEFAULT_HISTORY_ROWS)
@@ -74,10 +80,35 @@ class StreamMonitor:
         self.alarms: list[Alarm] = []
         self.latency_ms: list[float] = []
         self._in_alarm = False
+        self.armed_us: int | None = None  # when the stream armed (see the module docstring)
+        self._first_us: int | None = None
+        self._arming_seen = False  # a topic with an arming field has been seen
+
+    def _watch_arming(self, topic: str, t_us: int, values: np.ndarray) -> None:
+        spec = TOPICS.get(topic)
+        if self.armed_us is not None or spec is None:
+            return
+        for k, name in enumerate(spec.field_names):
+            if name in ("armed", "arming_state") and k < len(values):
+                self._arming_seen = True
+                on = values[k] >= 0.5 if name == "armed" else values[k] == 2.0
+                if on:
+                    self.armed_us = int(t_us)
+
+    def counts(self, t_us: int) -> bool:
+        """Whether a row at ``t_us`` may alarm: at least ``burn_in_s`` after arming (every row when
+        ``burn_in_s`` is 0, as :func:`~scart_bench.benchmark.protocol.counted_rows` counts them)."""
+        if self.burn_in_s <= 0:
+            return True
+        armed = self.armed_us if self.armed_us is not None else (None if self._arming_seen else self._first_us)
+        return armed is not None and t_us >= armed + 1e6 * self.burn_in_s
 
     def on_message(self, topic: str, t_us: int, values: np.ndarray, layer=None) -> None:
         """Take in one forwarded message (navigator view)."""
         self._layer = layer
+        if self._first_us is None:
+            self._first_us = int(t_us)
+        self._watch_arming(topic, t_us, values)
         if self._pending is not None and t_us > self._pending:
             self._emit()
         cols = self._index.get(topic)
@@ -107,7 +138,7 @@ class StreamMonitor:
         lat = (time.perf_counter() - t0) * 1e3
         self.latency_ms.append(lat)
         self.scores.append((t_us, score))
-        if score > self.threshold:
+        if score > self.threshold and self.counts(t_us):
             delay = None
             if self._layer is not None:
                 open_windows = [s for s, e in self._layer.windows(0, t_us + 1) if s <= t_us < e]
@@ -176,7 +207,8 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
                        f"({exc})") from exc
     log(f"proxy: fitting {name} on the {len(train)} training flights of run {run} ...")
     t0 = time.perf_counter()
-    det.fit([ds.flight(fid) for fid in train])
+    rule = (config.get("identity") or {}).get("features") or {}
+    det.fit([ds.flight(fid) for fid in train], features=rule.get("include") or None, exclude=rule.get("exclude") or None)
     scores = store.read_scores(name)
     missing = [fid for fid in validation if fid not in scores]
     if missing:
@@ -189,5 +221,5 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
                for fid in validation if fid in truth}
     _, row_threshold = protocol.thresholds({fid: np.asarray(scores[fid]) for fid in validation}, counted)
     log(f"proxy: {name} fitted in {time.perf_counter() - t0:.1f} s; row threshold {row_threshold:.4g} "
-        f"({protocol.row_rule.describe()})")
-    return StreamMonitor(det, row_threshold, name=name, log=log)
+        f"({protocol.row_rule.describe()}); no alarm before {protocol.burn_in_s:g} s after arming")
+    return StreamMonitor(det, row_threshold, name=name, log=log, burn_in_s=protocol.burn_in_s)

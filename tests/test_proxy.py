@@ -157,6 +157,32 @@ def test_monitor_scores_the_stream_like_the_batch_detector(loopback, live_datase
     assert "rows scored" in low.summary()
 
 
+def test_monitor_raises_no_alarm_before_arming_and_its_burn_in():
+    """As the benchmark counts rows: a detector alarming on every row alarms live only from 8 s after
+    the navigator armed the vehicle (its setpoint's ``armed`` field), never on the ground."""
+    from scart_bench.benchmark.live import StreamMonitor
+    from scart_bench.dataset.schema import TOPICS
+
+    class Always:
+        columns_ = ["attitude.roll"]
+
+        def score(self, frame):
+            return np.ones(len(frame))
+
+    monitor = StreamMonitor(Always(), 0.5, "always", log=lambda line: None, burn_in_s=8.0)
+    armed_at = TOPICS["setpoint"].field_names.index("armed")
+    for k in range(0, 30 * 50):  # 30 s at 50 Hz, armed at 10 s
+        t = k * 20_000
+        monitor.on_message("attitude", t, np.zeros(len(TOPICS["attitude"].field_names)))
+        sp = np.zeros(len(TOPICS["setpoint"].field_names))
+        sp[armed_at] = 1.0 if t >= 10_000_000 else 0.0
+        monitor.on_message("setpoint", t, sp)
+    monitor.flush()
+    assert monitor.armed_us == 10_000_000
+    assert len(monitor.scores) == 30 * 50
+    assert min(a.t_us for a in monitor.alarms) == 18_000_000
+
+
 # --- 2. byte-identical pass-through ----------------------------------------------------------------
 def test_traffic_outside_the_attack_and_the_command_direction_pass_byte_identical(loopback):
     _, proxy, link = loopback
