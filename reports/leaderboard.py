@@ -19,7 +19,8 @@ resting on ``<rate>_n`` flights);
 ROC-AUC and AUC-PR carry the run's bootstrap interval when the detector finished OK in one run
 (with several runs their spread is the standard deviation).
 
-Columns of :func:`build_leaderboard`'s table: ``rank``, ``detector``, ``n_runs`` (OK runs),
+Columns of :func:`build_leaderboard`'s table: ``rank``, ``rank_certainty`` (share of paired cluster-bootstrap
+resamples of the test flights in which the detector keeps its rank: :func:`rank_certainty`), ``detector``, ``n_runs`` (OK runs),
 ``runs`` (runs given), ``headline_mean``, ``headline_std``, then per run ``status[<run>]`` and
 ``headline[<run>]``, then ``<metric>_mean`` / ``<metric>_std`` for every metric of
 :data:`METRICS`, then ``<metric>_lo`` / ``<metric>_hi`` (and ``<rate>_n``) where it has an interval.
@@ -35,7 +36,7 @@ from urllib.parse import quote
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.intervals import wilson
+from scart_bench.benchmark.intervals import cluster_weights, wilson
 from scart_bench.reports.results import RunResults, load_runs
 
 #: The three rates averaged into the headline score.
@@ -73,8 +74,11 @@ RATE_COUNTS = {"tp_simulation": "n_simulation", "tp_csv": "n_csv", "tn_no_attack
                "flagged_csv": "n_csv"}
 #: Threshold-free scores with a bootstrap interval in each run's metrics.
 BOOTSTRAPPED = ("roc_auc", "auc_pr")
-HEADLINE_DOC = ("Headline score = mean of TP Simulation, TP CSV and TN No Attack (a rate undefined in a run is "
-                "left out); detectors are ranked by its mean over the runs where they finished OK. "
+HEADLINE_DOC = ("Headline score = mean of TP Simulation, TP CSV and TN No Attack at each run's operating point "
+                "(the threshold calibrated to its alpha; a rate undefined in a run is left out); detectors are "
+                "ranked by its mean over the runs where they finished OK. 'Rank held' is the share of paired "
+                "bootstrap resamples of the test flights (clusters resampled, the same for every detector) in "
+                "which the detector keeps that rank. "
                 "TP counts an attacked flight only when a row alarms inside its attack window; 'flagged anywhere' "
                 "is the paper's lenient rule. Rates show [95 % Wilson interval] over the flights of the OK runs; "
                 "ROC-AUC and AUC-PR of a single run show their bootstrap interval. "
@@ -89,6 +93,77 @@ RULES_DOC = ("Scoring rules: an attacked flight is detected (TP) only when one o
              "(no_effect) are left out of every rate; csv-mode copies replay normal flights reserved for them, "
              "never train or validation flights. Rates rest on few flights: read them with their interval. "
              "VUS-PR, AUC-PR and R-F1 follow TSB-AD's definitions.")
+
+
+#: Paired bootstrap replicates behind each rank's certainty.
+RANK_BOOTSTRAP = 1000
+RANK_SEED = 20240705
+
+
+def _run_indicators(run: RunResults, detectors: list[str]) -> tuple[np.ndarray, np.ndarray, dict] | None:
+    """One run's test flights as the rank bootstrap needs them: clusters, roles and, per detector, the
+    (3, n) indicators of TP Simulation, TP CSV and TN No Attack (NaN where a flight is not in that rate)."""
+    path = run.path / "flight_scores.csv"
+    if not path.is_file():
+        return None
+    fs = run.table("flight_scores.csv")
+    fs = fs[fs["role"].isin(("test_normal", "test_attacked")) & fs["detector"].isin(detectors)]
+    if fs.empty:
+        return None
+    flights = fs.drop_duplicates("flight_id").set_index("flight_id")
+    order = flights.index
+    groups = [(flights["role"] == "test_attacked") & (flights["mode"] == m) for m in ("simulation", "csv")]
+    groups.append(flights["role"] == "test_normal")
+    out = {}
+    for det, f in fs.groupby("detector", sort=False):
+        f = f.set_index("flight_id").reindex(order)
+        hits = [(f["outcome"] == "detected").to_numpy(), (f["outcome"] == "detected").to_numpy(),
+                ~f["flagged"].astype(bool).to_numpy()]
+        out[det] = np.stack([np.where(g.to_numpy() & f["role"].notna().to_numpy(), h, np.nan)
+                             for g, h in zip(groups, hits)])
+    return flights["cluster"].astype(str).to_numpy(), flights["role"].to_numpy(), out
+
+
+def rank_certainty(runs: list[RunResults], ranked: list[str], n_boot: int = RANK_BOOTSTRAP,
+                   seed: int = RANK_SEED) -> dict[str, float]:
+    """Per ranked detector (best first), the share of bootstrap resamples in which it keeps its rank.
+
+    Each replicate resamples every run's test flights by cluster within normal and attacked flights,
+    the same resample for every detector (paired), recomputes each detector's headline from the
+    per-flight outcomes at the run's threshold, averages it over the runs and ranks again. Runs
+    without ``flight_scores.csv`` are left out; NaN when no run has it.
+    """
+    if len(ranked) < 2:
+        return {d: (1.0 if d in ranked else float("nan")) for d in ranked}
+    rng = np.random.default_rng(seed)
+    total = np.zeros((n_boot, len(ranked)))
+    used = np.zeros(len(ranked))
+    for run in runs:
+        data = _run_indicators(run, ranked)
+        if data is None:
+            continue
+        clusters, roles, indicators = data
+        w = cluster_weights(clusters, roles, n_boot, rng)
+        for j, det in enumerate(ranked):
+            if det not in indicators:
+                continue
+            rates = []
+            for ind in indicators[det]:
+                valid = np.isfinite(ind)
+                den = w[:, valid].sum(axis=1)
+                num = (w[:, valid] * ind[valid]).sum(axis=1)
+                rates.append(np.divide(num, den, out=np.full(n_boot, np.nan), where=den > 0))
+            total[:, j] += np.nanmean(np.stack(rates), axis=0)
+            used[j] += 1
+    if not used.any():
+        return {d: float("nan") for d in ranked}
+    mean = total / np.where(used > 0, used, np.nan)
+    # rank within each replicate (1 = best); ties keep the table's order
+    order = np.argsort(-np.nan_to_num(mean, nan=-np.inf), axis=1, kind="stable")
+    ranks = np.empty_like(order)
+    np.put_along_axis(ranks, order, np.arange(1, len(ranked) + 1)[None, :].repeat(n_boot, 0), axis=1)
+    held = (ranks == np.arange(1, len(ranked) + 1)[None, :]).mean(axis=0)
+    return {d: (float(held[j]) if used[j] else float("nan")) for j, d in enumerate(ranked)}
 
 
 def headline(metrics: pd.DataFrame) -> pd.Series:
@@ -177,7 +252,9 @@ def leaderboard_of(runs: list[RunResults]) -> pd.DataFrame:
     scored = board["headline_mean"].notna().to_numpy()
     board.insert(0, "rank", pd.array(np.where(scored, np.cumsum(scored), 0), dtype="Int64"))
     board.loc[~scored, "rank"] = pd.NA
-    lead = ["rank", "detector", "n_runs", "runs", "headline_mean", "headline_std"]
+    certainty = rank_certainty(runs, list(board.loc[scored, "detector"]))
+    board.insert(1, "rank_certainty", [certainty.get(d, np.nan) for d in board["detector"]])
+    lead = ["rank", "rank_certainty", "detector", "n_runs", "runs", "headline_mean", "headline_std"]
     rest = [c for c in board.columns if c not in lead and c not in per_run_cols]
     return board[lead + per_run_cols + rest].reset_index(drop=True)
 
@@ -234,11 +311,12 @@ def run_cell(row: pd.Series, label: str) -> str:
 def display_table(board: pd.DataFrame, runs: list[RunResults]) -> tuple[list[str], list[list[str]]]:
     """Header and text cells of the leaderboard as shown in Markdown and HTML (not escaped)."""
     labels = dict((k, (lab, kind)) for k, lab, kind in METRICS)
-    head = ["Rank", "Detector", "Headline", "n runs", *(f"Headline [{r.label}]" for r in runs),
+    head = ["Rank", "Rank held", "Detector", "Headline", "n runs", *(f"Headline [{r.label}]" for r in runs),
             *(labels[k][0] for k in SHOWN)]
     body = []
     for _, row in board.iterrows():
-        cells = ["–" if pd.isna(row["rank"]) else str(int(row["rank"])), str(row["detector"]),
+        cells = ["–" if pd.isna(row["rank"]) else str(int(row["rank"])),
+                 "–" if pd.isna(row["rank_certainty"]) else f"{100 * row['rank_certainty']:.0f} %", str(row["detector"]),
                  fmt_spread(row["headline_mean"], row["headline_std"], "pct"), f"{row['n_runs']}/{row['runs']}"]
         cells += [run_cell(row, r.label) for r in runs]
         cells += [metric_cell(row, k, labels[k][1]) for k in SHOWN]

@@ -342,3 +342,46 @@ def test_bad_input_is_a_usage_error(runs, tmp_path, capsys):
     assert "normal-000" in capsys.readouterr().err
     assert main(["plot", str(flight), "--detector", "zscore_test"]) == 2
     assert "--run" in capsys.readouterr().err
+
+
+# -- how certain a rank is ----------------------------------------------------------------------
+
+def _flight_scores_run(tmp_path: Path, outcomes: dict[str, tuple[list[bool], list[bool]]]):
+    """A run folder holding only flight_scores.csv: per detector, (detected per attacked flight,
+    flagged per normal test flight); 20 simulation, 20 csv (4 copies per source) and 20 normal flights."""
+    from scart_bench.reports.results import RunResults
+
+    rows = []
+    for det, (detected, flagged) in outcomes.items():
+        for i, hit in enumerate(detected):
+            mode = "simulation" if i < 20 else "csv"
+            cluster = f"cfg{i}" if mode == "simulation" else f"src{(i - 20) // 4}"
+            rows.append(dict(detector=det, flight_id=f"{mode}-{i}", role="test_attacked", mode=mode, score=1.0,
+                             flagged=hit, outcome="detected" if hit else "missed", cluster=cluster))
+        for i, fl in enumerate(flagged):
+            rows.append(dict(detector=det, flight_id=f"normal-{i}", role="test_normal", mode="normal", score=1.0,
+                             flagged=fl, outcome="", cluster=f"normal-{i}"))
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(tmp_path / "flight_scores.csv", index=False)
+    return RunResults(tmp_path, tmp_path.name, {}, pd.DataFrame())
+
+
+def test_a_clear_winner_holds_its_rank_and_a_coin_toss_does_not(tmp_path):
+    from scart_bench.reports.leaderboard import rank_certainty
+
+    clear = _flight_scores_run(tmp_path / "clear", {
+        "good": ([True] * 40, [False] * 20), "bad": ([False] * 40, [True] * 20)})
+    assert rank_certainty([clear], ["good", "bad"]) == {"good": 1.0, "bad": 1.0}
+    # a detects 25 of 40 attacked flights, b 24 others: one flight apart, the order is not settled
+    a, b = [i < 25 for i in range(40)], [i >= 16 for i in range(40)]
+    toss = _flight_scores_run(tmp_path / "toss", {"a": (a, [False] * 20), "b": (b, [False] * 20)})
+    held = rank_certainty([toss], ["a", "b"])
+    assert 0.3 < held["a"] < 0.9, held
+
+
+def test_leaderboard_shows_how_certain_each_rank_is(runs, report):
+    board = build_leaderboard([runs[0]])
+    assert board["rank_certainty"].between(0, 1).all()
+    # two detectors: whenever the first keeps its rank, so does the second
+    assert board["rank_certainty"].iloc[0] == board["rank_certainty"].iloc[1]
+    assert "Rank held" in (report / "leaderboard.md").read_text()
