@@ -1,0 +1,44 @@
+"""The reference results page: the paper's numbers beside a run's, the rescored factor experiments
+and the figures, from real run folders (the committed run of tests/data)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+
+from scart_bench.reports import reference
+from scart_bench.reports.results import load_runs
+
+FIXTURE = Path(__file__).parent / "data" / "run_made_before_the_rooms"
+
+
+def test_a_rescored_variant_changes_only_its_protocol(tmp_path):
+    run = tmp_path / "runs" / "quick-seed0"
+    shutil.copytree(FIXTURE, run)
+    out = reference.rescored(run, "alpha-0.10", {"alpha": 0.10})
+    proto = json.loads((out / "config.json").read_text())["identity"]["protocol"]
+    assert proto["flight_rule"]["alpha"] == proto["row_rule"]["alpha"] == 0.10
+    assert json.loads((run / "config.json").read_text())["identity"]["protocol"]["flight_rule"]["alpha"] == 0.05
+    # the same saved scores: the flight scores agree, only the threshold moved
+    a, b = (pd.read_csv(p / "flight_scores.csv").set_index("flight_id")["score"] for p in (run, out))
+    pd.testing.assert_series_equal(a.sort_index(), b.sort_index())
+    assert (out / "metrics.csv").is_file() and not (out / "cache").exists()
+
+
+def test_the_page_puts_the_paper_beside_the_runs_with_factors_and_figures(tmp_path):
+    run = tmp_path / "runs" / "quick-seed0"
+    shutil.copytree(FIXTURE, run)
+    runs = load_runs([run])
+    variants = {name: load_runs([reference.rescored(run, name, changes)])
+                for name, (_, changes) in reference.VARIANTS.items()}
+    files = reference.write_page(tmp_path / "docs" / "results.md", "quick", [0], runs, variants, 60.0,
+                                 "python -m scart_bench.reports.reference --profile quick --seeds 0")
+    page = files[0].read_text()
+    assert "| statistical | 59.7 / 86.2 / 100 |" in page  # the paper's row beside ours
+    assert "flagged anywhere" in page and "alpha = 10 %" in page and "no burn-in" in page
+    assert "--profile quick --seeds 0" in page  # the command that regenerates it
+    assert all(f.is_file() and f.stat().st_size > 1000 for f in files[1:]) and len(files) == 3
+    assert "![tp_by_family](results/tp_by_family.png)" in page
