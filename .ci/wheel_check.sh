@@ -31,7 +31,9 @@ from pathlib import Path
 src = Path(sys.argv[1])
 wanted = {"scart_bench"} | {
     "scart_bench." + ".".join(p.parent.relative_to(src).parts)
-    for top in ("benchmark", "detectors", "generator", "reports", "data") for p in (src / top).rglob("__init__.py")}
+    for top in ("benchmark", "detectors", "generator", "reports", "data") for p in (src / top).rglob("__init__.py")} | {
+    "scart_bench." + ".".join(p.parent.relative_to(src / "scart_bench").parts)
+    for p in (src / "scart_bench").rglob("__init__.py") if p.parent != src / "scart_bench"}
 import importlib.util
 missing = sorted(m for m in wanted if importlib.util.find_spec(m) is None)
 assert not missing, f"packages missing from the wheel: {missing} (add them to pyproject's packages list)"

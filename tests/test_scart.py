@@ -123,7 +123,7 @@ def test_csv_mode_attacks_non_training_flights(quick_dataset):
     ds = open_dataset(quick_dataset)
     m = ds.manifest.set_index("flight_id")
     csv = m[m["mode"] == "csv"]
-    assert len(csv) == len(m[m["mode"] == "simulation"]) == 11
+    assert len(csv) == len(m[m["mode"] == "simulation"]) == 66
     assert set(m.loc[csv["source_flight"], "split"]) == {"csv_source"}  # reserved, never train/validation/test
     for fid, row in csv.head(3).iterrows():
         src = ds.topic(row["source_flight"], "gps_raw_int")
@@ -269,7 +269,7 @@ def test_single_action_grid_keeps_the_earlier_ids_and_the_paper_grid_shares_them
 
 
 def test_profile_grids_still_expand():
-    assert len(load_configurations("data/scenarios/quick.toml")) == 11
+    assert len(load_configurations("data/scenarios/quick.toml")) == 66
     assert all(len(c) == 1 for c in load_configurations("data/scenarios/standard.toml"))
 
 
