@@ -8,11 +8,11 @@ from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, topic_
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from scart_bench.generator.logs.offline import importlogs
+    from scart_bench.generator.logs.offline import import_logs
 
     if (args.start is not None and args.start < 0) or (args.end is not None and args.end <= (args.start or 0.0)):
         raise UsageError(f"--start {args.start} / --end {args.end}: expected 0 <= start < end (seconds)")
-    ids = importlogs(args.logs, args.out, split=args.split, topics=topic_list(args.topics), start_s=args.start,
+    ids = import_logs(args.logs, args.out, split=args.split, topics=topic_list(args.topics), start_s=args.start,
                       end_s=args.end, seed=args.seed, fmt=args.format, allow_corrupt=args.allow_corrupt, say=log,
                       layout=args.layout)
     print(f"{len(ids)} flight{'' if len(ids) == 1 else 's'} added to {args.out}: {', '.join(ids)}")
