@@ -24,6 +24,12 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.dataset import DatasetError, read_view
+from scart_bench.generator.logs.tables import (
+    finish_tables,
+    sanitize_field_name,
+    sanitize_topic_name,
+    unique_names,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -50,115 +56,6 @@ CSV_SUFFIXES = (".csv",)
 _CSV_FLOAT = {"float_precision": "round_trip"} if int(pd.__version__.split(".")[0]) < 3 else {}
 PARQUET_SUFFIXES = (".parquet", ".pq")
 COMPRESSION_SUFFIXES = (".gz", ".bz2", ".xz", ".zip", ".zst")
-
-
-# ----------------------------------------------------------------------------------------------
-# names
-
-
-def sanitize_field_name(name: str) -> str:
-    """A column name made of ``[A-Za-z0-9_]``: ``"accelerometer_m_s2[0]"`` -> ``"accelerometer_m_s2_0"``.
-
-    Dots become underscores too (``"current.lat"`` -> ``"current_lat"``), because ``topic.field``
-    is the separator of scart-bench's combined tables.
-    """
-    out = re.sub(r"[^A-Za-z0-9_]+", "_", str(name)).strip("_")
-    return out or "field"
-
-
-def sanitize_topic_name(name: str) -> str:
-    """A topic name made of ``[a-z0-9_]`` (``"My Flight-3"`` -> ``"my_flight_3"``)."""
-    out = re.sub(r"[^a-z0-9_]+", "_", str(name).lower()).strip("_")
-    return out or "topic"
-
-
-def _unique(names: list[str]) -> list[str]:
-    """Make sanitised names unique by appending ``_2``, ``_3`` ... to later duplicates."""
-    seen: dict[str, int] = {}
-    out = []
-    for n in names:
-        if n in seen:
-            seen[n] += 1
-            cand = f"{n}_{seen[n]}"
-            while cand in seen:
-                seen[n] += 1
-                cand = f"{n}_{seen[n]}"
-            n = cand
-        seen.setdefault(n, 1)
-        out.append(n)
-    return out
-
-
-# ----------------------------------------------------------------------------------------------
-# common table assembly
-
-
-def _make_table(ts: np.ndarray, fields: dict[str, np.ndarray]) -> tuple[pd.DataFrame, int, str | None]:
-    """Sort by time (stable), drop duplicate timestamps keeping the last; count them.
-
-    Also returns the first field whose value differs between rows of one timestamp (None when the
-    dropped rows only repeated the kept one): such rows are two different readings at one time.
-    """
-    ts = np.asarray(ts, dtype=np.int64)
-    order = np.argsort(ts, kind="stable")
-    ts = ts[order]
-    keep = np.ones(ts.shape[0], dtype=bool)
-    if ts.shape[0] > 1:
-        keep[:-1] = ts[1:] != ts[:-1]
-    n_dup = int(ts.shape[0] - keep.sum())
-    cols: dict[str, np.ndarray] = {"Timestamp": ts[keep]}
-    conflict = None
-    for name, values in fields.items():
-        v = np.asarray(values, dtype=np.float64)[order]
-        if n_dup and conflict is None:
-            same = (v[:-1] == v[1:]) | (np.isnan(v[:-1]) & np.isnan(v[1:]))
-            if (~same & ~keep[:-1]).any():
-                conflict = name
-        cols[name] = v[keep]
-    return pd.DataFrame(cols), n_dup, conflict
-
-
-def _finish(raw: dict[str, tuple[np.ndarray, dict[str, np.ndarray], dict]], source: Path,
-            topics: list[str] | None = None, origin: int | None = None) -> dict[str, pd.DataFrame]:
-    """Build the topic tables (``topics`` only, if given) with time zero at ``origin``.
-
-    ``origin`` defaults to the earliest timestamp over *all* topics of ``raw`` (before the
-    selection, so time zero does not move with ``topics``). Messages before it (a ULog's latched
-    topics, published before logging started) are put at 0: their value holds at the start.
-    Each table's ``attrs`` record ``source``, ``topic``, ``origin_us`` (the value in the file's
-    own time base that became 0), ``duplicates_dropped`` and any format-specific notes.
-    """
-    raw = {k: v for k, v in raw.items() if len(v[0]) > 0}
-    if not raw:
-        raise DatasetError(f"{source}: the log is empty (no messages / data rows)")
-    if origin is None:
-        origin = int(min(int(np.min(ts)) for ts, _, _ in raw.values()))
-    raw = _select(raw, topics, source)
-    out: dict[str, pd.DataFrame] = {}
-    for topic in raw:  # the loaders' order: sorted for ULogs and folders, column order for tables
-        ts, fields, notes = raw[topic]
-        table, n_dup, conflict = _make_table(np.maximum(np.asarray(ts, dtype=np.int64) - origin, 0), fields)
-        if conflict is not None and "ulog_message" not in notes:
-            # a table of one's own: two different readings at one time is an error in the file, not
-            # something to resolve silently (a ULog's latched messages at time zero are kept: last wins)
-            raise DatasetError(f"{source}: topic {topic!r}: rows with the same timestamp hold different "
-                               f"values (field {conflict!r}); expected one row per timestamp")
-        if n_dup:
-            logger.debug("%s: topic %s: dropped %d row(s) with a duplicate timestamp (kept the last)",
-                         source, topic, n_dup)
-        table.attrs.update({"source": str(source), "topic": topic, "origin_us": origin,
-                            "duplicates_dropped": n_dup, **notes})
-        out[topic] = table
-    return out
-
-
-def _select(tables: dict[str, tuple], topics: list[str] | None, source: Path) -> dict[str, tuple]:
-    if topics is None:
-        return tables
-    missing = [t for t in topics if t not in tables]
-    if missing:
-        raise DatasetError(f"{source}: topic(s) {missing} not found; the file has: {sorted(tables)}")
-    return {t: tables[t] for t in topics}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -220,7 +117,7 @@ def _ulog_fields(data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], di
             if alt in fields and fields[alt].dtype.kind in "iu":
                 scaled[alt] = 1e-3
     out: dict[str, np.ndarray] = {}
-    for key, new in zip(originals, _unique([sanitize_field_name(k) for k in originals])):
+    for key, new in zip(originals, unique_names([sanitize_field_name(k) for k in originals])):
         values = fields[key].astype(np.float64)
         if key in scaled:
             values = values * scaled[key]
@@ -283,7 +180,7 @@ def _load_ulog(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dic
             available = sorted(ulog_info(path)["topics"])
             raise DatasetError(f"{path}: topic(s) {missing} not found in the ULog; it has: {available}")
     # time zero: the start of logging, whichever messages were parsed
-    return _finish(raw, path, topics, origin=int(ulog.start_timestamp))
+    return finish_tables(raw, path, topics, origin=int(ulog.start_timestamp), keep_last=True)
 
 
 def _rate(ts: np.ndarray) -> tuple[float | None, float | None]:
@@ -470,7 +367,7 @@ def _frame_topics(df: pd.DataFrame, source: Path, stem: str, is_csv: bool,
     for topic, cols in groups.items():
         block = np.column_stack([values[c] for c in cols])
         rows = ~np.all(np.isnan(block), axis=1)
-        names = _unique([sanitize_field_name(c.split(".", 1)[1] if dotted else c) for c in cols])
+        names = unique_names([sanitize_field_name(c.split(".", 1)[1] if dotted else c) for c in cols])
         notes = {"empty_rows_dropped": int((~rows).sum())}
         raw[topic] = (ts[rows], {n: values[c][rows] for n, c in zip(names, cols)}, notes)
     return raw
@@ -542,7 +439,7 @@ def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.Da
         raw = {}
         for stem, df in read_view(path, "navigator").items():
             raw.update(_frame_topics(df, path / "navigator.parquet", stem, False, split=False, unit="us"))
-        return _finish(raw, path, topics, origin=0)
+        return finish_tables(raw, path, topics, origin=0)
     folder = path / "sensors" / "navigator"
     if not folder.is_dir():
         hint = ""
@@ -562,7 +459,7 @@ def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.Da
         is_csv = p.suffix.lower() in CSV_SUFFIXES
         df = _read_csv(p) if is_csv else _read_parquet(p)
         raw.update(_frame_topics(df, p, stem, is_csv, split=False, unit="us"))  # our own tables: microseconds
-    return _finish(raw, path, topics, origin=0)  # already in time from the flight's start
+    return finish_tables(raw, path, topics, origin=0)  # already in time from the flight's start
 
 
 # ----------------------------------------------------------------------------------------------
@@ -671,4 +568,4 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
                            "(.ulg), a CSV (.csv, optionally compressed), a Parquet file (.parquet) or a "
                            "scart-bench flight folder")
     # scart-bench's own tables already count from the flight's start: keep it as time zero
-    return _finish(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)
+    return finish_tables(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)
