@@ -1,7 +1,8 @@
 """Import a user's flight log as per-topic tables for csv mode (offline attack replay).
 
-``load_flight_file(path)`` accepts a PX4 ULog (``.ulg``), a CSV (``.csv``, also ``.csv.gz`` etc.),
-a Parquet file (``.parquet``) or a scart-bench dataset flight folder, and returns
+``load_flight_file(path)`` accepts a PX4 ULog (``.ulg``), an ArduPilot DataFlash log (``.bin``,
+:mod:`.dataflash`), a CSV (``.csv``, also ``.csv.gz`` etc.), a Parquet file (``.parquet``) or a
+scart-bench dataset flight folder, and returns
 ``{topic: DataFrame}``. Every table has an int64 ``Timestamp`` column (microseconds from the
 start of the log: a ULog's logging start, else the earliest timestamp in the file, whichever
 topics are asked for), sorted and strictly increasing, followed by the topic's numeric fields as
@@ -24,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.dataset import DatasetError, read_view
+from scart_bench.generator.logs.dataflash import read_dataflash
 from scart_bench.generator.logs.tables import (
     finish_tables,
     sanitize_field_name,
@@ -49,6 +51,12 @@ PLAUSIBLE_SPAN_S = (0.5, 12 * 3600.0)
 #: Columns of scart-bench tables that are not sensor data.
 IGNORED_COLUMNS = ("index", "is_anomaly", "anomaly_ids", "anomaly_kind")
 _UNNAMED = re.compile(r"^Unnamed: \d+$")  # pandas' name for a written index without a name
+
+#: Log formats read by their own module: extension -> reader (path, topics, allow_corrupt) -> (raw
+#: topics, time zero in the file's time base).
+LOG_READERS = {".bin": read_dataflash}
+#: Every log extension load_flight_file reads besides tables and folders.
+LOG_SUFFIXES = (".ulg", *LOG_READERS)
 
 CSV_SUFFIXES = (".csv",)
 # pandas < 3 parses CSV floats with a fast parser that can be 1 ulp off; >= 3 is exact by default
@@ -496,6 +504,9 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
       degrees and kept as they are. A corrupt or truncated file (its last message runs past
       the end) raises DatasetError unless ``allow_corrupt=True`` (then what was read is loaded,
       with a warning saying how much).
+    * ArduPilot DataFlash (``.bin``, read with pymavlink's DFReader): one topic per message and
+      instance (``gps``, ``imu_1``), ArduPilot's field names and units (the log's own scalings
+      applied), time from each message's boot clock; see :mod:`scart_bench.generator.logs.dataflash`.
     * CSV / Parquet: the time column is the first of :data:`TIME_COLUMNS` (compared
       case-insensitively). A name with a unit (``timestamp_us``, ``time_ns``, ``time_s`` ...)
       is taken at its word; for ``timestamp``, ``time``, ``t`` and ROS's ``%time`` the unit (ns,
@@ -548,14 +559,17 @@ def trim(tables: dict[str, pd.DataFrame], start_s: float | None, end_s: float | 
 
 def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict[str, pd.DataFrame]:
     if not path.exists():
-        raise DatasetError(f"{path}: no such file or folder (expected a flight log: .ulg, .csv, .parquet "
-                           "or a scart-bench flight folder)")
+        raise DatasetError(f"{path}: no such file or folder (expected a flight log: {', '.join(LOG_SUFFIXES)}, "
+                           ".csv, .parquet or a scart-bench flight folder)")
     if path.is_dir():
         return _load_flight_folder(path, topics)
     suffixes = [s.lower() for s in path.suffixes[-2:]]
     suffix = suffixes[-1] if suffixes else ""
     if suffix == ".ulg":
         return _load_ulog(path, topics, allow_corrupt)
+    if suffix in LOG_READERS:
+        raw, origin = LOG_READERS[suffix](path, topics, allow_corrupt)
+        return finish_tables(raw, path, topics, origin=origin, keep_last=True)
     if suffix in CSV_SUFFIXES or (suffix in COMPRESSION_SUFFIXES and len(suffixes) == 2
                                   and suffixes[0] in CSV_SUFFIXES):
         df = _read_csv(path)
@@ -565,7 +579,7 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
         raw = _frame_topics(df, path, _stem(path), is_csv=False)
     else:
         raise DatasetError(f"{path}: unknown file type {suffix or '(no extension)'!r}; expected a PX4 ULog "
-                           "(.ulg), a CSV (.csv, optionally compressed), a Parquet file (.parquet) or a "
-                           "scart-bench flight folder")
+                           "(.ulg), an ArduPilot DataFlash log (.bin), a CSV (.csv, optionally compressed), a "
+                           "Parquet file (.parquet) or a scart-bench flight folder")
     # scart-bench's own tables already count from the flight's start: keep it as time zero
     return finish_tables(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)
