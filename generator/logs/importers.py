@@ -32,6 +32,7 @@ from scart_bench.generator.logs.tables import (
     sanitize_topic_name,
     unique_names,
 )
+from scart_bench.generator.logs.tlog import read_tlog
 
 logger = logging.getLogger(__name__)
 
@@ -54,7 +55,7 @@ _UNNAMED = re.compile(r"^Unnamed: \d+$")  # pandas' name for a written index wit
 
 #: Log formats read by their own module: extension -> reader (path, topics, allow_corrupt) -> (raw
 #: topics, time zero in the file's time base).
-LOG_READERS = {".bin": read_dataflash}
+LOG_READERS = {".bin": read_dataflash, ".tlog": read_tlog}
 #: Every log extension load_flight_file reads besides tables and folders.
 LOG_SUFFIXES = (".ulg", *LOG_READERS)
 
@@ -507,6 +508,9 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
     * ArduPilot DataFlash (``.bin``, read with pymavlink's DFReader): one topic per message and
       instance (``gps``, ``imu_1``), ArduPilot's field names and units (the log's own scalings
       applied), time from each message's boot clock; see :mod:`scart_bench.generator.logs.dataflash`.
+    * MAVLink telemetry log (``.tlog``, read with pymavlink): one topic per message of the
+      autopilot (``global_position_int``), the project's units, the receive time; see
+      :mod:`scart_bench.generator.logs.tlog`.
     * CSV / Parquet: the time column is the first of :data:`TIME_COLUMNS` (compared
       case-insensitively). A name with a unit (``timestamp_us``, ``time_ns``, ``time_s`` ...)
       is taken at its word; for ``timestamp``, ``time``, ``t`` and ROS's ``%time`` the unit (ns,
@@ -579,7 +583,7 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
         raw = _frame_topics(df, path, _stem(path), is_csv=False)
     else:
         raise DatasetError(f"{path}: unknown file type {suffix or '(no extension)'!r}; expected a PX4 ULog "
-                           "(.ulg), an ArduPilot DataFlash log (.bin), a CSV (.csv, optionally compressed), a "
+                           "(.ulg), an ArduPilot DataFlash log (.bin), a MAVLink telemetry log (.tlog), a CSV (.csv, optionally compressed), a "
                            "Parquet file (.parquet) or a scart-bench flight folder")
     # scart-bench's own tables already count from the flight's start: keep it as time zero
     return finish_tables(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)
