@@ -62,7 +62,11 @@ GPS_TIME_FIELDS = ("Week", "GWk")
 
 def _open(path: Path):
     """A DFReader on ``path`` (it indexes the whole file)."""
-    from pymavlink import DFReader
+    try:
+        from pymavlink import DFReader
+    except ImportError as exc:
+        raise DatasetError(f"{path}: reading ArduPilot DataFlash logs needs the 'pymavlink' package (pip install "
+                           "'scart-bench[mavlink]')") from exc
 
     if path.stat().st_size == 0:
         raise DatasetError(f"{path}: the DataFlash log is empty (0 bytes); expected a .bin log written by ArduPilot")

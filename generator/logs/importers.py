@@ -26,6 +26,7 @@ import pandas as pd
 
 from scart_bench.dataset import DatasetError, read_view
 from scart_bench.generator.logs.dataflash import read_dataflash
+from scart_bench.generator.logs.rosbag import read_rosbag
 from scart_bench.generator.logs.tables import (
     finish_tables,
     sanitize_field_name,
@@ -55,7 +56,8 @@ _UNNAMED = re.compile(r"^Unnamed: \d+$")  # pandas' name for a written index wit
 
 #: Log formats read by their own module: extension -> reader (path, topics, allow_corrupt) -> (raw
 #: topics, time zero in the file's time base).
-LOG_READERS = {".bin": read_dataflash, ".tlog": read_tlog}
+LOG_READERS = {".bin": read_dataflash, ".tlog": read_tlog, ".bag": read_rosbag, ".db3": read_rosbag,
+               ".mcap": read_rosbag}
 #: Every log extension load_flight_file reads besides tables and folders.
 LOG_SUFFIXES = (".ulg", *LOG_READERS)
 
@@ -511,6 +513,9 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
     * MAVLink telemetry log (``.tlog``, read with pymavlink): one topic per message of the
       autopilot (``global_position_int``), the project's units, the receive time; see
       :mod:`scart_bench.generator.logs.tlog`.
+    * ROS bags (a ROS 1 ``.bag``, a ROS 2 bag folder or its ``.db3`` / ``.mcap`` file, read with
+      rosbags): MAVROS topics mapped to the project's link topics, px4_msgs ``/fmu/out/*`` topics
+      with their uORB names; see :mod:`scart_bench.generator.logs.rosbag`.
     * CSV / Parquet: the time column is the first of :data:`TIME_COLUMNS` (compared
       case-insensitively). A name with a unit (``timestamp_us``, ``time_ns``, ``time_s`` ...)
       is taken at its word; for ``timestamp``, ``time``, ``t`` and ROS's ``%time`` the unit (ns,
@@ -565,6 +570,9 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
     if not path.exists():
         raise DatasetError(f"{path}: no such file or folder (expected a flight log: {', '.join(LOG_SUFFIXES)}, "
                            ".csv, .parquet or a scart-bench flight folder)")
+    if path.is_dir() and (path / "metadata.yaml").exists():  # a ROS 2 bag
+        raw, origin = read_rosbag(path, topics, allow_corrupt)
+        return finish_tables(raw, path, topics, origin=origin, keep_last=True)
     if path.is_dir():
         return _load_flight_folder(path, topics)
     suffixes = [s.lower() for s in path.suffixes[-2:]]
@@ -583,7 +591,8 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
         raw = _frame_topics(df, path, _stem(path), is_csv=False)
     else:
         raise DatasetError(f"{path}: unknown file type {suffix or '(no extension)'!r}; expected a PX4 ULog "
-                           "(.ulg), an ArduPilot DataFlash log (.bin), a MAVLink telemetry log (.tlog), a CSV (.csv, optionally compressed), a "
+                           "(.ulg), an ArduPilot DataFlash log (.bin), a MAVLink telemetry log (.tlog), a ROS bag (.bag, or a ROS 2 "
+                           "bag folder), a CSV (.csv, optionally compressed), a "
                            "Parquet file (.parquet) or a scart-bench flight folder")
     # scart-bench's own tables already count from the flight's start: keep it as time zero
     return finish_tables(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)

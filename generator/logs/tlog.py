@@ -91,7 +91,11 @@ class _Frames:
     """The valid frames of a tlog, read once: (receive time us, source, message)."""
 
     def __init__(self, path: Path):
-        from pymavlink import mavutil
+        try:
+            from pymavlink import mavutil
+        except ImportError as exc:
+            raise DatasetError(f"{path}: reading MAVLink telemetry logs needs the 'pymavlink' package (pip install "
+                               "'scart-bench[mavlink]')") from exc
 
         try:
             self.conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", notimestamps=False)
