@@ -1,7 +1,8 @@
 """Import a user's flight log as per-topic tables for csv mode (offline attack replay).
 
-``load_flight_file(path)`` accepts a PX4 ULog (``.ulg``), a CSV (``.csv``, also ``.csv.gz`` etc.),
-a Parquet file (``.parquet``) or a scart-bench dataset flight folder, and returns
+``load_flight_file(path)`` accepts a PX4 ULog (``.ulg``), an ArduPilot DataFlash log (``.bin``,
+:mod:`.dataflash`), a CSV (``.csv``, also ``.csv.gz`` etc.), a Parquet file (``.parquet``) or a
+scart-bench dataset flight folder, and returns
 ``{topic: DataFrame}``. Every table has an int64 ``Timestamp`` column (microseconds from the
 start of the log: a ULog's logging start, else the earliest timestamp in the file, whichever
 topics are asked for), sorted and strictly increasing, followed by the topic's numeric fields as
@@ -24,6 +25,15 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.dataset import DatasetError, read_view
+from scart_bench.generator.logs.dataflash import read_dataflash
+from scart_bench.generator.logs.rosbag import read_rosbag
+from scart_bench.generator.logs.tables import (
+    finish_tables,
+    sanitize_field_name,
+    sanitize_topic_name,
+    unique_names,
+)
+from scart_bench.generator.logs.tlog import read_tlog
 
 logger = logging.getLogger(__name__)
 
@@ -44,121 +54,19 @@ PLAUSIBLE_SPAN_S = (0.5, 12 * 3600.0)
 IGNORED_COLUMNS = ("index", "is_anomaly", "anomaly_ids", "anomaly_kind")
 _UNNAMED = re.compile(r"^Unnamed: \d+$")  # pandas' name for a written index without a name
 
+#: Log formats read by their own module: extension -> reader (path, topics, allow_corrupt) -> (raw
+#: topics, time zero in the file's time base).
+LOG_READERS = {".bin": read_dataflash, ".tlog": read_tlog, ".bag": read_rosbag, ".db3": read_rosbag,
+               ".mcap": read_rosbag}
+#: Every log extension load_flight_file reads besides tables and folders.
+LOG_SUFFIXES = (".ulg", *LOG_READERS)
+
 CSV_SUFFIXES = (".csv",)
 # pandas < 3 parses CSV floats with a fast parser that can be 1 ulp off; >= 3 is exact by default
 # (and deprecates the option). lat/lon must round-trip bit-exactly.
 _CSV_FLOAT = {"float_precision": "round_trip"} if int(pd.__version__.split(".")[0]) < 3 else {}
 PARQUET_SUFFIXES = (".parquet", ".pq")
 COMPRESSION_SUFFIXES = (".gz", ".bz2", ".xz", ".zip", ".zst")
-
-
-# ----------------------------------------------------------------------------------------------
-# names
-
-
-def sanitize_field_name(name: str) -> str:
-    """A column name made of ``[A-Za-z0-9_]``: ``"accelerometer_m_s2[0]"`` -> ``"accelerometer_m_s2_0"``.
-
-    Dots become underscores too (``"current.lat"`` -> ``"current_lat"``), because ``topic.field``
-    is the separator of scart-bench's combined tables.
-    """
-    out = re.sub(r"[^A-Za-z0-9_]+", "_", str(name)).strip("_")
-    return out or "field"
-
-
-def sanitize_topic_name(name: str) -> str:
-    """A topic name made of ``[a-z0-9_]`` (``"My Flight-3"`` -> ``"my_flight_3"``)."""
-    out = re.sub(r"[^a-z0-9_]+", "_", str(name).lower()).strip("_")
-    return out or "topic"
-
-
-def _unique(names: list[str]) -> list[str]:
-    """Make sanitised names unique by appending ``_2``, ``_3`` ... to later duplicates."""
-    seen: dict[str, int] = {}
-    out = []
-    for n in names:
-        if n in seen:
-            seen[n] += 1
-            cand = f"{n}_{seen[n]}"
-            while cand in seen:
-                seen[n] += 1
-                cand = f"{n}_{seen[n]}"
-            n = cand
-        seen.setdefault(n, 1)
-        out.append(n)
-    return out
-
-
-# ----------------------------------------------------------------------------------------------
-# common table assembly
-
-
-def _make_table(ts: np.ndarray, fields: dict[str, np.ndarray]) -> tuple[pd.DataFrame, int, str | None]:
-    """Sort by time (stable), drop duplicate timestamps keeping the last; count them.
-
-    Also returns the first field whose value differs between rows of one timestamp (None when the
-    dropped rows only repeated the kept one): such rows are two different readings at one time.
-    """
-    ts = np.asarray(ts, dtype=np.int64)
-    order = np.argsort(ts, kind="stable")
-    ts = ts[order]
-    keep = np.ones(ts.shape[0], dtype=bool)
-    if ts.shape[0] > 1:
-        keep[:-1] = ts[1:] != ts[:-1]
-    n_dup = int(ts.shape[0] - keep.sum())
-    cols: dict[str, np.ndarray] = {"Timestamp": ts[keep]}
-    conflict = None
-    for name, values in fields.items():
-        v = np.asarray(values, dtype=np.float64)[order]
-        if n_dup and conflict is None:
-            same = (v[:-1] == v[1:]) | (np.isnan(v[:-1]) & np.isnan(v[1:]))
-            if (~same & ~keep[:-1]).any():
-                conflict = name
-        cols[name] = v[keep]
-    return pd.DataFrame(cols), n_dup, conflict
-
-
-def _finish(raw: dict[str, tuple[np.ndarray, dict[str, np.ndarray], dict]], source: Path,
-            topics: list[str] | None = None, origin: int | None = None) -> dict[str, pd.DataFrame]:
-    """Build the topic tables (``topics`` only, if given) with time zero at ``origin``.
-
-    ``origin`` defaults to the earliest timestamp over *all* topics of ``raw`` (before the
-    selection, so time zero does not move with ``topics``). Messages before it (a ULog's latched
-    topics, published before logging started) are put at 0: their value holds at the start.
-    Each table's ``attrs`` record ``source``, ``topic``, ``origin_us`` (the value in the file's
-    own time base that became 0), ``duplicates_dropped`` and any format-specific notes.
-    """
-    raw = {k: v for k, v in raw.items() if len(v[0]) > 0}
-    if not raw:
-        raise DatasetError(f"{source}: the log is empty (no messages / data rows)")
-    if origin is None:
-        origin = int(min(int(np.min(ts)) for ts, _, _ in raw.values()))
-    raw = _select(raw, topics, source)
-    out: dict[str, pd.DataFrame] = {}
-    for topic in raw:  # the loaders' order: sorted for ULogs and folders, column order for tables
-        ts, fields, notes = raw[topic]
-        table, n_dup, conflict = _make_table(np.maximum(np.asarray(ts, dtype=np.int64) - origin, 0), fields)
-        if conflict is not None and "ulog_message" not in notes:
-            # a table of one's own: two different readings at one time is an error in the file, not
-            # something to resolve silently (a ULog's latched messages at time zero are kept: last wins)
-            raise DatasetError(f"{source}: topic {topic!r}: rows with the same timestamp hold different "
-                               f"values (field {conflict!r}); expected one row per timestamp")
-        if n_dup:
-            logger.debug("%s: topic %s: dropped %d row(s) with a duplicate timestamp (kept the last)",
-                         source, topic, n_dup)
-        table.attrs.update({"source": str(source), "topic": topic, "origin_us": origin,
-                            "duplicates_dropped": n_dup, **notes})
-        out[topic] = table
-    return out
-
-
-def _select(tables: dict[str, tuple], topics: list[str] | None, source: Path) -> dict[str, tuple]:
-    if topics is None:
-        return tables
-    missing = [t for t in topics if t not in tables]
-    if missing:
-        raise DatasetError(f"{source}: topic(s) {missing} not found; the file has: {sorted(tables)}")
-    return {t: tables[t] for t in topics}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -220,7 +128,7 @@ def _ulog_fields(data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], di
             if alt in fields and fields[alt].dtype.kind in "iu":
                 scaled[alt] = 1e-3
     out: dict[str, np.ndarray] = {}
-    for key, new in zip(originals, _unique([sanitize_field_name(k) for k in originals])):
+    for key, new in zip(originals, unique_names([sanitize_field_name(k) for k in originals])):
         values = fields[key].astype(np.float64)
         if key in scaled:
             values = values * scaled[key]
@@ -283,7 +191,7 @@ def _load_ulog(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dic
             available = sorted(ulog_info(path)["topics"])
             raise DatasetError(f"{path}: topic(s) {missing} not found in the ULog; it has: {available}")
     # time zero: the start of logging, whichever messages were parsed
-    return _finish(raw, path, topics, origin=int(ulog.start_timestamp))
+    return finish_tables(raw, path, topics, origin=int(ulog.start_timestamp), keep_last=True)
 
 
 def _rate(ts: np.ndarray) -> tuple[float | None, float | None]:
@@ -470,7 +378,7 @@ def _frame_topics(df: pd.DataFrame, source: Path, stem: str, is_csv: bool,
     for topic, cols in groups.items():
         block = np.column_stack([values[c] for c in cols])
         rows = ~np.all(np.isnan(block), axis=1)
-        names = _unique([sanitize_field_name(c.split(".", 1)[1] if dotted else c) for c in cols])
+        names = unique_names([sanitize_field_name(c.split(".", 1)[1] if dotted else c) for c in cols])
         notes = {"empty_rows_dropped": int((~rows).sum())}
         raw[topic] = (ts[rows], {n: values[c][rows] for n, c in zip(names, cols)}, notes)
     return raw
@@ -542,7 +450,7 @@ def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.Da
         raw = {}
         for stem, df in read_view(path, "navigator").items():
             raw.update(_frame_topics(df, path / "navigator.parquet", stem, False, split=False, unit="us"))
-        return _finish(raw, path, topics, origin=0)
+        return finish_tables(raw, path, topics, origin=0)
     folder = path / "sensors" / "navigator"
     if not folder.is_dir():
         hint = ""
@@ -562,7 +470,7 @@ def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.Da
         is_csv = p.suffix.lower() in CSV_SUFFIXES
         df = _read_csv(p) if is_csv else _read_parquet(p)
         raw.update(_frame_topics(df, p, stem, is_csv, split=False, unit="us"))  # our own tables: microseconds
-    return _finish(raw, path, topics, origin=0)  # already in time from the flight's start
+    return finish_tables(raw, path, topics, origin=0)  # already in time from the flight's start
 
 
 # ----------------------------------------------------------------------------------------------
@@ -599,6 +507,15 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
       degrees and kept as they are. A corrupt or truncated file (its last message runs past
       the end) raises DatasetError unless ``allow_corrupt=True`` (then what was read is loaded,
       with a warning saying how much).
+    * ArduPilot DataFlash (``.bin``, read with pymavlink's DFReader): one topic per message and
+      instance (``gps``, ``imu_1``), ArduPilot's field names and units (the log's own scalings
+      applied), time from each message's boot clock; see :mod:`scart_bench.generator.logs.dataflash`.
+    * MAVLink telemetry log (``.tlog``, read with pymavlink): one topic per message of the
+      autopilot (``global_position_int``), the project's units, the receive time; see
+      :mod:`scart_bench.generator.logs.tlog`.
+    * ROS bags (a ROS 1 ``.bag``, a ROS 2 bag folder or its ``.db3`` / ``.mcap`` file, read with
+      rosbags): MAVROS topics mapped to the project's link topics, px4_msgs ``/fmu/out/*`` topics
+      with their uORB names; see :mod:`scart_bench.generator.logs.rosbag`.
     * CSV / Parquet: the time column is the first of :data:`TIME_COLUMNS` (compared
       case-insensitively). A name with a unit (``timestamp_us``, ``time_ns``, ``time_s`` ...)
       is taken at its word; for ``timestamp``, ``time``, ``t`` and ROS's ``%time`` the unit (ns,
@@ -651,14 +568,20 @@ def trim(tables: dict[str, pd.DataFrame], start_s: float | None, end_s: float | 
 
 def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict[str, pd.DataFrame]:
     if not path.exists():
-        raise DatasetError(f"{path}: no such file or folder (expected a flight log: .ulg, .csv, .parquet "
-                           "or a scart-bench flight folder)")
+        raise DatasetError(f"{path}: no such file or folder (expected a flight log: {', '.join(LOG_SUFFIXES)}, "
+                           ".csv, .parquet or a scart-bench flight folder)")
+    if path.is_dir() and (path / "metadata.yaml").exists():  # a ROS 2 bag
+        raw, origin = read_rosbag(path, topics, allow_corrupt)
+        return finish_tables(raw, path, topics, origin=origin, keep_last=True)
     if path.is_dir():
         return _load_flight_folder(path, topics)
     suffixes = [s.lower() for s in path.suffixes[-2:]]
     suffix = suffixes[-1] if suffixes else ""
     if suffix == ".ulg":
         return _load_ulog(path, topics, allow_corrupt)
+    if suffix in LOG_READERS:
+        raw, origin = LOG_READERS[suffix](path, topics, allow_corrupt)
+        return finish_tables(raw, path, topics, origin=origin, keep_last=True)
     if suffix in CSV_SUFFIXES or (suffix in COMPRESSION_SUFFIXES and len(suffixes) == 2
                                   and suffixes[0] in CSV_SUFFIXES):
         df = _read_csv(path)
@@ -668,7 +591,8 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
         raw = _frame_topics(df, path, _stem(path), is_csv=False)
     else:
         raise DatasetError(f"{path}: unknown file type {suffix or '(no extension)'!r}; expected a PX4 ULog "
-                           "(.ulg), a CSV (.csv, optionally compressed), a Parquet file (.parquet) or a "
-                           "scart-bench flight folder")
+                           "(.ulg), an ArduPilot DataFlash log (.bin), a MAVLink telemetry log (.tlog), a ROS bag (.bag, or a ROS 2 "
+                           "bag folder), a CSV (.csv, optionally compressed), a "
+                           "Parquet file (.parquet) or a scart-bench flight folder")
     # scart-bench's own tables already count from the flight's start: keep it as time zero
-    return _finish(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)
+    return finish_tables(raw, path, topics, origin=0 if own_layout(list(df.columns)) else None)

@@ -101,7 +101,7 @@ def _start_conditions(job) -> str:
 
 def log_name(path: Path) -> str:
     """A log's name for flight ids: the file name without its extensions, in ``[a-z0-9_-]``."""
-    name = path.name if path.is_dir() else re.sub(r"(\.(ulg|csv|parquet|pq|gz|bz2|xz|zip|zst))+$", "",
+    name = path.name if path.is_dir() else re.sub(r"(\.(ulg|bin|tlog|bag|mcap|db3|csv|parquet|pq|gz|bz2|xz|zip|zst))+$", "",
                                                    path.name, flags=re.IGNORECASE)
     return re.sub(r"[^a-z0-9_-]+", "_", name.lower()).strip("_") or "log"
 

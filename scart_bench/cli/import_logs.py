@@ -1,4 +1,5 @@
-"""``scart-bench import``: your own logs (ULog, CSV, Parquet, flight folders) as normal flights of a dataset."""
+"""``scart-bench import``: your own logs (ULog, DataFlash .bin, tlog, ROS bags, CSV, Parquet, flight folders) as normal
+flights of a dataset."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    i = sub.add_parser("import", help="add your own logs (ULog, CSV, Parquet, flight folders) to a dataset as "
+    i = sub.add_parser("import", help="add your own logs (ULog, DataFlash .bin, tlog, ROS bag, CSV, Parquet, flight folders) to a dataset as "
                        "normal flights")
     i.add_argument("logs", nargs="+", metavar="LOG", help="log files or flight folders; flight ids come from "
                    "their names (log-<name>, plus -<start>s-<end>s when trimmed)")
@@ -36,5 +37,5 @@ def register(sub) -> None:
     i.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
     i.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP + "; of a new dataset")
     i.add_argument("--allow-corrupt", action="store_true", help="use the readable part of a corrupt or "
-                   "truncated ULog (with a warning saying how much was read)")
+                   "truncated log (with a warning saying how much was read)")
     i.set_defaults(func=cmd_import)
