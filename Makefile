@@ -29,6 +29,7 @@ $(PLUGIN)/.installed: $(STAMP) examples/custom_detector/pyproject.toml $(wildcar
 	rm -rf $(PLUGIN)
 	# the example detector plugin, installed with pip as a user would (its tests check it is discovered)
 	$(BIN)/pip install --quiet --no-deps --target $(PLUGIN) examples/custom_detector
+	rm -rf examples/custom_detector/build
 	touch $@
 
 run: setup
