@@ -91,6 +91,9 @@ class BatchResult:
     n_steps: int
     timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.telemetry.tables)
     uorb: bool = False  # FlightConfig.uorb: the records carry the uORB view (generator.telemetry.uorb)
+    #: with FlightConfig.uorb: the flight controller's streams for the uORB view (generator.telemetry.schedule.
+    #: UORB_STREAMS), ``(steps, values, delivered)`` like ``simulator``'s; empty otherwise
+    uorb_streams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.seeds)
