@@ -98,8 +98,7 @@ class ControllerParams:
 
     vel_xy_p: float = 1.8  # MPC_XY_VEL_P_ACC, 1/s
     vel_xy_i: float = 0.4  # MPC_XY_VEL_I_ACC, 1/s^2
-    vel_xy_d: float = 0.2  # MPC_XY_VEL_D_ACC, on the estimated velocity's derivative (as PX4: not the error's)
-    vel_deriv_lp_hz: float = 5.0  # MPC_VELD_LP, Hz: low-pass of that numerical derivative
+    vel_xy_d: float = 0.2  # MPC_XY_VEL_D_ACC
     vel_z_p: float = 4.0  # MPC_Z_VEL_P_ACC
     vel_z_i: float = 2.0  # MPC_Z_VEL_I_ACC
     acc_hor: float = 3.0  # MPC_ACC_HOR, m/s^2: slew limit of the horizontal velocity setpoint
@@ -112,10 +111,6 @@ class ControllerParams:
     rate_p: tuple[float, float, float] = (18.0, 18.0, 8.0)  # 1/s, in physical units
     rate_i: tuple[float, float, float] = (4.0, 4.0, 2.0)
     thrust_min: float = 0.08  # of the maximum collective thrust
-
-    def velocity_derivative_alpha(self, dt: float) -> float:
-        """Gain of the first-order low-pass (MPC_VELD_LP) on the velocity derivative, stepped every ``dt`` s."""
-        return dt / (dt + 1.0 / (2.0 * np.pi * self.vel_deriv_lp_hz))
 
     def rate_limits(self) -> tuple[float, float, float]:
         """Body-rate setpoint limits (rad/s): MC_*RATE_MAX, the yaw at most MPC_YAWRAUTO_MAX."""

@@ -144,7 +144,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "land_speed": mp.land_speed, "acceptance": mp.acceptance_radius, "lat0": lat0, "lon0": lon0,
         "sin_lat0": np.sin(lat0), "cos_lat0": np.cos(lat0), "hover": vp.mass * GRAVITY,
         "tail_steps": int(0.5 * SIM_RATE_HZ), "yaw_step_max": mp.yaw_rate_max * nav_dt,
-        "out_decay": 1.0 - dt / ep.output_tau_s, "veld_alpha": cp.velocity_derivative_alpha(nav_dt),
+        "out_decay": 1.0 - dt / ep.output_tau_s,
     }
     return K.param_vector(values)
 

@@ -34,10 +34,7 @@ STATUS = ("landed", "timeout", "crashed")
 #: ideal timing, Gazebo GPS noise. 2: the PX4 start (ground phase, GPS fix and estimator origin
 #: before arming), 5 s hover, yaw within MPC_YAWRAUTO_MAX, realistic timing, EKF2's output
 #: predictor, PX4 SITL GPS noise, settling GPS accuracy and satellites, battery charge per flight.
-#: 3: the velocity controller's D term on the estimated velocity's low-passed derivative, as PX4's
-#: (MPC_VELD_LP), not on the raw difference of the error: every flown flight differs from 2's (less
-#: roll/pitch jitter at hover); a --uorb dataset's uORB view at a log's rates, with the actuators.
-FLIGHT_DEFAULTS = 3
+FLIGHT_DEFAULTS = 2
 
 
 def defaults_summary(cfg: FlightConfig) -> dict:

@@ -55,7 +55,6 @@ K_LAND_DETECT, K_ARM_DELAY, K_TAKEOFF_HOLD = _I["land_detect_s"], _I["arm_delay"
 K_APPROACH, K_CLIMB, K_LAND_SPEED, K_ACCEPT = _I["approach_gain"], _I["climb_speed"], _I["land_speed"], _I["acceptance"]
 K_LAT0, K_LON0, K_SIN_LAT0, K_COS_LAT0 = _I["lat0"], _I["lon0"], _I["sin_lat0"], _I["cos_lat0"]
 K_HOVER, K_TAIL, K_YAW_STEP, K_OUT_DECAY = _I["hover"], _I["tail_steps"], _I["yaw_step_max"], _I["out_decay"]
-K_VELD_ALPHA = _I["veld_alpha"]
 
 G = GRAVITY
 PI = math.pi
@@ -744,16 +743,14 @@ def _navigate(s, wps, p, t, out, m):
 
 @njit(**_JIT)
 def _vel_axis(s, p, a, dv, armed, dt):
-    """Slewed setpoint, error, velocity derivative (low-passed) and PID acceleration of one axis."""
+    """Slewed setpoint, error, derivative and PID acceleration of one axis."""
     s[L.CTRL_VEL_SP + a] = s[L.CTRL_VEL_SP + a] + dv if armed else 0.0
-    vel = _out(s, a, 1)
-    err = s[L.CTRL_VEL_SP + a] - vel
-    rate = (vel - s[L.PREV_VEL + a]) / dt
-    s[L.PREV_VEL + a] = vel
-    s[L.VEL_DERIV + a] += p[K_VELD_ALPHA] * (rate - s[L.VEL_DERIV + a])
+    err = s[L.CTRL_VEL_SP + a] - _out(s, a, 1)
+    d_err = (err - s[L.PREV_VEL_ERR + a]) / dt
+    s[L.PREV_VEL_ERR + a] = err
     acc = p[K_VEL_P + a] * err + p[K_VEL_I + a] * s[L.VEL_INT + a]
     if a < 2:
-        acc -= p[K_VEL_XY_D] * s[L.VEL_DERIV + a]
+        acc += p[K_VEL_XY_D] * d_err
     return err, acc
 
 

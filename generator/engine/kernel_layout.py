@@ -68,7 +68,7 @@ ATT_SP = 116  # 9, attitude setpoint (rotation matrix, row-major)
 RATE_SP = 125  # 3
 LAND_TIME = 128
 DISARMED = 129  # disarmed after the flight
-PREV_VEL = 130  # 3, estimated velocity at the last velocity-control step
+PREV_VEL_ERR = 130  # 3
 CTRL_VEL_SP = 133  # 3, slew-limited velocity setpoint
 SETPOINT_IN = 136  # 6, last setpoint received from the navigator
 # -- navigator -------------------------------------------------------------------------------------
@@ -99,8 +99,7 @@ ARM_AT = 186  # s, the navigator arms
 OUT_ERR = 187  # 6: per axis (N, E, D) [position, velocity] of the output minus the filter's state
 # -- the mixer's output ------------------------------------------------------------------------------
 MOTOR_CMD = 193  # 4, rad/s: the rotor speeds the rate controller's mixer commanded this step (before a rotor limit)
-VEL_DERIV = 197  # 3, m/s^2: the estimated velocity's derivative, low-passed (MPC_VELD_LP), for the D term
-WIDTH = 200
+WIDTH = 197
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -129,14 +128,14 @@ FIELDS: dict[str, tuple[int, int]] = {
     "since_pos_fusion_s": (SINCE_POS_FUSION_S, 1), "gps_resets": (GPS_RESETS, 1), "P_h": (P_H, 9), "P_v": (P_V, 9),
     "armed": (ARMED, 1), "vel_int": (VEL_INT, 3), "rate_int": (RATE_INT, 3), "thrust_sp": (THRUST_SP, 1),
     "att_sp": (ATT_SP, 9), "rate_sp": (RATE_SP, 3), "land_time": (LAND_TIME, 1), "disarmed": (DISARMED, 1),
-    "prev_vel": (PREV_VEL, 3), "ctrl_vel_sp": (CTRL_VEL_SP, 3), "setpoint_in": (SETPOINT_IN, 6),
+    "prev_vel_err": (PREV_VEL_ERR, 3), "ctrl_vel_sp": (CTRL_VEL_SP, 3), "setpoint_in": (SETPOINT_IN, 6),
     "phase": (PHASE, 1), "seq": (SEQ, 1), "hold_until": (HOLD_UNTIL, 1), "nav_yaw_sp": (NAV_YAW_SP, 1),
     "nav_pos": (NAV_POS, 3), "nav_vel": (NAV_VEL, 3), "nav_yaw": (NAV_YAW, 1), "xt_int": (XT_INT, 1),
     "cruise": (CRUISE, 1), "battery": (BATTERY, 3), "done": (DONE, 1), "exit_step": (EXIT_STEP, 1),
     "status": (STATUS, 1), "landed_at": (LANDED_AT, 1), "R_ctrl": (R_CTRL, 9), "R_true": (R_TRUE, 9),
     "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1), "gps_fix_at": (GPS_FIX_AT, 1),
     "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
-    "motor_cmd": (MOTOR_CMD, 4), "vel_deriv": (VEL_DERIV, 3),
+    "motor_cmd": (MOTOR_CMD, 4),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------
@@ -161,7 +160,7 @@ PARAMS = (
     "gps_max_eph", "vel_p", "vel_i", "vel_xy_d", "acc_hor_dt", "acc_vert_dt", "tan_tilt", "att_p", "rate_max",
     "rate_p", "rate_i", "thrust_lo", "thrust_hi", "max_thrust", "land_detect_s", "arm_delay", "takeoff_hold",
     "approach_gain", "climb_speed", "land_speed", "acceptance", "lat0", "lon0", "sin_lat0", "cos_lat0",
-    "hover", "tail_steps", "yaw_step_max", "out_decay", "veld_alpha",
+    "hover", "tail_steps", "yaw_step_max", "out_decay",
 )
 _SIZES = {"alloc": 16, "alloc_inv": 16, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
           "vel_p": 3, "vel_i": 3, "att_p": 3, "rate_max": 3, "rate_p": 3, "rate_i": 3}

@@ -268,8 +268,7 @@ class ControllerState:
     rate_sp: np.ndarray  # (N, 3)
     land_time: np.ndarray  # (N,) seconds of landed evidence
     disarmed_after_flight: np.ndarray  # (N,) bool
-    prev_vel: np.ndarray  # (N, 3) estimated velocity at the last velocity-control step
-    vel_deriv: np.ndarray  # (N, 3) its numerical derivative, low-passed (MPC_VELD_LP)
+    prev_vel_err: np.ndarray  # (N, 3)
     vel_sp: np.ndarray  # (N, 3) slew-limited velocity setpoint in use
 
 
@@ -289,8 +288,7 @@ class Controller:
         return ControllerState(
             armed=np.zeros(n, dtype=bool), vel_int=np.zeros((n, 3)), rate_int=np.zeros((n, 3)),
             thrust_sp=np.zeros(n), att_quat_sp=eye, rate_sp=np.zeros((n, 3)), land_time=np.zeros(n),
-            disarmed_after_flight=np.zeros(n, dtype=bool), prev_vel=np.zeros((n, 3)),
-            vel_deriv=np.zeros((n, 3)),
+            disarmed_after_flight=np.zeros(n, dtype=bool), prev_vel_err=np.zeros((n, 3)),
             vel_sp=np.zeros((n, 3)),
         )
 
@@ -309,13 +307,10 @@ class Controller:
         err = vel_sp - vel_est
         gains_p = np.array([p.vel_xy_p, p.vel_xy_p, p.vel_z_p])
         gains_i = np.array([p.vel_xy_i, p.vel_xy_i, p.vel_z_i])
-        # PX4's D term: on the estimated velocity's derivative, low-passed at MPC_VELD_LP (a raw
-        # difference of the estimate at 50 Hz passed the GPS fusions' steps on as tilt jitter)
-        rate = (vel_est - c.prev_vel) / dt
-        c.prev_vel = np.array(vel_est, dtype=float, copy=True)
-        c.vel_deriv = c.vel_deriv + p.velocity_derivative_alpha(dt) * (rate - c.vel_deriv)
+        d_err = (err - c.prev_vel_err) / dt
+        c.prev_vel_err = err
         acc = gains_p * err + gains_i * c.vel_int
-        acc[:, :2] -= p.vel_xy_d * c.vel_deriv[:, :2]
+        acc[:, :2] += p.vel_xy_d * d_err[:, :2]
         # limit tilt: horizontal acceleration within tan(tilt_max) of the vertical specific force
         lift = np.maximum(GRAVITY - acc[:, 2], 0.3 * GRAVITY)
         h = np.linalg.norm(acc[:, :2], axis=1)

@@ -102,8 +102,7 @@ class Plant:
             cs.rate_int[:] = 0.0
             cs.land_time[:] = 0.0
             cs.vel_sp[:] = 0.0
-            cs.prev_vel[:] = 0.0
-            cs.vel_deriv[:] = 0.0
+            cs.prev_vel_err[:] = 0.0
         cs.armed[:] = armed
 
     def landed_by_detector(self) -> bool:
