@@ -34,7 +34,10 @@ STATUS = ("landed", "timeout", "crashed")
 #: ideal timing, Gazebo GPS noise. 2: the PX4 start (ground phase, GPS fix and estimator origin
 #: before arming), 5 s hover, yaw within MPC_YAWRAUTO_MAX, realistic timing, EKF2's output
 #: predictor, PX4 SITL GPS noise, settling GPS accuracy and satellites, battery charge per flight.
-FLIGHT_DEFAULTS = 2
+#: 3: the flights are 2's, byte for byte; a --uorb dataset's uORB view is at a PX4 log's rates
+#: (sensor_combined ~190 Hz, vehicle_attitude 20 Hz, vehicle_local_position 10 Hz, from the flight
+#: controller's streams) and has the actuators (actuator_controls_0, actuator_outputs).
+FLIGHT_DEFAULTS = 3
 
 
 def defaults_summary(cfg: FlightConfig) -> dict:
