@@ -22,7 +22,7 @@ from scart_bench.generator.engine.simulate import BatchResult, FlightConfig, sim
 from scart_bench.generator.params import STEP_US
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
-from scart_bench.generator.telemetry.tables import flight_views, with_uorb
+from scart_bench.generator.telemetry.tables import flight_views, uorb_stream_tables, with_uorb
 
 
 def simulation_mode(seeds: list[int], scenarios: list[list[Scenario]], config: FlightConfig | None = None
@@ -68,7 +68,8 @@ def simulation_record(batch: BatchResult, layer: AttackLayer, i: int, flight_id:
            "waypoints_ned": batch.waypoints[i].tolist()}
     record = flight_record(flight_id, nav, sim, scenario_manifest(scenarios, "simulation", batch.seeds[i]), cfg,
                            windows, layer.event_log(i, end_us), end_us=end_us)
-    return with_uorb(record, getattr(batch, "uorb", False))
+    wanted = getattr(batch, "uorb", False)
+    return with_uorb(record, wanted, uorb_stream_tables(batch, i, windows) if wanted else None)
 
 
 def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, scenarios: list[Scenario],

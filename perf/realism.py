@@ -1,7 +1,7 @@
 """How close generated flights are to real PX4 logs: rates, timing jitter, sensor noise, GPS accuracy.
 
     python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--timing T] [--markdown]
-                           [--dataset DIR [--view VIEW]] [--logs DIR] [--ulog FILE ...] [--two-sample]
+                           [--dataset DIR] [--view VIEW] [--logs DIR] [--ulog FILE ...] [--two-sample]
 
 Flies ``N`` default-mission normal flights (holding 12 s in hover after take-off), or reads up to
 ``N`` normal flights of a generated dataset (``--dataset``, its simulator view by default), and
@@ -28,6 +28,10 @@ Figures, computed the same way on both sides:
 - Baro altitude noise: the barometric altitude sampled at 10 Hz, minus its 1 s moving average,
   std over the same still samples (m).
 - GPS accuracy: median reported ``eph`` / ``epv`` (m) over messages with a 3-D fix.
+- Hover thrust: the median collective thrust demand (0-1: ``actuator_controls_0`` control[3], else
+  ``vehicle_thrust_setpoint`` or ``vehicle_rates_setpoint``) over the still airborne samples; a
+  generated flight has it in the uORB view (``--view uorb``). It is the vehicle's (its
+  thrust-to-weight ratio), not a realism figure: the two-sample check leaves it out.
 
 A log's rates are its logger's rates (the SD-card logging profile), not the rates PX4 streams
 on the MAVLink link that the generator's topics follow; ``docs/realism.md`` explains which
@@ -55,6 +59,7 @@ TOPICS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "gps": (("gps_raw_int", "vehicle_gps_position", "sensor_gps"), ("vehicle_gps_position", "sensor_gps")),
     "baro": (("scaled_pressure", "vehicle_air_data"), ("vehicle_air_data", "sensor_baro")),
     "battery": (("battery_status",), ("battery_status",)),
+    "actuators": (("actuator_outputs",), ("actuator_outputs",)),
 }
 IMU_HZ = 50.0
 BARO_HZ = 10.0
@@ -91,6 +96,7 @@ class Flight:
     height: tuple[np.ndarray, np.ndarray] | None = None  # t, metres above the first position
     eph: np.ndarray | None = None
     epv: np.ndarray | None = None
+    thrust: tuple[np.ndarray, np.ndarray] | None = None  # collective thrust demand, 0-1
 
 
 def pressure_altitude(pa: np.ndarray) -> np.ndarray:
@@ -172,6 +178,15 @@ def from_ulog_topics(name: str, data: dict[str, dict[str, np.ndarray]]) -> Fligh
         f.velocity = d["t"], np.column_stack([_col(d, "vx"), _col(d, "vy"), _col(d, "vz")])
         z = _col(d, "z")
         f.height = d["t"], z[0] - z
+    if "actuator_controls_0" in data:
+        d = data["actuator_controls_0"]
+        f.thrust = d["t"], _col(d, "control[3]")
+    elif "vehicle_thrust_setpoint" in data:  # PX4 1.13 and later: body z, up is negative
+        d = data["vehicle_thrust_setpoint"]
+        f.thrust = d["t"], -_col(d, "xyz[2]")
+    elif "vehicle_rates_setpoint" in data:
+        d = data["vehicle_rates_setpoint"]
+        f.thrust = d["t"], -_col(d, "thrust_body[2]")
     hit = _first(data, ("vehicle_gps_position", "sensor_gps"))
     if hit is not None:
         d = hit[1]
@@ -216,6 +231,8 @@ def from_tables(name: str, tables: dict) -> Flight:
             z = d["z"].to_numpy(float)
             f.height = t[name], z[0] - z
             break
+    if "actuator_controls_0" in tables:  # the uORB view of a flight flown with it
+        f.thrust = t["actuator_controls_0"], tables["actuator_controls_0"]["control_3"].to_numpy(float)
     for name in ("gps_raw_int", "vehicle_gps_position"):
         if name in tables:
             d = tables[name]
@@ -225,9 +242,11 @@ def from_tables(name: str, tables: dict) -> Flight:
     return f
 
 
-def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, timing: str | None = None
-                      ) -> list[Flight]:
-    """Fly ``n`` normal default-mission flights (in one batch) and read them like a log.
+def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, timing: str | None = None,
+                      view: str = "simulator") -> list[Flight]:
+    """Fly ``n`` normal default-mission flights (in one batch) and read them like a log, by their
+    ``view`` (``simulator``: MAVLink names and rates; ``uorb``: flown with the uORB view, PX4's topics
+    at a log's rates; ``navigator``: the same as the simulator view, no attack).
 
     The flights hold ``HOVER_S`` s after take-off (instead of 1 s) so that they have a hover.
     """
@@ -235,9 +254,12 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
 
     from scart_bench.generator.engine.simulate import FlightConfig, simulate
     from scart_bench.generator.generate import normal_seeds
-    from scart_bench.generator.telemetry.tables import flight_views
+    from scart_bench.generator.telemetry.tables import flight_views, uorb_stream_tables
+    from scart_bench.generator.telemetry.uorb import uorb_view
 
-    config = FlightConfig() if timing is None else FlightConfig(timing=timing)
+    config = FlightConfig(uorb=view == "uorb")
+    if timing is not None:
+        config = dataclasses.replace(config, timing=timing)
     # hold HOVER_S (the default mission holds takeoff_hold_s) so there is a long hover to measure
     config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, takeoff_hold_s=HOVER_S))
     if gps_accuracy is not None:
@@ -247,8 +269,9 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
     batch = simulate(normal_seeds(seed, n), config)
     flights = []
     for i in range(n):
-        _, sim = flight_views(batch, i, ())
-        flights.append(from_tables(f"generated-{i}", sim))
+        nav, sim = flight_views(batch, i, ())
+        tables = {"simulator": sim, "navigator": nav}.get(view) or uorb_view(sim, uorb_stream_tables(batch, i))
+        flights.append(from_tables(f"generated-{i}", tables))
     return flights
 
 
@@ -341,7 +364,20 @@ def figures(f: Flight) -> dict[str, tuple[float, str]]:
     out["baro alt std m"] = noise(f, f.baro_alt, BARO_HZ)
     out["gps eph m"] = (float(np.median(f.eph)) if f.eph is not None and len(f.eph) else math.nan, "")
     out["gps epv m"] = (float(np.median(f.epv)) if f.epv is not None and len(f.epv) else math.nan, "")
+    out["hover thrust 0-1"] = hover_thrust(f)
     return out
+
+
+def hover_thrust(f: Flight) -> tuple[float, str]:
+    """The median collective thrust demand (0-1) over the still airborne samples at 10 Hz: the hover
+    throttle, a property of the vehicle (its thrust-to-weight ratio); NaN without a hover."""
+    if f.thrust is None or f.thrust[1] is None or len(f.thrust[0]) < 10:
+        return math.nan, ""
+    grid, x = resample(f.thrust[0], f.thrust[1], BARO_HZ)
+    mask, phase = still_mask(f, grid)
+    if phase != "hover" or mask.sum() < 10:
+        return math.nan, phase
+    return float(np.median(x[mask])), phase
 
 
 def _fmt(x: float) -> str:
@@ -446,7 +482,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dataset", default=None, help="read up to --flights normal flights of this generated dataset "
                    "instead of flying them")
     p.add_argument("--view", default="simulator", choices=("simulator", "navigator", "uorb"),
-                   help="the dataset view to read (default simulator)")
+                   help="the view of the flights read (--dataset) or flown (uorb: flown with the uORB view, "
+                   "PX4's topics at a log's rates); default simulator")
     p.add_argument("--logs", default=None, help=f"a folder of PX4 ULogs (its *.ulg; default {DEFAULT_ULOG_DIR} "
                    "when no --ulog is given)")
     p.add_argument("--ulog", nargs="*", default=None, help="PX4 ULog files")
@@ -477,7 +514,7 @@ def main(argv: list[str] | None = None) -> int:
         if not generated:
             p.error(f"--dataset {args.dataset}: no normal flights")
     else:
-        generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing)
+        generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing, args.view)
     print(table(generated, logs, markdown=args.markdown))
     if args.two_sample:
         auc = two_sample_auc(generated, logs)

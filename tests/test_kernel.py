@@ -66,8 +66,9 @@ def _layer_scenarios() -> list:
 
 
 def test_kernel_matches_the_reference_with_the_layer_at_every_injection_point():
-    """Link, sensor and command hooks: both views, the delivered masks and the event log agree."""
-    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=5.0))
+    """Link, sensor and command hooks: both views, the uORB streams (the IMU as the estimator received
+    it, after the sensor attack), the delivered masks and the event log agree."""
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=5.0), uorb=True)
     seeds = [7, 8, 9]
     runs = {}
     for engine in ("numpy", "kernel"):
@@ -76,6 +77,9 @@ def test_kernel_matches_the_reference_with_the_layer_at_every_injection_point():
     (ref, ref_layer), (ker, ker_layer) = runs["numpy"], runs["kernel"]
     _assert_close(ker.simulator, ref.simulator)
     _assert_close(ker.navigator, ref.navigator)
+    _assert_close(ker.uorb_streams, ref.uorb_streams)
+    assert list(ker.uorb_streams) == ["sensor_combined", "vehicle_attitude", "vehicle_local_position",
+                                      "actuator_controls_0"]
     assert not ker.navigator["local_position_ned"][2][0].all(), "the link dropped messages"
     assert [e.__dict__ for e in ker_layer.events] == [e.__dict__ for e in ref_layer.events]
     assert ker_layer.events, "the scenarios started"
@@ -89,7 +93,7 @@ def _physical(sid: str, point: str, start_s: float, action: dict) -> object:
 def test_kernel_matches_the_reference_under_environment_attacks_and_faults():
     """Jamming (fix lost), RF spoofing, a gust, magnetic interference, motor and battery faults and
     lost sensor instances (frozen and failed over) change the flights as the reference step does."""
-    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=5.0))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=5.0), uorb=True)
     env, veh = "environment", "vehicle"
     flights = [
         [_physical("jam", env, 1.6, {"action": "gps_jamming", "js_db": 80.0}),
@@ -110,6 +114,7 @@ def test_kernel_matches_the_reference_under_environment_attacks_and_faults():
     (ref, ref_layer), (ker, ker_layer) = runs["numpy"], runs["kernel"]
     _assert_close(ker.simulator, ref.simulator)
     _assert_close(ker.navigator, ref.navigator)
+    _assert_close(ker.uorb_streams, ref.uorb_streams)  # the mixer's command before a motor's limit, too
     assert [e.__dict__ for e in ker_layer.events] == [e.__dict__ for e in ref_layer.events]
     fix = ref.simulator["gps_raw_int"][1][0, -1, TOPIC_FIELDS["fix_type"]]
     assert fix < 3, "the jammed receiver lost its fix"

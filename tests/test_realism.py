@@ -43,6 +43,9 @@ def test_rflymad_log_figures_are_read_from_its_own_topics():
     assert 8 < f["gps rate Hz"][0] < 12 and f["gps first msg s"][0] > 2  # GPS starts late
     assert f["gyro z std rad/s"][1] == "hover" and 0.001 < f["gyro z std rad/s"][0] < 0.01
     assert 0.2 < f["gps eph m"][0] < 0.5
+    # the hover throttle of its vehicle (actuator_controls_0), its PWM outputs at 10 Hz
+    assert f["hover thrust 0-1"][1] == "hover" and 0.2 < f["hover thrust 0-1"][0] < 0.35
+    assert 9 < f["actuators rate Hz"][0] < 11
 
 
 def test_a_log_without_sensor_combined_falls_back_on_related_topics():

@@ -13,8 +13,15 @@ from scart_bench.dataset import DatasetError, open_dataset
 from scart_bench.detectors.statistical import Statistical
 from scart_bench.generator.logs.importers import load_flight_file
 from scart_bench.generator.params import STEP_US
-from scart_bench.generator.telemetry.tables import flight_views
-from scart_bench.generator.telemetry.uorb import OMITTED, SITE_DEPENDENT, UORB_TOPICS, uorb_table, uorb_view
+from scart_bench.generator.telemetry.tables import flight_views, uorb_stream_tables
+from scart_bench.generator.telemetry.uorb import (
+    OMITTED,
+    SITE_DEPENDENT,
+    TABLE_TOPICS,
+    UORB_TOPICS,
+    uorb_table,
+    uorb_view,
+)
 
 SHARED = Path(__file__).parents[1].parent / "shared/data/ulog"
 RFLYMAD = SHARED / "rflymad_TestCase_1_1000000000.ulg"
@@ -24,6 +31,8 @@ LABELS = ["Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind"]
 #: The issue's topics (the RflyMAD log has vehicle_gps_position at 10 Hz; its sensor_gps is logged at 1 Hz).
 EXPECTED_TOPICS = ("sensor_combined", "vehicle_attitude", "vehicle_local_position", "vehicle_global_position",
                    "vehicle_gps_position", "vehicle_air_data", "battery_status")
+#: and, in a flight flown with the uORB view, the actuators (the hover throttle)
+ACTUATOR_TOPICS = ("actuator_controls_0", "actuator_outputs")
 #: The importer's fields for the RflyMAD log that the view leaves out: written out here, so that a
 #: field dropped from the view without saying why fails this test (reasons: generator.telemetry.uorb.OMITTED).
 _BATTERY_SMART = ("discharged_mah scale temperature cell_count max_cell_voltage_delta average_power available_energy "
@@ -47,12 +56,26 @@ DOCUMENTED_OMISSIONS = {
                                 "heading_offset".split()),
     "vehicle_air_data": {"timestamp_sample", "baro_device_id"},
     "battery_status": {"voltage_filtered_v", "current_filtered_a", "current_average_a", *_BATTERY_SMART},
+    "actuator_controls_0": {"timestamp_sample", "control_0", "control_1", "control_2", "control_4", "control_5",
+                            "control_6", "control_7"},
+    "actuator_outputs": {f"output_{k}" for k in range(4, 16)},
 }
 
 
 @pytest.fixture(scope="module")
+def flown_view():
+    """A default flight (PX4 start, take-off, hover) flown with the uORB view: (simulator view, uORB view)."""
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
+    from scart_bench.generator.params import MissionParams
+
+    batch = simulate([5], FlightConfig(mission=MissionParams(max_duration_s=30.0), uorb=True))
+    _, sim = flight_views(batch, 0)
+    return sim, uorb_view(sim, uorb_stream_tables(batch, 0))
+
+
+@pytest.fixture(scope="module")
 def rflymad() -> dict[str, pd.DataFrame]:
-    return load_flight_file(RFLYMAD, topics=list(EXPECTED_TOPICS))
+    return load_flight_file(RFLYMAD, topics=list(EXPECTED_TOPICS + ACTUATOR_TOPICS))
 
 
 @pytest.fixture(scope="module")
@@ -73,11 +96,12 @@ def _fields(df: pd.DataFrame) -> set[str]:
 
 
 @needs_rflymad
-def test_topics_and_fields_are_the_importers_for_a_px4_ulog(attacked_views, rflymad):
-    view = attacked_views["normal"][2]
-    assert tuple(view) == EXPECTED_TOPICS
+def test_topics_and_fields_are_the_importers_for_a_px4_ulog(attacked_views, flown_view, rflymad):
+    assert tuple(attacked_views["normal"][2]) == EXPECTED_TOPICS  # made of the simulator view alone
+    view = flown_view[1]
+    assert tuple(view) == EXPECTED_TOPICS + ACTUATOR_TOPICS
     assert {t: set(o) for t, o in OMITTED.items()} == DOCUMENTED_OMISSIONS
-    for topic in EXPECTED_TOPICS:
+    for topic in EXPECTED_TOPICS + ACTUATOR_TOPICS:
         real = _fields(rflymad[topic])
         ours = _fields(view[topic])
         assert ours <= real, f"{topic}: fields PX4 does not have: {ours - real}"
@@ -121,13 +145,72 @@ def test_units_are_px4s(attacked_views, rflymad):
     assert bat["voltage_v"].between(12, 17).all() and bat["remaining"].between(0, 1).all()
 
 
-def test_rates_are_the_recorded_ones(attacked_views):
-    view = attacked_views["normal"][2]
-    for name, topic in UORB_TOPICS.items():
+def _rate(ts: np.ndarray) -> float:
+    return (len(ts) - 1) * 1e6 / (ts[-1] - ts[0])
+
+
+def _cv(ts: np.ndarray) -> float:
+    dt = np.diff(ts)
+    return float(dt.std() / dt.mean())
+
+
+def test_rates_are_the_recorded_ones(attacked_views, flown_view):
+    view = attacked_views["normal"][2]  # made of the simulator view: its IMU rows (50 Hz), other topics on their clocks
+    for name in EXPECTED_TOPICS:
+        want = UORB_TOPICS[name].rate_from(False)
+        assert abs(_rate(view[name]["Timestamp"].to_numpy()) - want) <= 0.1 * want, name
+    assert UORB_TOPICS["sensor_combined"].rate_from(False) == 50.0  # one 250 Hz IMU sample per row: not resampled
+    for name, table in flown_view[1].items():  # flown with the uORB view: the streams' rates
+        if name != "sensor_combined":  # its logger loses rows: below
+            want = UORB_TOPICS[name].rate_hz
+            assert abs(_rate(table["Timestamp"].to_numpy()) - want) <= 0.1 * want, name
+
+
+@needs_rflymad
+def test_a_default_flight_has_a_px4_logs_rates_and_jitter_in_the_uorb_view(flown_view, rflymad):
+    """IMU at 175-226 Hz with 4 and 8 ms intervals (the shared logs: 187-200 Hz, jitter CV 0.35-0.87),
+    attitude at 20 Hz and local position at 10 Hz on their own clocks, jittered about as the SIL log."""
+    view = flown_view[1]
+    imu = view["sensor_combined"]["Timestamp"].to_numpy()
+    assert 175 < _rate(imu) < 226 and 175 < _rate(rflymad["sensor_combined"]["Timestamp"].to_numpy()) < 226
+    assert 0.3 < _cv(imu) < 0.5  # the SIL log: 0.386
+    dt_ms = np.round(np.diff(imu) / 1000)
+    assert np.mean((dt_ms == 4) | (dt_ms == 8)) > 0.5
+    for name, hz in (("vehicle_attitude", 20.0), ("vehicle_local_position", 10.0), ("actuator_outputs", 10.0)):
         ts = view[name]["Timestamp"].to_numpy()
-        rate = (len(ts) - 1) * 1e6 / (ts[-1] - ts[0])
-        assert abs(rate - topic.rate_hz) <= 0.1 * topic.rate_hz, (name, rate, topic.rate_hz)
-    assert UORB_TOPICS["sensor_combined"].rate_hz == 50.0  # one 250 Hz IMU sample per row: not resampled
+        real = rflymad[name]["Timestamp"].to_numpy()
+        assert abs(_rate(ts) - hz) < 0.5 and abs(_rate(real) - hz) < 0.5, name
+        assert 0.5 * _cv(real) < _cv(ts) < 2.0 * _cv(real), name
+    assert not np.array_equal(view["vehicle_attitude"]["Timestamp"], view["vehicle_local_position"]["Timestamp"][:5])
+
+
+def test_the_imu_rows_are_the_samples_the_estimator_received(flown_view):
+    """sensor_combined at 200 Hz holds the 250 Hz samples themselves: every 50 Hz highres_imu row of the
+    simulator view is one of them (same values), none is interpolated or repeated."""
+    sim, view = flown_view
+    imu = view["sensor_combined"]
+    ours = set(np.round(imu["gyro_rad_0"].to_numpy(), 12))
+    theirs = np.round(sim["highres_imu"]["xgyro"].to_numpy(), 12)
+    assert np.mean([g in ours for g in theirs]) > 0.7  # the rest fall on the 250 Hz samples the 200 Hz rows skip
+    assert imu["gyro_rad_0"].nunique() == len(imu)
+
+
+@needs_rflymad
+def test_hover_throttle_and_motor_outputs_are_in_the_view(flown_view, rflymad):
+    """The thrust demand (0-1) and the motors' PWM as PX4 logs them: disarmed 900 us and 0 on the
+    ground, at hover the Iris's thrust-to-weight (about 0.5; the SIL log's vehicle: 0.26), and the
+    outputs 1000 + 1000 x the thrust fraction, as in the SIL log (1263 us at 0.264)."""
+    view = flown_view[1]
+    ctl, out = view["actuator_controls_0"], view["actuator_outputs"]
+    assert ctl["control_3"].iloc[0] == 0 and (out.iloc[0][[f"output_{k}" for k in range(4)]] == 900).all()
+    hover = ctl["control_3"].iloc[-40:]  # the last 2 s: in the hover hold
+    assert 0.45 < hover.median() < 0.6
+    pwm = out[[f"output_{k}" for k in range(4)]].iloc[-20:].to_numpy()
+    assert (out["noutputs"] == 4).all()
+    assert abs((pwm.mean() - 1000) / 1000 - hover.median()) < 0.03  # the motors share the collective thrust
+    real = rflymad["actuator_controls_0"]["control_3"]
+    real_pwm = rflymad["actuator_outputs"]["output_0"]
+    assert abs(real_pwm.median() - (1000 + 1000 * real.median())) < 10
 
 
 def test_a_sensor_attack_shows_and_a_link_attack_does_not_reach_the_flight_controller(attacked_views):
@@ -163,6 +246,7 @@ def test_the_view_is_deterministic(attacked_fleet, attacked_views):
 
 @needs_rflymad
 def test_a_detector_fitted_on_generated_uorb_views_scores_the_real_log(normal_fleet, rflymad):
+    assert TABLE_TOPICS == EXPECTED_TOPICS  # the actuators, which a csv-mode flight lacks, stay out of the table
     train = [uorb_table(uorb_view(flight_views(normal_fleet, i)[1])) for i in range(4)]
     det = Statistical(window=25).fit(train)
     real = uorb_table(rflymad)
@@ -189,12 +273,17 @@ def test_generate_uorb_writes_and_reads_the_view(tmp_path, capsys):
         for t in EXPECTED_TOPICS:
             pd.testing.assert_frame_equal(ds.topic(fid, t, view="uorb"), open_dataset(again).topic(fid, t, view="uorb"))
     fid = ds.manifest["flight_id"].iloc[0]
-    assert ds.topics(fid, "uorb") == sorted(EXPECTED_TOPICS)
+    assert ds.topics(fid, "uorb") == sorted(EXPECTED_TOPICS + ACTUATOR_TOPICS)
     att = ds.topic(fid, "vehicle_attitude", view="uorb")
     assert list(att.columns) == ["Timestamp", *LABELS, "q_0", "q_1", "q_2", "q_3"]
-    # the same as the view made from the written simulator view (stored as float32 in the compact layout)
+    assert 19 < _rate(att["Timestamp"].to_numpy()) < 21
+    # the estimator's attitude: what the simulator view's attitude (50 Hz, Euler angles) says at the same time
     sim = {t: ds.topic(fid, t, view="simulator") for t in ("attitude", "highres_imu", "gps_raw_int")}
-    pd.testing.assert_frame_equal(att, uorb_view(sim)["vehicle_attitude"], check_exact=False, rtol=1e-5, atol=1e-6)
+    from_sim = uorb_view(sim)["vehicle_attitude"]
+    at = np.searchsorted(from_sim["Timestamp"], att["Timestamp"]).clip(0, len(from_sim) - 1)
+    near = np.abs(from_sim["Timestamp"].to_numpy()[at] - att["Timestamp"].to_numpy()) < 1000
+    q, q_sim = att[["q_0", "q_1", "q_2", "q_3"]].to_numpy(), from_sim[["q_0", "q_1", "q_2", "q_3"]].to_numpy()[at]
+    assert near.sum() > 10 and np.abs(np.abs(np.sum(q * q_sim, axis=1))[near] - 1).max() < 1e-3
     # realistic timing: the simulator view's message times (GPS from its fix), kept
     gps = ds.topic(fid, "vehicle_gps_position", view="uorb")
     assert gps["Timestamp"].iloc[0] >= 3_000_000

@@ -149,15 +149,20 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
     return K.param_vector(values)
 
 
-def schedules(max_steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """Due table (rows of kernel_layout.SCHEDULE x steps) and each due step's message index."""
-    from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS
+def schedules(max_steps: int, uorb: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Due table (rows of kernel_layout.SCHEDULE x steps) and each due step's message index.
+
+    The uORB streams' rows are due only with ``uorb`` (FlightConfig.uorb): else nothing is recorded."""
+    from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, UORB_STREAMS
 
     rates = {t: TOPICS[t].rate_hz for t in TOPICS}
     rates["setpoint"] = 50.0  # the navigator's rate
     rates["truth"] = TRUTH_RATE_HZ
     rates.update({t: r for t, (r, _) in SENSOR_TOPICS.items()})
+    rates.update({t: r for t, (r, _) in UORB_STREAMS.items()})
     due = np.stack([due_steps(rates[name], max_steps + 1) for name in L.SCHEDULE])
+    if not uorb:
+        due[L.D_U_IMU:L.D_U_IMU + L.N_UORB] = False
     index = np.maximum(np.cumsum(due, axis=1) - 1, 0).astype(np.int64)
     return due, index
 
@@ -211,10 +216,16 @@ class _Recordings:
     """
 
     def __init__(self, n: int, due: np.ndarray, max_steps: int):
+        from scart_bench.generator.telemetry.schedule import UORB_STREAMS
+
         counts = due[:, :max_steps].sum(axis=1)
         width = [len(TOPICS[t].fields) for t in TELEMETRY_TOPICS] + [6, len(TRUTH_FIELDS)]
         self.names = list(TELEMETRY_TOPICS) + ["setpoint", "truth"]
         self.arrays = [np.empty((int(counts[k]), n, width[k])) for k in range(len(self.names))]
+        #: the uORB streams (no rows unless they are due: FlightConfig.uorb)
+        self.uorb_names = list(L.SCHEDULE[L.D_U_IMU:L.D_U_IMU + L.N_UORB])
+        self.uorb = [np.empty((int(counts[L.D_U_IMU + k]), n, len(UORB_STREAMS[name][1])))
+                     for k, name in enumerate(self.uorb_names)]
 
     def telemetry(self) -> list[np.ndarray]:
         return self.arrays[:L.N_TELEMETRY]
@@ -230,7 +241,7 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
     max_steps = init.max_steps
     st = initial_state(init, AxisKF.P0)
     p = kernel_params(cfg, init.sensors.delay_steps)
-    due, index = schedules(max_steps)
+    due, index = schedules(max_steps, cfg.uorb)
     rec = _Recordings(n, due, max_steps)
     tele, rec_sp, rec_truth = rec.telemetry(), rec.arrays[L.N_TELEMETRY], rec.arrays[L.N_TELEMETRY + 1]
     points = layer.points if layer is not None else frozenset()
@@ -254,12 +265,12 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
             for h in (hooks.steps(s0, s1) if hooks else ()):
                 if h > k:
                     _fly(len(active) * (h - k), st.row, st.truth_buffer, st.history, st.waypoints, p, active, k, h,
-                         noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth)
+                         noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb)
                 hooks.step(p, h, active, noise[nrow, h - s0])
                 k = h + 1
             if k < s1:
                 _fly(len(active) * (s1 - k), st.row, st.truth_buffer, st.history, st.waypoints, p, active, k, s1,
-                     noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth)
+                     noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb)
             active = active[~st.done[active]]
             if progress is not None:
                 progress(s1 - 1, st.done.copy())
@@ -280,11 +291,12 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
         navigator = simulator
         if layer is not None:
             layer.on_finish(n_steps - 1)
+    uorb = _finish(rec.uorb_names, rec.uorb, due, n_steps, exit_step) if cfg.uorb else {}
     status = [_STATUS[int(c)] for c in st["status"]]
     rej = np.column_stack([st["gps_pos_rejected"], st["gps_vel_rejected"], st["baro_rejected"]]).astype(np.int64)
     return BatchResult(seeds=[int(s) for s in seeds], simulator=simulator, navigator=navigator, exit_step=exit_step,
                        status=status, waypoints=init.waypoints, wind=init.wind.mean, gps_rejections=rej,
-                       n_steps=n_steps)
+                       n_steps=n_steps, uorb_streams=uorb)
 
 
 def _fly(work: int, *args) -> None:
@@ -371,6 +383,7 @@ class _Hooks:
                 d = alive(env, sensor, d)
             ok[sensor] = np.ones(n, bool) if d is None else np.asarray(d, dtype=bool)
         K.stage_estimate(st.row, st.history, p, rows, h, due, ok["mag"], ok["baro"], ok["gps"])
+        K.stage_record_uorb(st.row, p, rows, h, due, index, *self.rec.uorb)
         tele = self.rec.telemetry()
         due_now = [k for k in range(L.N_TELEMETRY) if due[k, h]]
         if due_now:

@@ -34,7 +34,10 @@ STATUS = ("landed", "timeout", "crashed")
 #: ideal timing, Gazebo GPS noise. 2: the PX4 start (ground phase, GPS fix and estimator origin
 #: before arming), 5 s hover, yaw within MPC_YAWRAUTO_MAX, realistic timing, EKF2's output
 #: predictor, PX4 SITL GPS noise, settling GPS accuracy and satellites, battery charge per flight.
-FLIGHT_DEFAULTS = 2
+#: 3: the flights are 2's, byte for byte; a --uorb dataset's uORB view is at a PX4 log's rates
+#: (sensor_combined ~190 Hz, vehicle_attitude 20 Hz, vehicle_local_position 10 Hz, from the flight
+#: controller's streams) and has the actuators (actuator_controls_0, actuator_outputs).
+FLIGHT_DEFAULTS = 3
 
 
 def defaults_summary(cfg: FlightConfig) -> dict:
@@ -91,6 +94,9 @@ class BatchResult:
     n_steps: int
     timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.telemetry.tables)
     uorb: bool = False  # FlightConfig.uorb: the records carry the uORB view (generator.telemetry.uorb)
+    #: with FlightConfig.uorb: the flight controller's streams for the uORB view (generator.telemetry.schedule.
+    #: UORB_STREAMS), ``(steps, values, delivered)`` like ``simulator``'s; empty otherwise
+    uorb_streams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.seeds)

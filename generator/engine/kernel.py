@@ -289,6 +289,7 @@ def _physics(s, tbuf, p, step, w, k, x, env):
     s[L.GUST + 1] = ga * s[L.GUST + 1] + bs * (w[k, NZ_WIND + 1] * 1.0)
     s[L.GUST + 2] = ga * s[L.GUST + 2] + bs * (w[k, NZ_WIND + 2] * 0.3)
     c0, c1, c2, c3 = _rate_control(s, p)
+    s[L.MOTOR_CMD], s[L.MOTOR_CMD + 1], s[L.MOTOR_CMD + 2], s[L.MOTOR_CMD + 3] = c0, c1, c2, c3
     wx = s[L.WIND_MEAN] + s[L.GUST]
     wy = s[L.WIND_MEAN + 1] + s[L.GUST + 1]
     wz = s[L.WIND_MEAN + 2] + s[L.GUST + 2]
@@ -917,10 +918,39 @@ def _telemetry(s, p, step, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, receive):
 
 
 @njit(**_JIT)
-def _step(s, tbuf, hist, wps, p, step, w, k, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, rec_sp, rec_truth, x):
+def _record_uorb(s, p, step, due, mi, u0, u1, u2, u3):
+    """The flight controller's streams due at this step, after the estimator (generator.telemetry.schedule.
+    UORB_STREAMS): the IMU sample it received, its attitude, its output position and velocity, the mixer."""
+    if due[L.D_U_IMU, step]:
+        m = mi[L.D_U_IMU, step]
+        for a in range(3):
+            u0[m, a] = s[L.ACC + a]
+            u0[m, 3 + a] = s[L.GYRO + a]
+    if due[L.D_U_ATT, step]:
+        m = mi[L.D_U_ATT, step]
+        for c in range(4):
+            u1[m, c] = s[L.EST_QUAT + c]
+    if due[L.D_U_LPOS, step]:
+        m = mi[L.D_U_LPOS, step]
+        for a in range(3):
+            u2[m, a] = _out(s, a, 0)
+            u2[m, 3 + a] = _out(s, a, 1)
+    if due[L.D_U_ACT, step]:
+        m = mi[L.D_U_ACT, step]
+        armed = s[L.ARMED]
+        for r in range(4):
+            u3[m, r] = (s[L.MOTOR_CMD + r] / p[K_MAXROT]) ** 2
+        u3[m, 4] = s[L.THRUST_SP] / (4.0 * p[K_MAX_THRUST]) * armed
+        u3[m, 5] = armed
+
+
+@njit(**_JIT)
+def _step(s, tbuf, hist, wps, p, step, w, k, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, rec_sp, rec_truth, x,
+          u0, u1, u2, u3):
     """One whole step of one flight with no attack layer (noise: w[k])."""
     _sense(s, tbuf, p, step, w, k, due, x, False)
     _estimate(s, hist, p, step, due, True, True, True)
+    _record_uorb(s, p, step, due, mi, u0, u1, u2, u3)
     _telemetry(s, p, step, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, True)
     m_sp = mi[L.D_SETPOINT, step]
     if due[L.D_SETPOINT, step]:
@@ -930,39 +960,43 @@ def _step(s, tbuf, hist, wps, p, step, w, k, due, mi, r0, r1, r2, r3, r4, r5, r6
 
 # -- batch entry points ------------------------------------------------------------------------------
 @njit(**_JIT)
-def _fly(S, tbuf, hist, wps, p, i, nz, s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, rec_sp, rec_truth):
+def _fly(S, tbuf, hist, wps, p, i, nz, s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, rec_sp, rec_truth,
+         u0, u1, u2, u3):
     """Flight ``i`` through steps [s0, s1) (noise of step s: nz[k0 + s - s0]); stops when it ends."""
     s = S[i]
     tb, hs, wp = tbuf[i], hist[i], wps[i]
     x = np.zeros(L.X_WIDTH)  # no physical disturbances in whole steps
     q0, q1, q2, q3, q4, q5, q6, q7 = r0[:, i], r1[:, i], r2[:, i], r3[:, i], r4[:, i], r5[:, i], r6[:, i], r7[:, i]
     rsp, rtr = rec_sp[:, i], rec_truth[:, i]
+    v0, v1, v2, v3 = u0[:, i], u1[:, i], u2[:, i], u3[:, i]
     for step in range(s0, s1):
         if s[L.DONE] > 0.5:
             break
-        _step(s, tb, hs, wp, p, step, nz, k0 + step - s0, due, mi, q0, q1, q2, q3, q4, q5, q6, q7, rsp, rtr, x)
+        _step(s, tb, hs, wp, p, step, nz, k0 + step - s0, due, mi, q0, q1, q2, q3, q4, q5, q6, q7, rsp, rtr, x,
+              v0, v1, v2, v3)
 
 
 @njit(parallel=True, **_JIT)
 def run_steps(S, tbuf, hist, wps, p, rows, s0, s1, noise, nrow, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
-              rec_sp, rec_truth):
+              rec_sp, rec_truth, u0, u1, u2, u3):
     """Fly flights ``rows`` through steps [s0, s1), in parallel; a flight that finishes stops.
 
     noise: (flights, block, dim); step ``s`` of flight ``rows[j]`` uses noise[nrow[j], k0 + s - s0].
+    u0..u3: the uORB streams' recordings (no rows when the flights are flown without the uORB view).
     """
     for j in prange(rows.shape[0]):
         _fly(S, tbuf, hist, wps, p, rows[j], noise[nrow[j]], s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
-             rec_sp, rec_truth)
+             rec_sp, rec_truth, u0, u1, u2, u3)
 
 
 @njit(**_JIT)
 def run_steps_serial(S, tbuf, hist, wps, p, rows, s0, s1, noise, nrow, k0, due, mi, r0, r1, r2, r3, r4, r5, r6,
-                     r7, rec_sp, rec_truth):
+                     r7, rec_sp, rec_truth, u0, u1, u2, u3):
     """run_steps in the calling thread: for a few steps between the layer's hooks, where starting
     the worker threads would cost more than the steps."""
     for j in range(rows.shape[0]):
         _fly(S, tbuf, hist, wps, p, rows[j], noise[nrow[j]], s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
-             rec_sp, rec_truth)
+             rec_sp, rec_truth, u0, u1, u2, u3)
 
 
 # Stages of one step, for the steps where the SCART layer sees messages. They run in the calling
@@ -998,6 +1032,14 @@ def stage_estimate(S, hist, p, rows, step, due, mag_ok, baro_ok, gps_ok):
     for j in range(rows.shape[0]):
         i = rows[j]
         _estimate(S[i], hist[i], p, step, due, mag_ok[i], baro_ok[i], gps_ok[i])
+
+
+@njit(**_JIT)
+def stage_record_uorb(S, p, rows, step, due, mi, u0, u1, u2, u3):
+    """Record the uORB streams due at this step (for ``rows``), after the estimator's stage."""
+    for j in range(rows.shape[0]):
+        i = rows[j]
+        _record_uorb(S[i], p, step, due, mi, u0[:, i], u1[:, i], u2[:, i], u3[:, i])
 
 
 @njit(**_JIT)

@@ -97,7 +97,9 @@ GPS_ORIGIN_AT = 185  # s, the estimator fuses GPS from then
 ARM_AT = 186  # s, the navigator arms
 # -- the estimator's output predictor ----------------------------------------------------------------
 OUT_ERR = 187  # 6: per axis (N, E, D) [position, velocity] of the output minus the filter's state
-WIDTH = 193
+# -- the mixer's output ------------------------------------------------------------------------------
+MOTOR_CMD = 193  # 4, rad/s: the rotor speeds the rate controller's mixer commanded this step (before a rotor limit)
+WIDTH = 197
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -133,15 +135,20 @@ FIELDS: dict[str, tuple[int, int]] = {
     "status": (STATUS, 1), "landed_at": (LANDED_AT, 1), "R_ctrl": (R_CTRL, 9), "R_true": (R_TRUE, 9),
     "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1), "gps_fix_at": (GPS_FIX_AT, 1),
     "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
+    "motor_cmd": (MOTOR_CMD, 4),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------
-#: Telemetry topics in scart_bench.dataset.schema.TELEMETRY_TOPICS order, then the setpoint, truth and sensors.
+#: Telemetry topics in scart_bench.dataset.schema.TELEMETRY_TOPICS order, then the setpoint, truth and sensors,
+#: then the flight controller's streams recorded for the uORB view (generator.telemetry.schedule.UORB_STREAMS;
+#: never due unless FlightConfig.uorb).
 SCHEDULE = ("attitude", "highres_imu", "global_position_int", "local_position_ned", "gps_raw_int",
             "scaled_pressure", "altitude", "battery_status", "setpoint", "truth", "sensor_mag", "sensor_baro",
-            "sensor_gps")
+            "sensor_gps", "sensor_combined", "vehicle_attitude", "vehicle_local_position", "actuator_controls_0")
 D_ATT, D_IMU, D_GPI, D_LPN, D_GPSRAW, D_PRESS, D_ALT, D_BAT, D_SETPOINT, D_TRUTH, D_MAG, D_BARO, D_GPS = range(13)
+D_U_IMU, D_U_ATT, D_U_LPOS, D_U_ACT = range(13, 17)
 N_TELEMETRY = 8
+N_UORB = 4
 
 # -- the parameter vector ---------------------------------------------------------------------------
 PARAMS = (

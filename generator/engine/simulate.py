@@ -37,7 +37,13 @@ from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NOISE_DIM, NOISE_FIELDS, NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat
 from scart_bench.generator.physics.vehicle import Vehicle
-from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, FCSnapshot, compose, due_steps
+from scart_bench.generator.telemetry.schedule import (
+    SENSOR_TOPICS,
+    UORB_STREAMS,
+    FCSnapshot,
+    compose,
+    due_steps,
+)
 from scart_bench.generator.telemetry.timing import check_timing
 
 
@@ -145,6 +151,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     due_nav = due_steps(NAV_RATE_HZ, sched_len)
     due_truth = due_steps(TRUTH_RATE_HZ, sched_len)
     due_sens = {t: due_steps(r, sched_len) for t, (r, _) in SENSOR_TOPICS.items()}
+    due_uorb = {t: due_steps(r, sched_len) for t, (r, _) in UORB_STREAMS.items()} if cfg.uorb else {}
+    uorb_rec = _Recorder(n, max_steps // 2)
     gps_dt = 1.0 / cfg.sensors.gps_rate_hz
 
     done = np.zeros(n, dtype=bool)
@@ -179,6 +187,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             efficiency = env.motor_efficiency if env is not None else phys.get("motor_efficiency")
         wind_now = wind.step(w[:, nz["wind"]], DT)
         rotor_cmd = ctrl.rate_control(cs, es.rates)
+        motor_cmd = rotor_cmd  # what the mixer commanded, before a rotor limit (the uORB view's actuators)
         if env is not None:
             env.resolve(vs.pos)
             wind_now = wind_now + env.wind
@@ -261,6 +270,9 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             est.fuse_gps(es, step, gps["pos"], gps["vel"], None if usable.all() else usable)
         est.end_fusion(es, before_fusion)
         out_pos, out_vel = est.output(es)
+        for topic in (tp for tp, due_u in due_uorb.items() if due_u[step]):
+            uorb_rec.add(topic, step, _uorb_stream(topic, accel, gyro, es.quat, out_pos, out_vel, motor_cmd,
+                                                   cs, cfg.vehicle))
 
         # telemetry: flight controller -> link -> navigator
         due_now = [tp for tp in TELEMETRY_TOPICS if due[tp][step]]
@@ -352,8 +364,21 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
         seeds=[int(s) for s in seeds], simulator=sim_rec.finish(), navigator=nav_rec.finish(),
         exit_step=exit_step, status=list(status), waypoints=waypoints, wind=wind_mean,
         gps_rejections=np.column_stack([es.gps_pos_rejected, es.gps_vel_rejected, es.baro_rejected]),
-        n_steps=step + 1,
+        n_steps=step + 1, uorb_streams=uorb_rec.finish(),
     )
+
+
+def _uorb_stream(topic: str, accel, gyro, quat, pos, vel, motor_cmd, cs, vp) -> np.ndarray:
+    """One message of a uORB stream (generator.telemetry.schedule.UORB_STREAMS), after the estimator."""
+    if topic == "sensor_combined":
+        return np.column_stack([accel, gyro])
+    if topic == "vehicle_attitude":
+        return quat.copy()
+    if topic == "vehicle_local_position":
+        return np.column_stack([pos, vel])
+    armed = cs.armed.astype(float)
+    motors = (motor_cmd / vp.max_rot_velocity) ** 2  # thrust fractions: the rotor's thrust ~ speed^2
+    return np.column_stack([motors, cs.thrust_sp / (4.0 * vp.max_thrust) * armed, armed])
 
 
 def _rot(es):

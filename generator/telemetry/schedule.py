@@ -25,6 +25,23 @@ SENSOR_TOPICS: dict[str, tuple[float, tuple[str, ...]]] = {
 }
 
 
+#: The flight controller's own streams, recorded for the uORB view (generator.telemetry.uorb) when a
+#: flight is flown with ``FlightConfig.uorb``: name (the uORB topic it makes) -> (rate Hz, fields).
+#: The rates are a PX4 log's (its logger's default profile, as the shared logs show it): the IMU at
+#: IMU_INTEG_RATE (200 Hz, from the 250 Hz samples: 4 and 8 ms intervals), the attitude at 20 Hz, the
+#: local position at 10 Hz, the actuator controls at 20 Hz (actuator outputs: every second row).
+#: Values: the IMU sample the estimator receives (after a sensor-point attack), the estimator's
+#: quaternion (body FRD -> NED), the output position (m) and velocity (m/s) NED the telemetry uses,
+#: the mixer's motor commands as thrust fractions (0-1 of a rotor's maximum; 0 disarmed), the
+#: collective thrust setpoint (0-1 of the maximum) and the armed state (0/1).
+UORB_STREAMS: dict[str, tuple[float, tuple[str, ...]]] = {
+    "sensor_combined": (200.0, ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro")),
+    "vehicle_attitude": (20.0, ("q_0", "q_1", "q_2", "q_3")),
+    "vehicle_local_position": (10.0, ("x", "y", "z", "vx", "vy", "vz")),
+    "actuator_controls_0": (20.0, ("motor_0", "motor_1", "motor_2", "motor_3", "thrust", "armed")),
+}
+
+
 def due_steps(rate_hz: float, n_steps: int, sim_rate: float = SIM_RATE_HZ) -> np.ndarray:
     """Boolean (n_steps,) mask of the steps at which a topic of ``rate_hz`` is published."""
     k = np.arange(n_steps)
@@ -91,6 +108,8 @@ def field_names(topic: str) -> tuple[str, ...]:
         return TOPICS[topic].field_names
     if topic in SENSOR_TOPICS:
         return SENSOR_TOPICS[topic][1]
+    if topic in UORB_STREAMS:
+        return UORB_STREAMS[topic][1]
     from scart_bench.generator.flight_software.commander import CONTROL_TOPICS
 
     if topic in CONTROL_TOPICS:

@@ -13,15 +13,17 @@ from scart_bench.generator.telemetry.timing import message_timing
 
 
 def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | None, fields, windows,
-                last_step: int, timing: tuple[str, int, str] | None = None) -> pd.DataFrame:
+                last_step: int, timing: tuple[str, int, str] | None = None, rate_hz: float | None = None
+                ) -> pd.DataFrame:
     """One flight's table of one topic: Timestamp, labels, fields (undelivered rows dropped).
 
     ``timing``: (timing, flight seed, topic) to stamp the messages as :func:`message_timing`
-    does (jitter, drops, late starts); None or "ideal" keeps the schedule's times."""
+    does (jitter, drops, late starts; ``rate_hz``: the topic's, where it is not a schedule's);
+    None or "ideal" keeps the schedule's times."""
     ts_all = steps.astype(np.int64) * STEP_US
     keep = steps <= last_step
     if timing is not None:
-        ts_all, kept = message_timing(timing[0], timing[1], timing[2], ts_all)
+        ts_all, kept = message_timing(timing[0], timing[1], timing[2], ts_all, rate_hz)
         keep = keep & kept
     if delivered is not None:
         keep = keep & delivered
@@ -47,6 +49,31 @@ def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
     return nav, sim
 
 
+def uorb_stream_tables(batch: BatchResult, i: int, windows=()) -> dict[str, pd.DataFrame]:
+    """Flight ``i``'s rows of the uORB topics made of the flight controller's streams
+    (``batch.uorb_streams``, recorded with FlightConfig.uorb), as {uORB topic: table of the stream's
+    fields}: a topic on a slower clock of its own takes the stream's row due at each of its ticks
+    (generator.telemetry.uorb.own_clock_rows, on the schedule's times), then each topic is stamped
+    with the batch's timing under its own name, like the views. Empty when the batch has no streams."""
+    from scart_bench.generator.telemetry.uorb import UORB_TOPICS, own_clock_rows
+
+    streams = getattr(batch, "uorb_streams", {})
+    last = int(batch.exit_step[i])
+    timing = getattr(batch, "timing", "ideal")
+    out = {}
+    for name, topic in UORB_TOPICS.items():
+        if topic.stream not in streams:
+            continue
+        steps, vals, _ = streams[topic.stream]
+        vals = vals[i]
+        if topic.rate_hz < topic.source_rate_hz(True):
+            rows = own_clock_rows(steps * STEP_US, topic.rate_hz)
+            steps, vals = steps[rows], vals[rows]
+        out[name] = topic_table(steps, vals, None, field_names(topic.stream), windows, last,
+                                (timing, batch.seeds[i], name), topic.rate_hz)
+    return out
+
+
 def truth_table(batch: BatchResult, i: int) -> pd.DataFrame:
     """Flight ``i``'s truth table alone (what :func:`flight_views` puts in the simulator view)."""
     steps, vals, _ = batch.simulator["truth"]
@@ -61,13 +88,16 @@ def normal_record(batch: BatchResult, i: int, flight_id: str, split: str, config
            "wind_mean_ned": batch.wind[i].tolist(), "waypoints_ned": batch.waypoints[i].tolist()}
     record = flight_record(flight_id, nav, sim, {"mode": "normal", "seed": batch.seeds[i], "split": split}, cfg,
                            end_us=(int(batch.exit_step[i]) + 1) * STEP_US)
-    return with_uorb(record, getattr(batch, "uorb", False))
+    wanted = getattr(batch, "uorb", False)
+    return with_uorb(record, wanted, uorb_stream_tables(batch, i) if wanted else None)
 
 
-def with_uorb(record: FlightRecord, wanted: bool) -> FlightRecord:
-    """``record`` with its uORB view (made from its simulator view, generator.telemetry.uorb) when ``wanted``."""
+def with_uorb(record: FlightRecord, wanted: bool, streams: dict[str, pd.DataFrame] | None = None) -> FlightRecord:
+    """``record`` with its uORB view (generator.telemetry.uorb) when ``wanted``: made from the flight
+    controller's ``streams`` (:func:`uorb_stream_tables`) where the flight has them, else from its
+    simulator view (a csv-mode flight, a recording)."""
     if wanted:
         from scart_bench.generator.telemetry.uorb import uorb_view
 
-        record.uorb = uorb_view(record.simulator)
+        record.uorb = uorb_view(record.simulator, streams)
     return record

@@ -20,10 +20,18 @@ controller's internal topics hold:
 - a ``command``-point attack alters the setpoints the flight controller follows: its effect is
   in the estimates the vehicle's motion drives.
 
-Rates are the ones the generator records (no value is interpolated or repeated): each uORB topic
-has the rows of its source message (:data:`UORB_TOPICS`), so ``sensor_combined`` is at 50 Hz (one
-250 Hz IMU sample per row), not PX4's 250 Hz; ``vehicle_air_data`` takes the latest baro sample on
-a 20 Hz clock of its own (``UorbTopic.own_rate_hz``), as PX4 logs show it. Fields PX4 has that the generator does not produce
+Rates are a PX4 log's (no value is interpolated or repeated). A flight flown with the uORB view
+(``FlightConfig.uorb``, ``generate --uorb``) has the flight controller's own streams, recorded by
+the engine at the rates of PX4's logger (generator.telemetry.schedule.UORB_STREAMS) and stamped
+with the flight's timing like every topic (generator.telemetry.timing: the IMU's logger drops,
+jitter): ``sensor_combined`` at ~190 Hz (200 Hz rows of the 250 Hz IMU, as IMU_INTEG_RATE makes
+them; the shared logs 187-250 Hz), ``vehicle_attitude`` at 20 Hz, ``vehicle_local_position`` at
+10 Hz, ``actuator_controls_0`` (the thrust demand) at 20 Hz and ``actuator_outputs`` (the motors'
+PWM) at 10 Hz. The other topics are made of the simulator view's messages, on a clock of their own
+where PX4 logs them slower (``UorbTopic.own_rate_hz``: the latest row at each tick):
+``vehicle_air_data`` at 20 Hz, ``vehicle_global_position`` at 5 Hz. A flight without the streams
+(csv mode) has ``sensor_combined`` at the simulator view's 50 Hz and no actuator topics.
+Fields PX4 has that the generator does not produce
 (estimator bookkeeping, receiver internals, device ids, absolute clocks) are left out, each named
 with its reason in :data:`OMITTED`.
 """
@@ -39,33 +47,52 @@ import pandas as pd
 from scart_bench.dataset import LABEL_COLUMNS, DatasetError, combine
 from scart_bench.dataset.schema import HOME_ALT, HOME_LAT, HOME_LON, TOPICS
 from scart_bench.generator.physics.rotation import quat_from_euler
+from scart_bench.generator.telemetry.schedule import UORB_STREAMS
 
 #: PX4's CONSTANTS_AIR_GAS_CONST (J/(kg K)) and 0 degC in K, as vehicle_air_data's ``rho`` uses them.
 AIR_GAS_CONST = 287.1
 ZERO_CELSIUS_K = 273.15
 #: Microseconds one IMU sample covers (the 250 Hz simulation step): sensor_combined's integral_dt.
 IMU_SAMPLE_US = 4000.0
+#: PX4 SITL's PWM outputs (PWM_MAIN_MIN/MAX/DISARM, us): an output of thrust fraction u is 1000 + 1000 u
+#: (the RflyMAD SIL log: 1263 at hover with a thrust demand of 0.264), 900 disarmed.
+PWM_MIN, PWM_MAX, PWM_DISARMED = 1000.0, 2000.0, 900.0
+N_MOTORS = 4
 
 Columns = Callable[[pd.DataFrame], dict[str, np.ndarray]]
 
 
 @dataclass(frozen=True)
 class UorbTopic:
-    """One uORB topic: the simulator-view message it is made of and how its fields are computed."""
+    """One uORB topic: what it is made of and how its fields are computed."""
 
     name: str
-    source: str  # simulator-view topic (scart_bench.dataset.schema)
+    source: str | None  # simulator-view topic (scart_bench.dataset.schema); None: only from ``stream``
     fields: tuple[str, ...]
     compute: Columns
     meaning: str
-    #: a clock of its own (Hz), slower than the source's: the topic has the source row due at each
-    #: tick (the latest sample), as PX4 publishes it; None: every source row
+    #: a clock of its own (Hz): where the rows it is made of come faster, the topic has the row due at
+    #: each tick (the latest sample), as PX4's logger writes it; None: every row
     own_rate_hz: float | None = None
+    #: the flight controller's stream (generator.telemetry.schedule.UORB_STREAMS) it is made of when the
+    #: flight was flown with the uORB view; else (csv mode, a recording) ``source``
+    stream: str | None = None
+
+    def source_rate_hz(self, from_stream: bool) -> float:
+        """The rate of the rows the topic is made of (Hz): its stream's or its source message's."""
+        if from_stream:
+            return UORB_STREAMS[self.stream][0]
+        return TOPICS[self.source].rate_hz
+
+    def rate_from(self, from_stream: bool) -> float:
+        """The rate of the topic's rows (Hz): its own clock's where that is slower, else its rows'."""
+        rate = self.source_rate_hz(from_stream)
+        return min(rate, self.own_rate_hz) if self.own_rate_hz is not None else rate
 
     @property
     def rate_hz(self) -> float:
-        """The rate of the topic's rows (Hz): its own clock's, else the source message's."""
-        return self.own_rate_hz if self.own_rate_hz is not None else TOPICS[self.source].rate_hz
+        """The topic's rate in a flown flight's view (Hz): from its stream where it has one."""
+        return self.rate_from(self.stream is not None)
 
 
 def own_clock_rows(timestamps: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -95,6 +122,8 @@ def _sensor_combined(d: pd.DataFrame) -> dict[str, np.ndarray]:
 
 
 def _vehicle_attitude(d: pd.DataFrame) -> dict[str, np.ndarray]:
+    if "q_0" in d.columns:  # the estimator's quaternion (its stream)
+        return {f"q_{k}": _col(d, f"q_{k}") for k in range(4)}
     q = quat_from_euler(_col(d, "roll"), _col(d, "pitch"), _col(d, "yaw"))
     return {f"q_{k}": q[:, k] for k in range(4)}
 
@@ -127,25 +156,45 @@ def _vehicle_air_data(d: pd.DataFrame) -> dict[str, np.ndarray]:
             "rho": pa / (AIR_GAS_CONST * (temp + ZERO_CELSIUS_K))}
 
 
+def _actuator_controls(d: pd.DataFrame) -> dict[str, np.ndarray]:
+    return {"control_3": _col(d, "thrust")}
+
+
+def _actuator_outputs(d: pd.DataFrame) -> dict[str, np.ndarray]:
+    armed = _col(d, "armed") > 0.5
+    out = {"noutputs": np.full(len(d), float(N_MOTORS))}
+    for k in range(N_MOTORS):
+        out[f"output_{k}"] = np.where(armed, PWM_MIN + (PWM_MAX - PWM_MIN) * _col(d, f"motor_{k}"), PWM_DISARMED)
+    return out
+
+
 def _battery_status(d: pd.DataFrame) -> dict[str, np.ndarray]:
     return {"voltage_v": _col(d, "voltage"), "current_a": _col(d, "current"), "remaining": _col(d, "remaining")}
 
 
-#: The uORB topics of the view, in order. The baro rides on highres_imu (every 50 Hz row holds the
-#: latest baro sample) rather than scaled_pressure (10 Hz), on a 20 Hz clock of its own as
-#: ``vehicle_air_data`` has in PX4 logs (18.3-20 Hz in the shared logs).
+#: The uORB topics of the view, in order, at a PX4 log's rates (its logger's default profile, as the
+#: shared logs have them). A flight flown with the uORB view has the flight controller's own streams:
+#: the IMU at ~200 Hz, the attitude at 20 Hz, the local position at 10 Hz and the actuators; a
+#: flight without them (csv mode) has its simulator view's messages, the IMU at 50 Hz, on the same
+#: clocks where those are slower. The baro rides on highres_imu (every 50 Hz row holds the latest
+#: baro sample) rather than scaled_pressure (10 Hz), on a 20 Hz clock of its own as
+#: ``vehicle_air_data`` has in PX4 logs (18.3-20 Hz in the shared logs); the global position on a
+#: 5 Hz clock (the SIL log: 5.1 Hz).
 UORB_TOPICS: dict[str, UorbTopic] = {t.name: t for t in (
     UorbTopic("sensor_combined", "highres_imu",
               ("gyro_rad_0", "gyro_rad_1", "gyro_rad_2", "gyro_integral_dt", "accelerometer_timestamp_relative",
                "accelerometer_m_s2_0", "accelerometer_m_s2_1", "accelerometer_m_s2_2", "accelerometer_integral_dt"),
-              _sensor_combined, "IMU sample as the estimator receives it: gyro rad/s and specific force m/s^2, body FRD"),
+              _sensor_combined, "IMU sample as the estimator receives it: gyro rad/s and specific force m/s^2, body FRD",
+              stream="sensor_combined"),
     UorbTopic("vehicle_attitude", "attitude", ("q_0", "q_1", "q_2", "q_3"), _vehicle_attitude,
-              "estimated attitude, unit quaternion (w, x, y, z), body FRD -> NED"),
+              "estimated attitude, unit quaternion (w, x, y, z), body FRD -> NED", own_rate_hz=20.0,
+              stream="vehicle_attitude"),
     UorbTopic("vehicle_local_position", "local_position_ned",
               ("x", "y", "z", "vx", "vy", "vz", "ref_lat", "ref_lon", "ref_alt"), _vehicle_local_position,
-              "estimated position (m) and velocity (m/s) NED from home; the origin (deg, m AMSL)"),
+              "estimated position (m) and velocity (m/s) NED from home; the origin (deg, m AMSL)", own_rate_hz=10.0,
+              stream="vehicle_local_position"),
     UorbTopic("vehicle_global_position", "global_position_int", ("lat", "lon", "alt"), _vehicle_global_position,
-              "estimated latitude, longitude (deg) and altitude AMSL (m)"),
+              "estimated latitude, longitude (deg) and altitude AMSL (m)", own_rate_hz=5.0),
     UorbTopic("vehicle_gps_position", "gps_raw_int",
               ("lat", "lon", "alt", "eph", "epv", "vel_m_s", "vel_n_m_s", "vel_e_m_s", "vel_d_m_s", "cog_rad",
                "fix_type", "satellites_used"), _vehicle_gps_position,
@@ -155,7 +204,16 @@ UORB_TOPICS: dict[str, UorbTopic] = {t.name: t for t in (
               own_rate_hz=20.0),
     UorbTopic("battery_status", "battery_status", ("voltage_v", "current_a", "remaining"), _battery_status,
               "battery: voltage V, current A, state of charge 0..1"),
+    UorbTopic("actuator_controls_0", None, ("control_3",), _actuator_controls,
+              "collective thrust demand, 0..1 of the maximum (0 disarmed): the hover throttle",
+              stream="actuator_controls_0"),
+    UorbTopic("actuator_outputs", None, ("noutputs", *(f"output_{k}" for k in range(N_MOTORS))), _actuator_outputs,
+              "motor outputs as PWM us: 1000 + 1000 x the rotor's thrust fraction armed, 900 disarmed",
+              own_rate_hz=10.0, stream="actuator_controls_0"),
 )}
+#: The topics a detector's table (:func:`uorb_table`) is made of: every topic of the view but the
+#: actuators, which a csv-mode flight and many logs do not have.
+TABLE_TOPICS = tuple(name for name in UORB_TOPICS if not name.startswith("actuator_"))
 
 _ESTIMATOR = "estimator bookkeeping the generator's estimator does not publish"
 _CLOCK = "an absolute clock of the flight controller (boot or UTC time), no sensor data"
@@ -190,6 +248,12 @@ OMITTED: dict[str, dict[str, str]] = {
                                   "jamming_indicator", "jamming_state", "vel_ned_valid", "selected")},
         **{k: "no dual-antenna heading is simulated" for k in ("heading", "heading_offset")}},
     "vehicle_air_data": {"timestamp_sample": _CLOCK, "baro_device_id": "a device id, no sensor data"},
+    "actuator_controls_0": {
+        "timestamp_sample": _CLOCK,
+        **{f"control_{k}": "the roll, pitch and yaw demands: the generator's rate controller computes torques (N m), "
+           "not PX4's normalised mixer inputs" for k in range(3)},
+        **{f"control_{k}": "an auxiliary control (flaps, gear) a multicopter does not use" for k in range(4, 8)}},
+    "actuator_outputs": {f"output_{k}": "no such output: the quadrotor has four motors" for k in range(N_MOTORS, 16)},
     "battery_status": {
         **{k: "the battery's filter is " + _NOT_MODELLED for k in ("voltage_filtered_v", "current_filtered_a",
                                                                   "current_average_a")},
@@ -212,20 +276,26 @@ SITE_DEPENDENT = ("*.lat", "*.lon", "*.alt", "vehicle_local_position.ref_*", "ve
                   "battery_status.*")
 
 
-def uorb_view(simulator: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
-    """The uORB topics of one flight from its simulator-view tables (``Timestamp``, labels, fields).
+def uorb_view(simulator: dict[str, pd.DataFrame], streams: dict[str, pd.DataFrame] | None = None
+              ) -> dict[str, pd.DataFrame]:
+    """The uORB topics of one flight from its simulator-view tables (``Timestamp``, labels, fields)
+    and, where it was flown with them, the rows of the flight controller's streams, per uORB topic
+    on its own clock and timing (``streams``: :func:`scart_bench.generator.telemetry.tables.
+    uorb_stream_tables`), which a topic takes instead of its simulator-view message.
 
-    Each table: ``Timestamp`` (µs from the flight's start, the source message's), the label
-    columns the source has (``Is_Anomaly``, ``Anomaly_Ids``, ``Anomaly_Kind``), then the uORB
-    fields as float64. A uORB topic whose source message is not in ``simulator`` is left out.
-    Pure: the same tables give the same view.
+    Each table: ``Timestamp`` (µs from the flight's start, the row's), the label columns the
+    source has (``Is_Anomaly``, ``Anomaly_Ids``, ``Anomaly_Kind``), then the uORB fields as float64.
+    A uORB topic with neither its stream nor its source message is left out. Pure: the same tables
+    give the same view.
     """
+    streams = streams or {}
     out: dict[str, pd.DataFrame] = {}
     for name, topic in UORB_TOPICS.items():
-        src = simulator.get(topic.source)
+        from_stream = name in streams
+        src = streams[name] if from_stream else simulator.get(topic.source) if topic.source else None
         if src is None:
             continue
-        if topic.own_rate_hz is not None:
+        if not from_stream and topic.own_rate_hz is not None and topic.own_rate_hz < topic.source_rate_hz(False):
             src = src.iloc[own_clock_rows(src["Timestamp"].to_numpy(), topic.own_rate_hz)]
         lead = ["Timestamp", *(c for c in LABEL_COLUMNS if c in src.columns)]
         table = src[lead].reset_index(drop=True).copy()
@@ -236,17 +306,20 @@ def uorb_view(simulator: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
     return out
 
 
-def uorb_table(topics: dict[str, pd.DataFrame], windows=(), base_topic: str = "sensor_combined") -> pd.DataFrame:
+def uorb_table(topics: dict[str, pd.DataFrame], windows=(), base_topic: str = "sensor_combined",
+               names: tuple[str, ...] = TABLE_TOPICS) -> pd.DataFrame:
     """A detector's table of a flight's uORB topics: generated (:func:`uorb_view`) or imported from a
     PX4 ULog (:func:`scart_bench.generator.logs.importers.load_flight_file`).
 
-    Only the uORB view's topics and fields are kept (an imported log's other topics and fields are
-    dropped), resampled like a ``most_frequent`` combined table on ``base_topic``'s timestamps
-    (each topic's last value at or before the row). ``windows``: attack windows for the labels.
-    Raises DatasetError naming a uORB topic or field the flight lacks.
+    Only the uORB topics ``names`` (:data:`TABLE_TOPICS`: all but the actuators) and their fields are
+    kept (an imported log's other topics and fields are dropped), resampled like a ``most_frequent``
+    combined table on ``base_topic``'s timestamps (each topic's last value at or before the row).
+    ``windows``: attack windows for the labels. Raises DatasetError naming a uORB topic or field the
+    flight lacks.
     """
     kept: dict[str, pd.DataFrame] = {}
-    for name, topic in UORB_TOPICS.items():
+    for name in names:
+        topic = UORB_TOPICS[name]
         if name not in topics:
             raise DatasetError(f"uORB topic {name!r} missing; the flight has {sorted(topics)}")
         df = topics[name]
