@@ -26,11 +26,26 @@ from scart_bench.errors import ScartBenchError
 
 #: Field names that are not sensor values (the feature rule, matched on the part after ``topic.``):
 #: timestamps, counters, ids and reset counters/deltas. Constant columns go too (see feature_columns).
+#: Clocks, ids and counters of imported logs, by ArduPilot DataFlash, MAVLink tlog and ROS names (field
+#: names as the importers give them): GPS time of week and week (``TimeMS``, ``Week``, ``GMS``,
+#: ``GWk``), boot clocks (``TimeUS``, ``T``, ``SampleUS``, ``time_boot_ms``, ``tc1``/``ts1``), message
+#: stamps and sequence numbers (``header_stamp_sec``, ``header_seq``), instance and event ids (``Id``,
+#: ``I``, ``Instance``), loop and error counters (``NLon``, ``NLoop``, ``I2CErr``, ``errors_count1``).
+#: None is a field of a generated flight (tests/test_log_features.py checks it), so generated datasets'
+#: features are unchanged.
+LOG_NON_FEATURE_PATTERN = (
+    r"^(TimeMS|TimeUS|Week|GMS|GWk|T|SampleUS|GPSTime|TimeMsec|time_boot_ms|tc1|ts1)$|"  # clocks
+    r"(^|_)stamp_(sec|nanosec|nsec)$|^header_seq$|"  # ROS message stamps
+    r"^(Id|I|Inst|Instance|Subsys|ECode|Seq)$|"  # instance, event and error ids
+    r"^(NLon|NLoop|MaxT|LogDrop|NFail)$|Err$|^errors_count\d+$|^errors_comm$|^drop_rate_comm$"  # counters
+)
+
 NON_FEATURE_FIELDS = re.compile(
     r"(^|_)timestamp(_|$)|^time_utc_usec$|_time_relative$|^time_|"  # clocks
     r"(^|_)(device_)?id$|_ids?$|^serial_number$|_device_id$|"  # identifiers
     r"_reset_counter$|(^|_)delta_.*reset|_reset(_\d+)?$|"  # estimator resets and their deltas
-    r"_counter$|_count$|^count$"  # counters
+    r"_counter$|_count$|^count$|"  # counters
+    + LOG_NON_FEATURE_PATTERN
 )
 
 
@@ -40,9 +55,17 @@ NON_FEATURE_FIELDS = re.compile(
 #: every waypoint of every normal flight (the arm request's 0 -> 1 step is a 7-sd jump), so a
 #: detector that uses them learns the mission's script; attacks on the control link show in the
 #: measured state they change. A run can still use them: ``--features`` names columns outright.
+#: The same flags under ArduPilot's and MAVLink's names (flight mode and its reason, the landed state,
+#: the system status and the sensor-health bitmasks of SYS_STATUS); none is a generated flight's field.
+LOG_CONTROL_STATE_PATTERN = (
+    r"^(Mode|ModeNum|Rsn|ThrCrs)$|^landed_state$|^vtol_state$|^system_status$|^onboard_control_sensors_|"
+    r"^mavlink_version$|^autopilot$|^type$"
+)
+
 CONTROL_STATE_FIELDS = re.compile(
     r"^armed$|^arming_state$|^nav_state|^main_state$|(^|_)mode$|^flight_mode|^seq$|^mission_seq$|"
-    r"^current_seq$|^landed$|^maybe_landed$|^ground_contact$|^in_air$|^freefall$|^failsafe"
+    r"^current_seq$|^landed$|^maybe_landed$|^ground_contact$|^in_air$|^freefall$|^failsafe|"
+    + LOG_CONTROL_STATE_PATTERN
 )
 
 

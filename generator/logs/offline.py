@@ -13,6 +13,7 @@ import hashlib
 import json
 import logging
 import re
+from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -31,8 +32,10 @@ from scart_bench.dataset import (
     replacing,
 )
 from scart_bench.generator.logs.importers import load_flight_file
+from scart_bench.generator.logs.phases import PHASE_TOPIC, phase_topic
 from scart_bench.generator.modes import csv_mode, csv_record, with_labels
 from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.generator.scart.spec import ScenarioError
 
 logger = logging.getLogger(__name__)
 
@@ -58,6 +61,67 @@ def _validate(jobs, tables, where: str) -> None:
             sc.validate_topics(available, where=f"{sc.source} (on {where})")
 
 
+def with_phases(tables: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
+    """The topics the layer listens to on a recording: its own and, when it has no mission computer's
+    setpoint (a log, not a generated flight), the ``flight_phase`` topic derived from it
+    (generator.logs.phases: the phase and mission item that ``flight_phase`` and ``mission_phase``
+    conditions read). The derived topic is on rows of the log's altitude, so the replay's message
+    times are the log's own; it is never written (:func:`without_phases`)."""
+    if "setpoint" in tables or PHASE_TOPIC in tables:
+        return tables
+    topic = phase_topic(tables)
+    return tables if topic is None else {**tables, PHASE_TOPIC: topic}
+
+
+def without_phases(result: tuple) -> tuple:
+    """A csv-mode result without the derived phase topic (a copy holds the recording's topics only)."""
+    nav, windows, events = result
+    return {t: df for t, df in nav.items() if t != PHASE_TOPIC}, windows, events
+
+
+#: Why a configuration gave no copy of a flight, from the error that refused it (short, for the summary).
+_REASONS = (
+    (re.compile(r"'([^']+)' \(a quantity\) matches no topic"), "{} not in the log"),
+    (re.compile(r"unknown topic '([^']+)'"), "topic {} not in the log"),
+    (re.compile(r"unknown field '([^']+)'"), "field {} not in the log"),
+    (re.compile(r"topic '([^']+)' is not in this input"), "topic {} not in the log"),
+    (re.compile(r"reads the flight's phases"), "no flight phases (no altitude in the log)"),
+)
+
+
+def refusal_reason(message: str) -> str:
+    """A short reason for a configuration that does not apply to a flight, from its error message."""
+    for pattern, text in _REASONS:
+        m = pattern.search(message)
+        if m:
+            return text.format(*m.groups())
+    return message.rsplit(": ", 1)[-1][:80]
+
+
+def applicable(jobs: list, tables: dict[str, pd.DataFrame], where: str) -> tuple[list, Counter]:
+    """The configurations whose topics this recording has, and the reasons of the others (counted)."""
+    available = _available(tables)
+    keep, reasons = [], Counter()
+    for job in jobs:
+        try:
+            for sc in job:
+                sc.validate_topics(available, where=f"{sc.source} (on {where})")
+        except ScenarioError as exc:
+            reasons[refusal_reason(str(exc))] += 1
+            continue
+        keep.append(job)
+    return keep, reasons
+
+
+def summary_line(reasons: Counter, total: int) -> str:
+    """One line: how many configuration x flight pairs gave no copy, grouped by reason."""
+    n = sum(reasons.values())
+    if not n:
+        return f"attack: all {total} configuration x flight pair(s) applied"
+    why = "; ".join(f"{k} {r}" for r, k in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])))
+    return f"attack: {n} of {total} configuration x flight pair(s) gave no copy: {why}"
+
+
 # ----------------------------------------------------------------------------------------------
 # import
 
@@ -71,13 +135,20 @@ def _refuse_physical(jobs, scenario_path) -> None:
                            "flight cannot replay; use them in simulation mode (scart-bench generate --scenarios)")
 
 
+def closed_loop(jobs) -> list:
+    """The configurations with an action that needs the closed loop (a forged command, a tampered mission)."""
+    from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
+
+    return [j for j in jobs if any(n in CLOSED_LOOP_ACTIONS for sc in j for n, _ in sc.actions)]
+
+
 def _refuse_closed_loop(jobs, scenario_path) -> list:
     """A recording has no flight controller to obey a forged command and no navigator to fly a tampered
     mission: configurations with those actions get no copy (a warning names them); when no other
     configuration is left, a clear error."""
     from scart_bench.generator.scart.link_actions import CLOSED_LOOP_ACTIONS
 
-    closed = [j for j in jobs if any(n in CLOSED_LOOP_ACTIONS for sc in j for n, _ in sc.actions)]
+    closed = closed_loop(jobs)
     if not closed:
         return jobs
     names = sorted({n for j in closed for sc in j for n, _ in sc.actions if n in CLOSED_LOOP_ACTIONS})
@@ -217,11 +288,13 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                    seed: int = 0, say: Callable[[str], None] | None = None) -> list[str]:
     """Add labelled attacked copies of the dataset's normal flights of split ``sources`` to it.
 
-    Every configuration of the scenario (or grid) file is replayed on every source flight; ids
-    ``csv-<source flight>-<configuration id>``. All scenarios are checked against every source's
-    topics before anything is written (a topic a source lacks is an error naming it). A copy in
-    which the attack never started (e.g. its trigger never held on that log) is not added, with a
-    warning. Returns the ids added.
+    Every configuration of the scenario (or grid) file that applies to a source flight is replayed on
+    it; ids ``csv-<source flight>-<configuration id>``. A configuration applies when the flight has
+    its topics (quantities resolve by meaning: generator.scart.meanings) and its attack starts; the
+    others give no copy, and one line through ``say`` counts them by reason (a quantity the log
+    lacks, a trigger that never held, an action that needs the closed loop). When no configuration
+    applies to any flight, the first refusal is raised in full before anything is written; when
+    none starts, DatasetError. Returns the ids added.
     """
     ds = open_dataset(dataset)
     bad = [s for s in sources if s not in ("test", "csv_source", "validation", "train")]
@@ -234,30 +307,40 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                            f"--split {sources[0]} (or --split auto)")
     jobs = load_configurations(Path(scenario_path), check_topics=False)
     _refuse_physical(jobs, scenario_path)
+    n_closed = len(closed_loop(jobs))
     jobs = _refuse_closed_loop(jobs, scenario_path)
+    reasons: Counter = Counter()
+    if n_closed:
+        reasons["act in the closed loop (simulation mode only)"] = n_closed * len(rows)
     flights = []
     for fid in rows["flight_id"].astype(str):
         tables = load_flight_file(ds.flight_dir(fid))
-        _validate(jobs, tables, f"flight {fid}")
-        flights.append((fid, tables, int(rows.loc[rows["flight_id"].astype(str) == fid, "seed"].iloc[0] or 0)))
+        listen = with_phases(tables)
+        fit, why = applicable(jobs, listen, f"flight {fid}")
+        reasons.update(why)
+        flights.append((fid, tables, listen, fit))
+    if not any(fit for *_, fit in flights):
+        _validate(jobs, flights[0][2], f"flight {flights[0][0]}")  # the first refusal, in full
     say = say or (lambda msg: None)
     added: list[str] = []
 
     def records() -> Iterator:
-        for fid, tables, _ in flights:
-            results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
-            for job, result in zip(jobs, results):
+        for fid, tables, listen, fit in flights:
+            results = csv_mode([listen] * len(fit), fit, [seed] * len(fit))
+            for job, result in zip(fit, results):
                 cid = f"csv-{fid}-{_config_id(job)}"
                 if not result[1]:
-                    logger.warning("%s: the attack %s never started on flight %s (its start conditions never "
-                                   "held); no copy added", scenario_path, _config_id(job), fid)
+                    reasons["trigger never held (no attack window)"] += 1
+                    logger.info("%s: the attack %s never started on flight %s (its start conditions never "
+                                "held); no copy added", scenario_path, _config_id(job), fid)
                     continue
                 say(f"attack: {fid} x {_config_id(job)} -> {cid}")
                 added.append(cid)
-                yield csv_record(cid, tables, result, job, seed, fid,
+                yield csv_record(cid, tables, without_phases(result), job, seed, fid,
                                  {"input": f"{ds.path}/flights/{fid}", "source_flight": fid})
 
     append_flights(ds.path, records())
+    say(summary_line(reasons, (len(jobs) + n_closed) * len(flights)))
     if not added:
         raise DatasetError(f"{scenario_path}: the attack never started on any source flight; nothing was added "
                            f"(start conditions: {_start_conditions(jobs[0])})")
@@ -270,7 +353,9 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     """Replay ``input_path`` (CSV, ULog, Parquet or a dataset flight folder) through the scenario(s).
 
     A scenario file's scenarios are applied together to one attacked copy; a grid or sweep file
-    gives one attacked copy per configuration. Everything is validated before anything is written.
+    gives one attacked copy per configuration that applies to the log (a warning counts the others by
+    reason; none applying is an error naming the first refusal). Everything is validated before
+    anything is written.
     """
     input_path, out = Path(input_path), Path(out)
     check_layout(fmt, layout)
@@ -279,8 +364,14 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     _refuse_physical(jobs, scenario_path)
     jobs = _refuse_closed_loop(jobs, scenario_path)
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
-    _validate(jobs, tables, str(input_path))
-    results = csv_mode([tables] * len(jobs), jobs, [seed] * len(jobs))
+    listen = with_phases(tables)
+    fit, why = applicable(jobs, listen, str(input_path))
+    if not fit:
+        _validate(jobs, listen, str(input_path))  # the first refusal, in full
+    if why:
+        logger.warning("%s on %s: %s", scenario_path, input_path, summary_line(why, len(jobs)).partition(": ")[2])
+    jobs = fit
+    results = [without_phases(r) for r in csv_mode([listen] * len(jobs), jobs, [seed] * len(jobs))]
     started = [(job, result) for job, result in zip(jobs, results) if result[1]]
     for job, result in zip(jobs, results):
         if started and not result[1]:

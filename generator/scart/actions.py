@@ -108,6 +108,8 @@ class AvgSensors(Action):
 
 #: Course-over-ground fields (radians, 0 = north) that gps_spoof turns with the velocity.
 COURSE_FIELDS = ("cog", "cog_rad")
+#: The same in degrees (ArduPilot's GPS GCrs).
+COURSE_DEG_FIELDS = ("GCrs",)
 
 
 class GpsSpoof(Action):
@@ -148,6 +150,8 @@ class GpsSpoof(Action):
         for i in idx:  # course over ground turns with the velocity
             if names[i] in COURSE_FIELDS:
                 out[:, i] = np.mod(work[:, i] + theta, 2 * math.pi)
+            elif names[i] in COURSE_DEG_FIELDS:
+                out[:, i] = np.mod(work[:, i] + np.rad2deg(theta), 360.0)
         if pair is not None:
             return from_metres(ctx, values, out, pair, idx, active), keep_where(values.shape[0])
         values = np.where(active[:, None], out, values)

@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from scart_bench.generator.geo import ne_from_latlon
+from scart_bench.generator.logs.phases import PHASES
 from scart_bench.generator.scart.spec import Param, ScenarioError
-from scart_bench.generator.scart.units import latlon_pair
+from scart_bench.generator.scart.units import latlon_pair, quantity
 
 
 class Condition:
@@ -65,8 +66,12 @@ def position_ne(values: np.ndarray, fields: tuple[str, ...], origin: np.ndarray,
     raise KeyError(f"{topic}: no position fields (lat/lon or x/y) in {', '.join(fields)}")
 
 
-def altitude(values: np.ndarray, fields: tuple[str, ...]) -> np.ndarray:
-    """(N,) altitude above home (m) from a position message."""
+def altitude(values: np.ndarray, fields: tuple[str, ...], field: str | None = None, topic: str = "") -> np.ndarray:
+    """(N,) altitude above home (m) from a position message: its ``field`` when given (a down
+    position, such as ``z``, is negated), else its relative altitude or ``-z``."""
+    if field:
+        sign = -1.0 if quantity(topic, field) == "position_d" else 1.0
+        return sign * values[:, fields.index(field)]
     for name in ("relative_alt", "altitude_relative"):
         if name in fields:
             return values[:, fields.index(name)]
@@ -140,7 +145,7 @@ class AltitudeAbove(Condition):
         vals, fields = _latest(ctx, self.params["topic"])
         if vals is None:
             return np.zeros(ctx.rows.shape, bool)
-        return altitude(vals, fields) > self.params["height"]
+        return altitude(vals, fields, self.params.get("field"), self.params["topic"]) > self.params["height"]
 
 
 class MissionPhase(Condition):
@@ -157,6 +162,26 @@ class MissionPhase(Condition):
         if vals is None:
             return np.zeros(ctx.rows.shape, bool)
         return vals[:, fields.index(self.params["field"])] > self.params["after_waypoint"]
+
+
+class FlightPhase(Condition):
+    """Holds while the flight is in phase ``phase`` (landed, takeoff, climb, cruise, descent), as csv
+    mode derives it from the recording (generator.logs.phases). (csv mode only)"""
+
+    name = "flight_phase"
+    spec = (Param("phase", str, required=True, help="one of " + ", ".join(PHASES)),
+            Param("topic", str, "phase", help="the quantity 'phase' (the flight_phase topic csv mode derives)"))
+
+    @staticmethod
+    def check_params(params: dict, where: str) -> None:
+        if params["phase"] not in PHASES:
+            raise ScenarioError(f"{where}.phase: {params['phase']!r} is not a phase; expected one of {', '.join(PHASES)}")
+
+    def __call__(self, ctx):
+        vals, fields = _latest(ctx, self.params["topic"])
+        if vals is None:
+            return np.zeros(ctx.rows.shape, bool)
+        return vals[:, fields.index("phase")] == PHASES.index(self.params["phase"])
 
 
 class RandomStart(Condition):
@@ -229,7 +254,7 @@ class ScenarioEnded(Condition):
 
 
 CONDITIONS: dict[str, type[Condition]] = {
-    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, RandomStart, Duration,
+    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, FlightPhase, RandomStart, Duration,
                         ScenarioActive, ScenarioStarted, ScenarioEnded)
 }
 

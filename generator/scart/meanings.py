@@ -21,71 +21,98 @@ from scart_bench.generator.scart.spec import ScenarioError
 QUANTITIES: dict[str, dict[str, tuple[str, ...]]] = {
     "position": {
         "lat": ("global_position_int.lat", "gps_raw_int.lat", "sensor_gps.lat", "vehicle_global_position.lat",
-                "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg", "sensor_gps.latitude_deg"),
+                "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg", "sensor_gps.latitude_deg",
+                "gps.Lat", "pos.Lat", "ahr2.Lat"),
         "lon": ("global_position_int.lon", "gps_raw_int.lon", "sensor_gps.lon", "vehicle_global_position.lon",
-                "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg", "sensor_gps.longitude_deg"),
-        "x": ("local_position_ned.x", "vehicle_local_position.x"),
-        "y": ("local_position_ned.y", "vehicle_local_position.y"),
+                "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg", "sensor_gps.longitude_deg",
+                "gps.Lng", "pos.Lng", "ahr2.Lng"),
+        "x": ("local_position_ned.x", "vehicle_local_position.x", "ekf1.PN", "xkf1.PN"),
+        "y": ("local_position_ned.y", "vehicle_local_position.y", "ekf1.PE", "xkf1.PE"),
     },
     "velocity": {
         "vn": ("global_position_int.vx", "local_position_ned.vx", "gps_raw_int.vn", "sensor_gps.vn",
-               "vehicle_local_position.vx", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s"),
+               "vehicle_local_position.vx", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s", "ekf1.VN",
+               "xkf1.VN"),
         "ve": ("global_position_int.vy", "local_position_ned.vy", "gps_raw_int.ve", "sensor_gps.ve",
-               "vehicle_local_position.vy", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s"),
+               "vehicle_local_position.vy", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s", "ekf1.VE",
+               "xkf1.VE"),
         "vd": ("global_position_int.vz", "local_position_ned.vz", "gps_raw_int.vd", "sensor_gps.vd",
-               "vehicle_local_position.vz", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s"),
+               "vehicle_local_position.vz", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s", "ekf1.VD",
+               "xkf1.VD", "gps.VZ"),
     },
     "altitude": {
-        "z": ("local_position_ned.z", "vehicle_local_position.z"),
-        "relative": ("global_position_int.relative_alt", "altitude.altitude_relative"),
-        "amsl": ("global_position_int.alt", "altitude.altitude_amsl", "vehicle_global_position.alt"),
+        "z": ("local_position_ned.z", "vehicle_local_position.z", "ekf1.PD", "xkf1.PD"),
+        "relative": ("global_position_int.relative_alt", "altitude.altitude_relative", "ctun.Alt", "gps.RelAlt",
+                     "pos.RelHomeAlt"),
+        "amsl": ("global_position_int.alt", "altitude.altitude_amsl", "vehicle_global_position.alt", "ahr2.Alt",
+                 "pos.Alt"),
     },
     "attitude": {
-        "roll": ("attitude.roll",),
-        "pitch": ("attitude.pitch",),
-        "yaw": ("attitude.yaw",),
+        "roll": ("attitude.roll", "att.Roll"),  # ArduPilot's ATT in degrees (generator.scart.units)
+        "pitch": ("attitude.pitch", "att.Pitch"),
+        "yaw": ("attitude.yaw", "att.Yaw"),
         # PX4 logs the attitude as a quaternion: components are unit-free (magnitudes apply as is)
         "q": ("vehicle_attitude.q_0", "vehicle_attitude.q_1", "vehicle_attitude.q_2", "vehicle_attitude.q_3"),
     },
     "gps": {
         "lat": ("gps_raw_int.lat", "sensor_gps.lat", "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg",
-                "sensor_gps.latitude_deg"),
+                "sensor_gps.latitude_deg", "gps.Lat"),
         "lon": ("gps_raw_int.lon", "sensor_gps.lon", "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg",
-                "sensor_gps.longitude_deg"),
+                "sensor_gps.longitude_deg", "gps.Lng"),
         "alt": ("gps_raw_int.alt", "sensor_gps.alt", "vehicle_gps_position.alt", "vehicle_gps_position.altitude_msl_m",
-                "sensor_gps.altitude_msl_m"),
+                "sensor_gps.altitude_msl_m", "gps.Alt"),
         "vn": ("gps_raw_int.vn", "sensor_gps.vn", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s"),
         "ve": ("gps_raw_int.ve", "sensor_gps.ve", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s"),
-        "vd": ("gps_raw_int.vd", "sensor_gps.vd", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s"),
-        "cog": ("gps_raw_int.cog", "vehicle_gps_position.cog_rad", "sensor_gps.cog_rad"),
+        "vd": ("gps_raw_int.vd", "sensor_gps.vd", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s", "gps.VZ"),
+        "cog": ("gps_raw_int.cog", "vehicle_gps_position.cog_rad", "sensor_gps.cog_rad", "gps.GCrs"),
     },
     "imu": {
-        "xacc": ("highres_imu.xacc", "sensor_accel.x", "sensor_combined.accelerometer_m_s2_0"),
-        "yacc": ("highres_imu.yacc", "sensor_accel.y", "sensor_combined.accelerometer_m_s2_1"),
-        "zacc": ("highres_imu.zacc", "sensor_accel.z", "sensor_combined.accelerometer_m_s2_2"),
-        "xgyro": ("highres_imu.xgyro", "sensor_gyro.x", "sensor_combined.gyro_rad_0"),
-        "ygyro": ("highres_imu.ygyro", "sensor_gyro.y", "sensor_combined.gyro_rad_1"),
-        "zgyro": ("highres_imu.zgyro", "sensor_gyro.z", "sensor_combined.gyro_rad_2"),
+        "xacc": ("highres_imu.xacc", "sensor_accel.x", "sensor_combined.accelerometer_m_s2_0", "imu.AccX"),
+        "yacc": ("highres_imu.yacc", "sensor_accel.y", "sensor_combined.accelerometer_m_s2_1", "imu.AccY"),
+        "zacc": ("highres_imu.zacc", "sensor_accel.z", "sensor_combined.accelerometer_m_s2_2", "imu.AccZ"),
+        "xgyro": ("highres_imu.xgyro", "sensor_gyro.x", "sensor_combined.gyro_rad_0", "imu.GyrX"),
+        "ygyro": ("highres_imu.ygyro", "sensor_gyro.y", "sensor_combined.gyro_rad_1", "imu.GyrY"),
+        "zgyro": ("highres_imu.zgyro", "sensor_gyro.z", "sensor_combined.gyro_rad_2", "imu.GyrZ"),
     },
     "baro": {
         "pressure": ("scaled_pressure.press_abs", "highres_imu.abs_pressure", "sensor_baro.pressure",
-                     "vehicle_air_data.baro_pressure_pa"),
-        "alt": ("highres_imu.pressure_alt", "vehicle_air_data.baro_alt_meter"),
+                     "vehicle_air_data.baro_pressure_pa", "baro.Press"),
+        "alt": ("highres_imu.pressure_alt", "vehicle_air_data.baro_alt_meter", "baro.Alt"),
     },
     "mag": {
-        "x": ("highres_imu.xmag", "sensor_mag.x", "vehicle_magnetometer.magnetometer_ga_0"),
-        "y": ("highres_imu.ymag", "sensor_mag.y", "vehicle_magnetometer.magnetometer_ga_1"),
-        "z": ("highres_imu.zmag", "sensor_mag.z", "vehicle_magnetometer.magnetometer_ga_2"),
+        "x": ("highres_imu.xmag", "sensor_mag.x", "vehicle_magnetometer.magnetometer_ga_0", "mag.MagX"),
+        "y": ("highres_imu.ymag", "sensor_mag.y", "vehicle_magnetometer.magnetometer_ga_1", "mag.MagY"),
+        "z": ("highres_imu.zmag", "sensor_mag.z", "vehicle_magnetometer.magnetometer_ga_2", "mag.MagZ"),
     },
     "battery": {
-        "voltage": ("battery_status.voltage", "battery_status.voltage_v"),
-        "current": ("battery_status.current", "battery_status.current_a"),
+        "voltage": ("battery_status.voltage", "battery_status.voltage_v", "curr.Volt", "bat.Volt"),
+        "current": ("battery_status.current", "battery_status.current_a", "curr.Curr", "bat.Curr"),
         "remaining": ("battery_status.remaining",),
     },
     "mission": {
-        "seq": ("setpoint.seq", "mission_result.seq_current"),
+        # flight_phase: derived from a recording in csv mode (generator.logs.phases), the log's own mission
+        # progress where it carries a mission, else read from its phases
+        "seq": ("setpoint.seq", "flight_phase.seq", "mission_result.seq_current"),
+    },
+    "phase": {
+        "phase": ("flight_phase.phase",),  # csv mode only: generator.logs.phases.PHASES index
     },
 }
+
+#: Link fields the shipped grids name that no quantity lists under that name: the quantity field they are.
+ALIASES = {"altitude.altitude_local": "altitude.relative"}
+
+
+def _meaning_index() -> dict[str, str]:
+    """``topic.field`` candidate -> the ``quantity.field`` it stands for (the later quantity wins, so
+    ``gps_raw_int.lat`` is ``gps.lat``, ``global_position_int.lat`` is ``position.lat``)."""
+    out = {c: f"{q}.{f}" for q, fields in QUANTITIES.items() for f, cands in fields.items() for c in cands}
+    return {**out, **ALIASES}
+
+
+#: A concrete field a scenario names that the input lacks is read as the quantity it stands for (the
+#: shipped grids name the generator's link fields; on a PX4 or ArduPilot log they resolve by meaning).
+MEANING_OF = _meaning_index()
 
 #: What a condition reads from its topic, as (quantity, fields that must all be there) options in
 #: order of preference; the condition's ``topic`` defaults to the quantity.
@@ -93,7 +120,12 @@ CONDITION_NEEDS: dict[str, tuple[tuple[str, ...], ...]] = {
     "geofence": (("x", "y"), ("lat", "lon")),
     "altitude_above": (("z",), ("relative",)),
     "mission_phase": (("seq",),),
+    "flight_phase": (("phase",),),
 }
+
+
+#: The fields altitude_above reads by name (generator.scart.conditions.altitude).
+DEFAULT_ALTITUDE = ("relative_alt", "altitude_relative", "z")
 
 
 def _split(name: str) -> tuple[str, str]:
@@ -122,6 +154,8 @@ def resolve_target(name: str, available: dict[str, tuple[str, ...]], where: str)
     topic, field = _split(name)
     if topic in available and (not field or field in available[topic] or not is_quantity(name)):
         return [name]
+    if not is_quantity(name) and topic not in available and name in MEANING_OF:
+        name = MEANING_OF[name]  # a link field on a log: what it means there
     if not is_quantity(name):
         return [name]  # validate_topics names what is wrong
     found = [c for c in _candidates(name) if _split(c)[1] in available.get(_split(c)[0], ())]
@@ -157,10 +191,16 @@ def resolve_condition_topic(condition: str, params: dict, available: dict[str, t
         if len(picks) == len(need) and len({t for t, _ in picks.values()}) == 1:
             topic = next(iter(picks.values()))[0]
             out = {**params, "topic": topic}
-            if condition == "mission_phase":
-                out["field"] = picks["seq"][1]
+            field = next(iter(picks.values()))[1]
+            # the field it reads (the layer's copy only; altitude_above finds its own by name on the link, and
+            # a group's random streams are keyed on its parameters, so generated flights keep theirs)
+            if condition == "mission_phase" or (condition == "altitude_above" and field not in DEFAULT_ALTITUDE):
+                out["field"] = field
             return out
     looked = sorted({_split(c)[0] for c in _candidates(name)})
+    if name == "phase":
+        raise ScenarioError(f"{where}.topic: {condition} reads the flight's phases, which csv mode derives from a "
+                            "recording (scart-bench attack); in simulation mode use mission_phase or altitude_above")
     raise ScenarioError(f"{where}.topic: {name!r} (a quantity) matches no topic of this input that {condition} "
                         f"can read; it looks for {', '.join(looked)}; the input has: {_describe(available)}")
 

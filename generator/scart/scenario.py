@@ -164,10 +164,16 @@ class Scenario:
                 targets: list[str] = []
                 if p["target"] == ["*"]:  # every topic that passes (the link actions)
                     p = {**p, "target": ACTIONS[name].wildcard(available)}
+                missing: list[ScenarioError] = []
                 for t in p["target"]:
-                    for r in resolve_target(t, available, f"{where}: scenario.actions[{i}].target"):
-                        if r not in targets:
-                            targets.append(r)
+                    try:
+                        found = resolve_target(t, available, f"{where}: scenario.actions[{i}].target")
+                    except ScenarioError as exc:  # a quantity this input lacks: the others still apply
+                        missing.append(exc)
+                        continue
+                    targets.extend(r for r in found if r not in targets)
+                if missing and not targets:
+                    raise missing[0]
                 p = {**p, "target": targets}
             actions.append((name, p))
         conds = {}

@@ -12,6 +12,7 @@ space a latitude is a north position and a longitude an east position (scale 1).
 from __future__ import annotations
 
 import functools
+import math
 import re
 
 from scart_bench.dataset.schema import TOPICS
@@ -34,6 +35,8 @@ _QUANTITY = {
     "position_d": (1.0, "", -1.0),
     "velocity_d": (1.0, "", -1.0),
     "pressure": (HPA_PER_M, "", -1.0),
+    "pressure_pa": (HPA_PER_M * 100.0, "", -1.0),
+    "angle_deg": (180.0 / math.pi, "", 1.0),  # magnitudes in rad, the field in degrees (ArduPilot)
 }
 
 _GUESSES = [
@@ -47,6 +50,18 @@ _GUESSES = [
     (r"^(vy|ve|vel_e_m_s|vel_e)$", "velocity_e"),
     (r"^(vz|vd|vel_d_m_s|vel_d)$", "velocity_d"),
     (r"^(alt|altitude.*|relative_alt|alt_ellipsoid|pressure_alt|baro_alt_meter)$", "position_up"),
+    # ArduPilot DataFlash fields (capitalised, in ArduPilot's units: degrees for angles and courses)
+    (r"^Lat$", "latitude"),
+    (r"^(Lng|Lon)$", "longitude"),
+    (r"^PN$", "position_n"),
+    (r"^PE$", "position_e"),
+    (r"^PD$", "position_d"),
+    (r"^VN$", "velocity_n"),
+    (r"^VE$", "velocity_e"),
+    (r"^(VD|VZ)$", "velocity_d"),
+    (r"^(Alt|RelAlt|RelHomeAlt|BarAlt|HAGL)$", "position_up"),
+    (r"^(Roll|Pitch|Yaw|GCrs|DesRoll|DesPitch|DesYaw)$", "angle_deg"),
+    (r"^Press$", "pressure_pa"),
 ]
 
 
@@ -97,8 +112,6 @@ def signed(topic: str, field: str, direction: float) -> float:
     displacement (so ``z`` and pressure move the other way); other fields take it as is.
     """
     unit, ax, sign = _QUANTITY.get(quantity(topic, field), (1.0, "", 1.0))
-    import math
-
     if ax == "n":
         return unit * math.cos(direction)
     if ax == "e":
