@@ -53,15 +53,17 @@ def _cell_class(text: str, run_column: bool) -> str:
 
 def leaderboard_table(board: pd.DataFrame, runs: list[RunResults]) -> str:
     head, body = display_table(board, runs)
-    run_cols = set(range(4, 4 + len(runs)))
+    at = head.index("Detector")
+    first_run = head.index("n runs") + 1
+    run_cols = set(range(first_run, first_run + len(runs)))
     out = ['<div class="scroll"><table class="leaderboard"><thead><tr>']
     name = ' class="name"'
-    out += [f"<th{name if i == 1 else ''}>{esc(h)}</th>" for i, h in enumerate(head)]
+    out += [f"<th{name if i == at else ''}>{esc(h)}</th>" for i, h in enumerate(head)]
     out.append("</tr></thead><tbody>")
     for cells in body:
-        out.append(f'<tr class="detector" data-detector="{esc(cells[1])}">')
+        out.append(f'<tr class="detector" data-detector="{esc(cells[at])}">')
         for i, c in enumerate(cells):
-            cls = ' class="name"' if i == 1 else _cell_class(c, i in run_cols)
+            cls = ' class="name"' if i == at else _cell_class(c, i in run_cols)
             out.append(f"<td{cls}>{esc(c)}</td>")
         out.append("</tr>")
     out.append("</tbody></table></div>")
