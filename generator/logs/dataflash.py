@@ -17,10 +17,11 @@ that unit and the instance field of multi-instance sensors. The rules (docs/own_
   format character has none, the value is multiplied by it (``MagX`` in mGauss -> Gauss). The
   units are ArduPilot's (attitude in degrees, altitudes in metres), listed per field in the
   table's ``attrs["units"]`` when the log has FMTU messages. Text fields are dropped.
-- **Damage**: bytes DFReader has to skip (a bad header in the middle) or a last message that runs
-  past the end of the file are refused unless ``allow_corrupt``; up to 528 bytes of trailing
-  padding after the last whole message (ArduPilot's block logs end in a partial page) are not
-  damage.
+- **Damage**: bytes DFReader has to skip (a bad header in the middle) or unreadable bytes after the
+  last whole message are refused unless ``allow_corrupt``; up to 528 bytes of trailing padding
+  after the last whole message (ArduPilot's block logs end in a partial page) are not damage. A
+  last message cut by the end of the file alone (the logger stopped mid-message: a power-off, as
+  ArduPilot logs usually end) is not refused: the whole messages before it are read, with a warning.
 """
 
 from __future__ import annotations
@@ -205,8 +206,9 @@ def _check_damage(path: Path, reader, whole: int, end: int, allow_corrupt: bool,
     """Refuse a damaged log unless ``allow_corrupt``; the notes for its tables.
 
     ``whole``: bytes in the messages read; ``end``: where the last of them ends. Bytes skipped
-    between messages are damage; after the last message, a cut message (a header whose message
-    runs past the end of the file) or more than :data:`TRAILING_PADDING` bytes are damage.
+    between messages are damage, and so are more than :data:`TRAILING_PADDING` unreadable bytes
+    after the last message; a cut last message alone (a header whose message runs past the end of
+    the file) is a warning.
     """
     skipped = end - whole
     rest = reader.data_len - end
@@ -216,6 +218,11 @@ def _check_damage(path: Path, reader, whole: int, end: int, allow_corrupt: bool,
     if n_read == 0:
         raise DatasetError(f"{path}: no DataFlash message found in {reader.data_len} bytes; expected a .bin log "
                            "written by ArduPilot (messages starting with the bytes A3 95)")
+    if cut and not skipped:
+        # the logger stopped mid-message (power-off): every message before it is whole
+        logger.warning("%s: its last DataFlash message is cut by the end of the file (%d of %d bytes hold whole "
+                       "messages); using the %d whole message(s) before it", path, end, reader.data_len, n_read)
+        return {}
     what = (f"{skipped} byte(s) between messages were unreadable and skipped" if skipped else
             f"its last message runs past the end of the file ({end} of {reader.data_len} bytes hold whole "
             "messages)" if cut else f"{rest} unreadable bytes follow the last whole message")
