@@ -35,6 +35,10 @@ import pandas as pd
 from scart_bench.dataset.schema import TOPICS
 from scart_bench.errors import RunError
 
+#: topic -> (index, name) of its fields that say the vehicle is armed (looked up once, not per message)
+ARMING_FIELDS = {name: [(k, f) for k, f in enumerate(spec.field_names) if f in ("armed", "arming_state")]
+                 for name, spec in TOPICS.items()}
+ARMING_FIELDS = {name: fields for name, fields in ARMING_FIELDS.items() if fields}
 #: rows scored when a detector does not say how much history it needs (10 s at 50 Hz)
 DEFAULT_HISTORY_ROWS = 500
 
@@ -85,14 +89,12 @@ class StreamMonitor:
         self._arming_seen = False  # a topic with an arming field has been seen
 
     def _watch_arming(self, topic: str, t_us: int, values: np.ndarray) -> None:
-        spec = TOPICS.get(topic)
-        if self.armed_us is not None or spec is None:
+        if self.armed_us is not None:
             return
-        for k, name in enumerate(spec.field_names):
-            if name in ("armed", "arming_state") and k < len(values):
+        for k, name in ARMING_FIELDS.get(topic, ()):
+            if k < len(values):
                 self._arming_seen = True
-                on = values[k] >= 0.5 if name == "armed" else values[k] == 2.0
-                if on:
+                if values[k] >= 0.5 if name == "armed" else values[k] == 2.0:
                     self.armed_us = int(t_us)
 
     def counts(self, t_us: int) -> bool:

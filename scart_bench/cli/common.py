@@ -57,3 +57,13 @@ def print_tables(path: Path, metrics) -> None:
     for _, r in failed.iterrows():
         print(f"{r['detector']}: {r['status']}: {r['message']}", file=sys.stderr)
     print(f"\nrun folder: {path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
+
+
+def name_failed(command: str, failed, what: str, hint: str) -> int:
+    """One stderr line naming the jobs of ``failed`` (metrics rows) and what happened to them; the
+    exit status: :data:`EXIT_JOBS_FAILED` when there are any, else 0."""
+    if not len(failed):
+        return 0
+    names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
+    print(f"scart-bench {command}: {len(failed)} job(s) {what}: {names}; {hint}", file=sys.stderr)
+    return EXIT_JOBS_FAILED

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from scart_bench.cli.common import EXIT_JOBS_FAILED, print_tables
+from scart_bench.cli.common import name_failed, print_tables
 from scart_bench.generator.profiles import PROFILES
 
 
@@ -94,12 +93,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     outcome = run_benchmark(run_config(args))
     print_tables(outcome.path, outcome.metrics)
     failed = outcome.metrics[outcome.metrics["status"].isin(("ERROR", "TIMEOUT"))]
-    if len(failed):
-        names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
-        print(f"scart-bench run: {len(failed)} job(s) did not finish OK: {names}; everything else is written "
-              "(rerun with --resume to run only those again)", file=sys.stderr)
-        return EXIT_JOBS_FAILED
-    return 0
+    return name_failed("run", failed, "did not finish OK",
+                       "everything else is written (rerun with --resume to run only those again)")
 
 
 def register(sub) -> None:

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from scart_bench.cli.common import EXIT_JOBS_FAILED, UsageError, print_tables
+from scart_bench.cli.common import UsageError, name_failed, print_tables
 
 
 def cmd_score(args: argparse.Namespace) -> int:
@@ -16,13 +15,9 @@ def cmd_score(args: argparse.Namespace) -> int:
         raise UsageError(f"scart-bench score --jobs {args.jobs}: expected a whole number >= 1")
     metrics = score_run(args.run, processes=args.jobs)
     print_tables(Path(args.run), metrics)
-    failed = metrics[metrics["status"] != "OK"]
-    if len(failed):  # as `run` does: tables that look complete must not hide a job without scores
-        names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
-        print(f"scart-bench score: {len(failed)} job(s) have no usable scores: {names}; their rows show the "
-              "status (rerun the run with --resume to finish them)", file=sys.stderr)
-        return EXIT_JOBS_FAILED
-    return 0
+    # as `run` does: tables that look complete must not hide a job without scores
+    return name_failed("score", metrics[metrics["status"] != "OK"], "have no usable scores",
+                       "their rows show the status (rerun the run with --resume to finish them)")
 
 
 def register(sub) -> None:
