@@ -130,10 +130,11 @@ def _link_attack(sid: str, point: str, start_s: float, action: dict, seconds: fl
 
 def test_kernel_matches_the_reference_under_attacks_on_the_control_link():
     """Forged disarm (a fall and a crash), land, return and reposition, a refused command, a tampered
-    mission, a link loss into the datalink failsafe, replay and flooding: both engines react alike."""
+    mission, a link loss into a hold then the datalink failsafe, replay and flooding: both engines react alike."""
     from scart_bench.generator.flight_software.commander import ControlParams
 
-    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=24.0), control=ControlParams(datalink_loss_s=2.0))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=24.0),
+                       control=ControlParams(offboard_loss_action="hold", datalink_loss_s=2.0))
     scenarios = [
         [_link_attack("disarm", "command", 7.0, {"action": "inject_command", "command": "disarm"})],
         [_link_attack("land", "command", 6.0, {"action": "inject_command", "command": "land"})],

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
-from scart_bench.generator.flight_software.commander import ControlParams
+from scart_bench.generator.flight_software.commander import OFFBOARD_LOSS_ACTIONS, ControlParams
 from scart_bench.generator.params import MissionParams
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import scenario_from_dict
@@ -113,35 +113,68 @@ def test_a_mission_tamper_moves_a_corner_and_the_true_path_goes_there(flown):
     np.testing.assert_array_equal(batch.waypoints[idx["tamper"]], batch.waypoints[idx["normal"]])
 
 
-def test_a_5s_link_loss_holds_then_resumes_the_mission(flown):
-    """PX4 defaults: no setpoint for COM_OF_LOSS_T = 1 s -> hold; the link is back before
-    COM_DL_LOSS_T = 10 s, so the mission computer re-engages offboard and finishes the mission."""
+def test_a_5s_link_loss_lands_where_it_was(flown):
+    """PX4's defaults: no setpoint for COM_OF_LOSS_T = 1 s -> COM_OBL_ACT = Land. The vehicle brakes
+    and lands near where the loss began; it does not go back to the mission when the link returns."""
     idx, batch, layer = flown
     i = idx["loss"]
     t, tr = _truth(batch, i)
     (s, e), = layer.windows(i, 10**12)
     assert (e - s) / 1e6 == pytest.approx(5.0, abs=0.05)
-    holding = (t >= s / 1e6 + 3.0) & (t < e / 1e6)  # 1 s to the failsafe, then braking
-    spread = np.ptp(tr[holding, :2], axis=0)
-    assert spread.max() < 1.5, f"the vehicle holds its position during the loss (moved {spread})"
+    at_failsafe = tr[np.searchsorted(t, s / 1e6 + 1.0), :2]  # COM_OF_LOSS_T after the loss began
     assert batch.status[i] == "landed"
-    corner3 = batch.waypoints[i, 3, :2]
-    assert np.hypot(tr[:, 0] - corner3[0], tr[:, 1] - corner3[1]).min() < 2.0, "the mission resumed"
+    assert np.hypot(*(tr[-1, :2] - at_failsafe)) < 8.0, "it braked and landed there"
+    assert _closest(tr, batch.waypoints[i, 3]) > 10.0, "the mission did not resume"
+    assert t[-1] < _truth(batch, idx["normal"])[0][-1]
     nav_ok = batch.navigator["local_position_ned"][2][i]
     steps = batch.navigator["local_position_ned"][0] * 4000
     lost = (steps >= s) & (steps < e)
     assert not nav_ok[lost].any() and nav_ok[~lost][: np.searchsorted(steps, e)].sum() > 0
 
 
-def test_a_5s_link_loss_returns_when_the_datalink_timeout_is_shorter():
-    """COM_DL_LOSS_T = 3 s, NAV_DLL_ACT = return: the vehicle flies home and lands, mission unfinished."""
-    cfg = dataclasses.replace(FlightConfig(), control=ControlParams(datalink_loss_s=3.0))
-    layer = AttackLayer([[CASES["loss"]]], [11])
-    batch = simulate([11], cfg, layer=layer)
+@pytest.fixture(scope="module")
+def held():
+    """The same loss with COM_OBL_ACT = Hold, and with Hold then a 3 s datalink timeout (NAV_DLL_ACT)."""
+    configs = [ControlParams(offboard_loss_action="hold"),
+               ControlParams(offboard_loss_action="hold", datalink_loss_s=3.0)]
+    out = []
+    for control in configs:
+        layer = AttackLayer([[CASES["loss"]]], [11])
+        out.append((simulate([11], dataclasses.replace(FlightConfig(), control=control), layer=layer), layer))
+    return out
+
+
+def test_a_5s_link_loss_with_hold_holds_then_resumes_the_mission(held):
+    """COM_OBL_ACT = Hold: the vehicle holds; the link is back before COM_DL_LOSS_T = 10 s, so the
+    mission computer re-engages offboard and finishes the mission."""
+    batch, layer = held[0]
+    t, tr = _truth(batch, 0)
+    (s, e), = layer.windows(0, 10**12)
+    holding = (t >= s / 1e6 + 3.0) & (t < e / 1e6)  # 1 s to the failsafe, then braking
+    spread = np.ptp(tr[holding, :2], axis=0)
+    assert spread.max() < 1.5, f"the vehicle holds its position during the loss (moved {spread})"
+    assert batch.status[0] == "landed"
+    assert _closest(tr, batch.waypoints[0, 3]) < 2.0, "the mission resumed"
+
+
+def test_a_5s_link_loss_returns_when_the_datalink_timeout_is_shorter(held):
+    """Hold, then COM_DL_LOSS_T = 3 s, NAV_DLL_ACT = return: the vehicle flies home and lands."""
+    batch, _ = held[1]
     t, tr = _truth(batch, 0)
     assert batch.status[0] == "landed"
     assert np.hypot(*tr[-1, :2]) < 2.0
     assert _closest(tr, batch.waypoints[0, 3]) > 10.0, "it never flew the rest of the square"
+
+
+def test_the_sitl_takes_the_same_offboard_loss_failsafe():
+    """One set of failsafe defaults: the live sitl's COM_OBL_ACT is the simulation mode's action."""
+    from scart_bench.generator.sitl.commander import Params
+
+    params = Params()
+    assert OFFBOARD_LOSS_ACTIONS[int(params["COM_OBL_ACT"])] == ControlParams().offboard_loss_action == "land"
+    assert params["COM_OF_LOSS_T"] == ControlParams().offboard_loss_s
+    with pytest.raises(ValueError, match=r"control.offboard_loss_action: expected one of"):
+        ControlParams(offboard_loss_action="loiter")
 
 
 def test_inject_command_and_mission_tamper_only_at_the_command_point():

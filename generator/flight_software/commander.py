@@ -10,11 +10,13 @@ at the ``command`` injection point, on the setpoint the navigator sent, after th
   entered), ``return`` (climb to the return altitude, fly home, land), ``land`` (descend where
   entered), ``goto`` (a DO_REPOSITION target, then hold), ``disarmed`` (motors off: in the air the
   vehicle falls; an impact faster than ``crash_speed`` ends the flight as crashed);
-- link loss (PX4 defaults, configurable in :class:`ControlParams`): with no setpoint for
-  ``offboard_loss_s`` (COM_OF_LOSS_T) the vehicle holds; with no message from the navigator for
-  ``datalink_loss_s`` (COM_DL_LOSS_T) it takes ``datalink_action`` (NAV_DLL_ACT). When setpoints come
-  back, a vehicle that only held resumes offboard (the mission computer re-engages it, as MAVSDK's
-  ``offboard.start`` does); after the datalink action it resumes only with ``resume_after_action``.
+- link loss (PX4's rules and defaults, configurable in :class:`ControlParams`, the same as the live
+  sitl's commander): with no setpoint for ``offboard_loss_s`` (COM_OF_LOSS_T) the vehicle takes
+  ``offboard_loss_action`` (COM_OBL_ACT: land by default, or hold / return); while it holds, with no
+  message from the navigator for ``datalink_loss_s`` (COM_DL_LOSS_T) it takes ``datalink_action``
+  (NAV_DLL_ACT). When setpoints come back, a vehicle that only held resumes offboard (the mission
+  computer re-engages it, as MAVSDK's ``offboard.start`` does); after a land or return it resumes
+  only with ``resume_after_action``.
 """
 
 from __future__ import annotations
@@ -47,6 +49,10 @@ PX4_SUB_LOITER, PX4_SUB_RTL, PX4_SUB_LAND = 3, 5, 6
 MAX_MISSION_ITEMS = 32
 MISSION_FIELDS = tuple(f"item{k}_{a}" for k in range(MAX_MISSION_ITEMS) for a in ("n", "e", "d"))
 
+#: COM_OBL_ACT: the failsafe taken when offboard setpoints are lost, by PX4's parameter value
+#: (PX4 v1.13, the no-RC case: 0 Land, its default, 1 Hold, 2 Return). The live sitl reads the same table.
+OFFBOARD_LOSS_ACTIONS = ("land", "hold", "return")
+
 #: Topics of the command point besides the setpoint, with their fields.
 CONTROL_TOPICS: dict[str, tuple[str, ...]] = {"command_long": COMMAND_FIELDS, "mission": MISSION_FIELDS}
 
@@ -57,8 +63,9 @@ class ControlParams:
 
     target_system: int = 1  # MAV_SYS_ID
     target_component: int = 1  # the autopilot's component id
-    offboard_loss_s: float = 1.0  # COM_OF_LOSS_T: no setpoint for this long -> hold
-    datalink_loss_s: float = 10.0  # COM_DL_LOSS_T: nothing from the navigator for this long -> action
+    offboard_loss_s: float = 1.0  # COM_OF_LOSS_T: no setpoint for this long -> offboard_loss_action
+    offboard_loss_action: str = "land"  # COM_OBL_ACT: "land" (PX4's default), "hold" or "return"
+    datalink_loss_s: float = 10.0  # COM_DL_LOSS_T: holding, nothing from the navigator this long -> action
     datalink_action: str = "return"  # NAV_DLL_ACT: "hold", "return" or "land"
     resume_after_action: bool = False  # back to offboard after the datalink action when the link returns
     return_alt_m: float = 10.0  # RTL_RETURN_ALT (PX4: 60 m; here the mission altitude)
@@ -66,6 +73,12 @@ class ControlParams:
     land_speed: float = 0.7  # MPC_LAND_SPEED below 3 m (1.5 m/s above)
     crash_speed: float = 3.0  # m/s, true descent rate at touchdown that counts as a crash
     brake_speed: float = 0.3  # m/s: a hold or land locks its position once slower than this
+
+    def __post_init__(self) -> None:
+        for name in ("offboard_loss_action", "datalink_action"):
+            if getattr(self, name) not in OFFBOARD_LOSS_ACTIONS:
+                raise ValueError(f"control.{name}: expected one of {list(OFFBOARD_LOSS_ACTIONS)}, "
+                                 f"got {getattr(self, name)!r}")
 
 
 def empty_command(n: int) -> np.ndarray:
@@ -84,6 +97,9 @@ def mission_message(waypoints: np.ndarray) -> np.ndarray:
 def mission_items(message: np.ndarray, k: int) -> np.ndarray:
     """(N, k, 3) the first ``k`` mission items of a mission message."""
     return message[:, :3 * k].reshape(message.shape[0], k, 3)
+
+
+_ACTION_MODES = {"hold": HOLD, "land": LAND, "return": RETURN}
 
 
 class Commander:
@@ -136,12 +152,11 @@ class Commander:
         off = live & (self.mode == OFFBOARD) & armed & (silent >= p.offboard_loss_s)
         if off.any():
             rows = np.flatnonzero(off)
-            self._enter(rows, HOLD, est_pos, yaw_now)
+            self._enter(rows, _ACTION_MODES[p.offboard_loss_action], est_pos, yaw_now)
             self.failsafe[rows] = True
         dl = live & self.failsafe & (self.mode == HOLD) & (silent >= p.datalink_loss_s)
         if dl.any() and p.datalink_action != "hold":
-            self._enter(np.flatnonzero(dl), RETURN if p.datalink_action == "return" else LAND, est_pos,
-                        yaw_now)
+            self._enter(np.flatnonzero(dl), _ACTION_MODES[p.datalink_action], est_pos, yaw_now)
         regained = live & self.failsafe & sp_ok
         back = regained & ((self.mode == HOLD) | p.resume_after_action)
         self.mode[back] = OFFBOARD

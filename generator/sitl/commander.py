@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scart_bench.dataset.schema import HOME_ALT
+from scart_bench.generator.flight_software.commander import OFFBOARD_LOSS_ACTIONS, ControlParams
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.sitl.bounds import target_ok
 
@@ -93,9 +94,11 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("NAV_MC_ALT_RAD", 0.8, REAL32, "m", "vertical acceptance radius of a waypoint", low=0.05, high=200.0),
     ParamSpec("RTL_RETURN_ALT", 60.0, REAL32, "m", "Return climbs to at least this height above home",
               low=0.0, high=150.0),
-    ParamSpec("COM_OF_LOSS_T", 1.0, REAL32, "s", "offboard setpoints older than this are lost", low=0.0, high=60.0),
-    ParamSpec("COM_OBL_ACT", 0, INT32, "enum", "failsafe when offboard setpoints are lost: 0 Land, 1 Hold, 2 Return",
-              low=0, high=2),
+    # the simulation mode's commander defaults (generator.flight_software.commander.ControlParams)
+    ParamSpec("COM_OF_LOSS_T", ControlParams.offboard_loss_s, REAL32, "s", "offboard setpoints older than this are lost",
+              low=0.0, high=60.0),
+    ParamSpec("COM_OBL_ACT", OFFBOARD_LOSS_ACTIONS.index(ControlParams.offboard_loss_action), INT32, "enum",
+              "failsafe when offboard setpoints are lost: 0 Land, 1 Hold, 2 Return", low=0, high=2),
     ParamSpec("COM_DISARM_PRFLT", 10.0, REAL32, "s", "armed on the ground this long without taking off: disarm",
               low=-1.0, high=20.0),
     ParamSpec("MAV_SYS_ID", 1, INT32, "", "MAVLink system id", read_only=True),
@@ -487,8 +490,8 @@ class Commander:
         return out
 
     def _offboard_failsafe(self) -> None:
-        act = int(self.params["COM_OBL_ACT"])
-        mode = {1: HOLD, 2: RTL}.get(act, LAND)
+        action = OFFBOARD_LOSS_ACTIONS[int(self.params["COM_OBL_ACT"])]
+        mode = {"hold": HOLD, "return": RTL, "land": LAND}[action]
         self.say(f"Failsafe: offboard signal lost, activating {mode}", severity=4)
         self.outbox.append(("failsafe", mode))
         self.offboard.count = 0
