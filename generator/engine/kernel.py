@@ -325,7 +325,7 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     for a in range(3):
         s[L.ACC_BIAS + a] = p[K_A_AB] * s[L.ACC_BIAS + a] + p[K_C_AB] * w[k, NZ_ACC_BIAS + a]
         s[L.GYRO_BIAS + a] = p[K_A_GB] * s[L.GYRO_BIAS + a] + p[K_C_GB] * w[k, NZ_GYRO_BIAS + a]
-        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + p[K_C_AN] * w[k, NZ_ACC + a]
+        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + p[K_C_AN + a] * w[k, NZ_ACC + a]
         s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + p[K_C_GN] * w[k, NZ_GYRO + a]
     if due[L.D_MAG, step]:
         m0, m1, m2 = p[K_MAG_FIELD], p[K_MAG_FIELD + 1], p[K_MAG_FIELD + 2]

@@ -64,7 +64,8 @@ class Sensors:
         a_gb = np.exp(-dt / p.gyro_bias_tau)
         st.accel_bias = a_ab * st.accel_bias + p.accel_bias_random_walk * np.sqrt(dt) * noise[:, 6:9]
         st.gyro_bias = a_gb * st.gyro_bias + p.gyro_bias_random_walk * np.sqrt(dt) * noise[:, 9:12]
-        acc = fs + st.accel_bias + p.accel_noise_density * np.sqrt(1 / dt) * noise[:, 0:3]
+        acc_sigma = p.accel_noise_density * np.sqrt(1 / dt) * np.array([1.0, 1.0, p.accel_noise_z_factor])
+        acc = fs + st.accel_bias + acc_sigma * noise[:, 0:3]
         gyro = omega + st.gyro_bias + p.gyro_noise_density * np.sqrt(1 / dt) * noise[:, 3:6]
         return acc, gyro
 
