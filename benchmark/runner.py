@@ -60,18 +60,28 @@ _VERSION_PACKAGES = ("scart-bench", "numpy", "pandas", "scipy", "scikit-learn", 
 
 def prepare_dataset(cfg: RunConfig) -> Path:
     """The dataset folder: ``--dataset``, or the profile's dataset (generated when missing)."""
-    from scart_bench.dataset import is_dataset
+    from scart_bench.dataset import is_dataset, open_dataset
 
     if cfg.dataset is not None:
         return Path(cfg.dataset)
     path = cfg.data_root / f"{cfg.profile}-seed{cfg.seed}"
-    if is_dataset(path):
-        return path
     try:
+        from scart_bench.generator.engine.flight_batch import FLIGHT_DEFAULTS
         from scart_bench.generator.generate import generate_dataset
     except ImportError as exc:
+        if is_dataset(path):
+            return path
         raise RunError(f"cannot generate the {cfg.profile} dataset: the generator is not available ({exc}); "
                          "pass --dataset DIR with an existing dataset") from exc
+    if is_dataset(path):
+        made_with = open_dataset(path).flight_defaults
+        if made_with == FLIGHT_DEFAULTS:
+            return path
+        # the profile's own dataset is a cache of this version's generator: one made with older defaults
+        # would give last version's numbers under this version's name
+        print(f"the {cfg.profile} dataset in {path} was made with generator defaults {made_with}, this "
+              f"version makes {FLIGHT_DEFAULTS}: generating it again", file=sys.stderr)
+        return Path(generate_dataset(cfg.profile, path, cfg.seed, overwrite=True))
     print(f"generating the {cfg.profile} dataset (seed {cfg.seed}) in {path}", file=sys.stderr)
     return Path(generate_dataset(cfg.profile, path, cfg.seed))
 

@@ -450,3 +450,25 @@ def test_the_runs_labels_read_back_as_written(tmp_path):
     empty.path.mkdir()
     empty.write_truth({})
     assert empty.read_truth() == {}
+
+
+def test_the_profile_dataset_made_by_older_defaults_is_generated_again(tmp_path, monkeypatch, capsys):
+    """The profile's own dataset (data/datasets/<profile>-seed<N>) is a cache of this version's
+    generator: one made with older flight defaults is regenerated, not scored under this version's name."""
+    import scart_bench.generator.generate as generate
+    from scart_bench.benchmark.config import RunConfig
+    from scart_bench.benchmark.runner import prepare_dataset
+    from scart_bench.generator.engine.flight_batch import FLIGHT_DEFAULTS
+
+    path = write_dataset(tmp_path / "quick-seed0")  # written without flight_defaults: reads as 1
+    calls = []
+    monkeypatch.setattr(generate, "generate_dataset",
+                        lambda profile, out, seed, **kw: calls.append((profile, seed, kw)) or Path(out))
+    cfg = RunConfig(profile="quick", seed=0, data_root=tmp_path)
+    assert prepare_dataset(cfg) == path
+    assert calls == [("quick", 0, {"overwrite": True})]
+    assert f"made with generator defaults 1, this version makes {FLIGHT_DEFAULTS}" in capsys.readouterr().err
+    info = json.loads((path / "dataset.json").read_text())
+    (path / "dataset.json").write_text(json.dumps({**info, "flight_defaults": FLIGHT_DEFAULTS}))
+    calls.clear()
+    assert prepare_dataset(cfg) == path and calls == [], "a dataset of this version's defaults is reused"
