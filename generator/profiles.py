@@ -32,13 +32,18 @@ class Profile:
     #: message timing of the written flights: "realistic" (jitter, drops, late messages, GPS after
     #: its fix; generator.telemetry.timing) or "ideal" (periodic from t = 0)
     timing: str = "realistic"
+    #: magnetometer and barometer noise: "gazebo" (PX4 Gazebo SITL and hardware) or "rflymad"
+    #: (RflySim SIL, 3x quieter); see generator/params.py SENSOR_PROFILES
+    sensor_profile: str = "gazebo"
 
     def flight_config(self):
-        """The FlightConfig for this profile's flights (the defaults at its GPS accuracy and timing)."""
+        """The FlightConfig for this profile's flights (the defaults at its GPS accuracy, sensor
+        profile and timing)."""
         from scart_bench.generator.engine.simulate import FlightConfig
-        from scart_bench.generator.params import with_gps_accuracy
+        from scart_bench.generator.params import with_gps_accuracy, with_sensor_profile
 
-        return with_gps_accuracy(FlightConfig(timing=self.timing), self.gps_accuracy)
+        config = with_gps_accuracy(FlightConfig(timing=self.timing), self.gps_accuracy)
+        return with_sensor_profile(config, self.sensor_profile)
 
     @property
     def n_normal(self) -> int:

@@ -1,6 +1,6 @@
 """How close generated flights are to real PX4 logs: rates, timing jitter, sensor noise, GPS accuracy.
 
-    python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--timing T] [--markdown]
+    python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--sensor-profile P] [--timing T] [--markdown]
                            [--dataset DIR] [--view VIEW] [--logs DIR] [--ulog FILE ...] [--two-sample]
 
 Flies ``N`` default-mission normal flights (holding 12 s in hover after take-off), or reads up to
@@ -243,7 +243,7 @@ def from_tables(name: str, tables: dict) -> Flight:
 
 
 def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, timing: str | None = None,
-                      view: str = "simulator") -> list[Flight]:
+                      view: str = "simulator", sensor_profile: str | None = None) -> list[Flight]:
     """Fly ``n`` normal default-mission flights (in one batch) and read them like a log, by their
     ``view`` (``simulator``: MAVLink names and rates; ``uorb``: flown with the uORB view, PX4's topics
     at a log's rates; ``navigator``: the same as the simulator view, no attack).
@@ -266,6 +266,10 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
         from scart_bench.generator.params import with_gps_accuracy
 
         config = with_gps_accuracy(config, gps_accuracy)
+    if sensor_profile is not None:
+        from scart_bench.generator.params import with_sensor_profile
+
+        config = with_sensor_profile(config, sensor_profile)
     batch = simulate(normal_seeds(seed, n), config)
     flights = []
     for i in range(n):
@@ -477,6 +481,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gps-accuracy", default=None,
                    help="GPS accuracy level of the generated flights (default: the generator's default)")
+    p.add_argument("--sensor-profile", default=None, choices=("gazebo", "rflymad"),
+                   help="magnetometer and barometer noise of the flown flights (default gazebo)")
     p.add_argument("--timing", default=None, choices=("ideal", "realistic"),
                    help="message timing of the generated flights (generator.telemetry.timing; default: the generator's)")
     p.add_argument("--dataset", default=None, help="read up to --flights normal flights of this generated dataset "
@@ -514,7 +520,8 @@ def main(argv: list[str] | None = None) -> int:
         if not generated:
             p.error(f"--dataset {args.dataset}: no normal flights")
     else:
-        generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing, args.view)
+        generated = generated_flights(args.flights, args.seed, args.gps_accuracy, args.timing, args.view,
+                                      args.sensor_profile)
     print(table(generated, logs, markdown=args.markdown))
     if args.two_sample:
         auc = two_sample_auc(generated, logs)

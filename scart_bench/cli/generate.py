@@ -26,6 +26,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
         if args.gps_accuracy not in GPS_ACCURACY:
             raise UsageError(f"--gps-accuracy {args.gps_accuracy!r}: expected one of {', '.join(GPS_ACCURACY)}")
         profile = dataclasses.replace(profile, gps_accuracy=args.gps_accuracy)
+    if args.sensor_profile is not None:
+        from scart_bench.generator.params import SENSOR_PROFILES
+
+        if args.sensor_profile not in SENSOR_PROFILES:
+            raise UsageError(f"--sensor-profile {args.sensor_profile!r}: expected one of {', '.join(SENSOR_PROFILES)}")
+        profile = dataclasses.replace(profile, sensor_profile=args.sensor_profile)
     if args.timing is not None:
         from scart_bench.generator.telemetry.timing import TIMINGS
 
@@ -61,6 +67,9 @@ def register(sub) -> None:
                    "flights, instead of the profile's grid")
     g.add_argument("--gps-accuracy", default=None, help="simulator | real_receiver: the GPS accuracy of the "
                    "flights (default: the profile's; see docs/realism.md)")
+    g.add_argument("--sensor-profile", default=None, help="gazebo | rflymad: magnetometer and barometer noise "
+                   "(gazebo: PX4 Gazebo SITL and hardware; rflymad: RflySim SIL, 3x quieter; default: the "
+                   "profile's; see docs/realism.md)")
     g.add_argument("--timing", default=None, help="ideal | realistic: message timing of the written flights "
                    "(realistic: jitter, drops, late messages, GPS after its fix; default: the profile's)")
     g.add_argument("--uorb", action="store_true", help="also write each flight's uORB view (sensors/uorb/: PX4 "
