@@ -7,7 +7,10 @@ STAMP := $(VENV)/.installed
 # `make test`): `make run`'s table lists the built-ins and the plugins a user installed, not this one
 PLUGIN := $(VENV)/example-plugin
 
-.PHONY: setup run test lint clean
+# Telemanom's optional tensorflow backend (the extra `scart-bench[tensorflow]`), installed for the tests
+TF_STAMP := $(VENV)/.installed-tf
+
+.PHONY: setup setup-tf run test lint clean
 
 setup: $(STAMP)
 
@@ -25,6 +28,15 @@ $(STAMP): pyproject.toml Makefile
 	$(BIN)/pip uninstall --quiet -y scart-bench-example-detector 2>/dev/null || true
 	touch $(STAMP)
 
+# optional, not part of `make setup`: tensorflow-cpu for Telemanom(backend="tensorflow") and its test
+# (tests/test_telemanom_tensorflow.py, skipped without it); ~300 MB of wheels, ~1.4 GB installed, numpy and
+# torch left as they are
+setup-tf: $(TF_STAMP)
+
+$(TF_STAMP): $(STAMP)
+	$(BIN)/pip install --quiet -e '.[tensorflow]'
+	touch $@
+
 $(PLUGIN)/.installed: $(STAMP) examples/custom_detector/pyproject.toml $(wildcard examples/custom_detector/scart_example_detector/*.py)
 	rm -rf $(PLUGIN)
 	# the example detector plugin, installed with pip as a user would (its tests check it is discovered)
@@ -35,7 +47,7 @@ $(PLUGIN)/.installed: $(STAMP) examples/custom_detector/pyproject.toml $(wildcar
 run: setup
 	$(BIN)/scart-bench run --detectors all --jobs 2
 
-test: setup $(PLUGIN)/.installed
+test: setup setup-tf $(PLUGIN)/.installed
 	PYTHONPATH=$(abspath $(PLUGIN)) $(BIN)/pytest -q
 
 lint: setup

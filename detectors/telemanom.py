@@ -29,6 +29,11 @@ Deviations from the published code, each for a stated reason:
   the first ``l_s`` errors with their mean;
 - ``alarms`` also requires errors beyond those seen on the normal training flights
   (``alarm_quantile``), which the paper, lacking normal reference data, could not do.
+
+``backend="tensorflow"`` runs the same model in Keras 3 on ``tensorflow-cpu`` (the paper's own
+stack, :mod:`scart_bench.detectors.telemanom_keras`; install with ``pip install
+'scart-bench[tensorflow]'``), so that the published implementation's framework can be compared
+with this rewrite; everything around the forecaster (windows, errors, threshold) is shared.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ import torch
 from scipy.signal import lfilter
 from torch import nn
 
+from scart_bench.detectors import telemanom_keras
 from scart_bench.detectors.base import Detector, DetectorError, DetectorStream
 
 #: z values tried by the dynamic threshold (published: ``np.arange(2.5, sd_lim, 0.5)``, sd_lim 12).
@@ -58,6 +64,8 @@ ERROR_SCALE_QUANTILE = 0.99
 #: batch; 256 windows of 50 steps stay in a core's cache where 1,024 did not (same forecasts bit
 #: for bit, ~30 % less time per row on one core: tests/test_telemanom.py, perf.detector_speed).
 _PREDICT_CHUNK = 256
+#: Frameworks that can run the forecaster (``Telemanom(backend=...)``).
+BACKENDS = ("torch", "tensorflow")
 #: Fewest windows per LSTM call: a flight's last call is padded up to it by repeating its last
 #: window, because calls of 1-3 windows take another kernel and round differently; so a row's
 #: forecast does not depend on how many rows follow it.
@@ -367,14 +375,25 @@ class Telemanom(Detector):
     combine : {"max", "mean"}
         How ``score`` combines the channels' normalised smoothed errors.
     device : str
-        "auto" (CUDA when available, else CPU), "cpu" or "cuda[:i]".
+        "auto" (CUDA when available, else CPU), "cpu" or "cuda[:i]". The tensorflow backend runs
+        on the CPU ("auto" or "cpu").
+    backend : {"torch", "tensorflow"}
+        Framework of the LSTM forecaster. "torch" (default): this module's PyTorch model.
+        "tensorflow": the same model in Keras 3 on ``tensorflow-cpu``, as the original
+        implementation (stacked ``LSTM`` + ``Dropout``, ``Dense`` output, Adam on the MSE,
+        ``EarlyStopping`` on the validation loss), with the same parameters above and the same
+        outputs; seeded with ``keras.utils.set_random_seed`` under TensorFlow's op determinism,
+        so the same ``random_state`` gives the same scores. Needs the optional extra:
+        ``pip install 'scart-bench[tensorflow]'`` (TensorFlow is imported only for this backend).
 
     Attributes
     ----------
     target_idx_ : ndarray of int
         Positions of the predicted channels in ``columns_``.
-    model_states_ : list of bytes
-        Trained weights (``torch.save`` of each state dict, CPU tensors), one per model.
+    model_states_ : list of bytes, or list of list of ndarray
+        Trained weights, one per model: ``torch.save`` of each state dict (CPU tensors), or with
+        the tensorflow backend the Keras model's ``get_weights()`` as numpy arrays (a fitted
+        detector pickles without TensorFlow objects).
     error_scale_ : ndarray
         Per target channel, the 99th percentile of its smoothed error on the training flights;
         ``score`` divides the channel's smoothed errors by it.
@@ -421,6 +440,7 @@ class Telemanom(Detector):
         aggregate: str = "first",
         combine: str = "max",
         device: str = "auto",
+        backend: str = "torch",
     ):
         self.columns = columns
         self.random_state = random_state
@@ -447,6 +467,7 @@ class Telemanom(Detector):
         self.aggregate = aggregate
         self.combine = combine
         self.device = device
+        self.backend = backend
 
     # -- public ------------------------------------------------------------------------------
     def smoothed_errors(self, flight) -> np.ndarray:
@@ -509,8 +530,12 @@ class Telemanom(Detector):
         with torch.random.fork_rng(devices=devices):
             torch.manual_seed(seed)
             for k, (inputs, outputs) in enumerate(models):
-                net, n_ep = self._train_one(flat, glob, inputs, outputs, device, seed + k)
-                states.append(self._state_bytes(net))
+                if self.backend == "tensorflow":
+                    state, n_ep = self._train_keras(flat, glob, inputs, outputs, seed + k)
+                else:
+                    net, n_ep = self._train_one(flat, glob, inputs, outputs, device, seed + k)
+                    state = self._state_bytes(net)
+                states.append(state)
                 epochs_run.append(n_ep)
         self.model_states_ = states
         self.epochs_run_ = epochs_run
@@ -554,6 +579,10 @@ class Telemanom(Detector):
             bad.append("alarm_quantile None or in [0.5, 1]")
         if int(self.error_batch) < 1 or int(self.window_size) < 1 or int(self.error_buffer) < 1:
             bad.append("error_batch, window_size, error_buffer >= 1")
+        if self.backend not in BACKENDS:
+            bad.append("backend in {'torch', 'tensorflow'}")
+        elif self.backend == "tensorflow" and self.device not in ("auto", "cpu"):
+            bad.append("device 'auto' or 'cpu' with backend 'tensorflow' (tensorflow-cpu)")
         if bad:
             raise DetectorError(f"{self.name}: invalid parameters, need " + "; ".join(bad))
 
@@ -569,6 +598,8 @@ class Telemanom(Detector):
         return np.array([pos[c] for c in self.target_columns], dtype=np.int64)
 
     def _torch_device(self) -> torch.device:
+        if getattr(self, "backend", "torch") == "tensorflow":
+            return torch.device("cpu")  # windows are cut in torch on the CPU, forecast by Keras
         if self.device == "auto":
             return torch.device("cuda" if torch.cuda.is_available() else "cpu")
         return torch.device(self.device)
@@ -656,6 +687,35 @@ class Telemanom(Detector):
         net.eval()
         return net, epochs_run
 
+    def _keras_model_args(self, inputs: np.ndarray, outputs: np.ndarray) -> dict:
+        skip = np.searchsorted(inputs, outputs) if self.residual else None
+        return dict(
+            l_s=int(self.l_s),
+            n_predictions=int(self.n_predictions),
+            hidden=[int(h) for h in self.hidden],
+            dropout=float(self.dropout),
+            skip=skip,
+        )
+
+    def _train_keras(
+        self, flat: np.ndarray, glob: np.ndarray, inputs: np.ndarray, outputs: np.ndarray, seed: int
+    ) -> tuple[list[np.ndarray], int]:
+        """``_train_one`` in Keras (the tensorflow backend): weights as numpy arrays, epochs run."""
+        return telemanom_keras.train(
+            flat,
+            glob,
+            inputs,
+            outputs,
+            seed,
+            epochs=int(self.epochs),
+            batch_size=int(self.batch_size),
+            lr=float(self.lr),
+            patience=int(self.patience),
+            min_delta=float(self.min_delta),
+            validation_split=float(self.validation_split),
+            **self._keras_model_args(inputs, outputs),
+        )
+
     @staticmethod
     def _state_bytes(net: nn.Module) -> bytes:
         buf = io.BytesIO()
@@ -663,13 +723,18 @@ class Telemanom(Detector):
         return buf.getvalue()
 
     def _nets(self) -> list[_Forecaster]:
-        """The trained models on the compute device (rebuilt from ``model_states_`` once)."""
+        """The trained models on the compute device (rebuilt from ``model_states_`` once; with the
+        tensorflow backend, Keras models called like the torch ones)."""
         device = self._torch_device()
         cache = self.__dict__.get("_nets_cache")
         if cache is not None and cache[0] == str(device):
             return cache[1]
         nets = []
         for (inputs, outputs), state in zip(self._model_specs(), self.model_states_):
+            if getattr(self, "backend", "torch") == "tensorflow":
+                args = self._keras_model_args(inputs, outputs)
+                nets.append(telemanom_keras.load(state, n_inputs=len(inputs), n_outputs=len(outputs), **args))
+                continue
             with torch.random.fork_rng(devices=[]):  # initialisation draws from the global RNG
                 net = self._new_net(inputs, outputs)
             net.load_state_dict(torch.load(io.BytesIO(state), map_location="cpu", weights_only=True))
