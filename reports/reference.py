@@ -9,7 +9,8 @@ dataset (generated when missing). The factor experiments that need no new traini
 of the same saved scores under another protocol (a copy of each run folder with its protocol
 changed, scored again): the operating point (alpha 1 % and 10 % beside 5 %) and the burn-in after
 arming (none, as protocol v1). The detection rule (in window, in window or its end transient,
-flagged anywhere) is in every run's metrics. The page is rewritten as a whole; the figures go into
+flagged anywhere) is in every run's metrics. Retrained configurations (``TRAINED``: Telemanom on
+TensorFlow, when it is installed) run one detector again on each seed's dataset. The page is rewritten as a whole; the figures go into
 a folder beside it (``<out stem>/``).
 """
 
@@ -55,6 +56,14 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "alpha-0.10": ("alpha = 10 %", {"alpha": 0.10}),
     "no-burn-in": ("no burn-in, no end transient (protocol v1's counting)", {"burn_in_s": 0.0,
                                                                              "end_transient_s": 0.0}),
+}
+
+
+#: Retrained configurations, on every seed's dataset: name -> (what, detector, its parameters, the
+#: module it needs). Beside the default run's detector of the same name.
+TRAINED: dict[str, tuple[str, str, dict, str | None]] = {
+    "telemanom-tensorflow": ("Telemanom on Keras 3 / TensorFlow (the paper's stack), the same model and training "
+                             "as our torch default", "telemanom", {"backend": "tensorflow"}, "tensorflow"),
 }
 
 
@@ -106,6 +115,55 @@ def rescored(run: Path, name: str, changes: dict) -> Path:
     (out / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True))
     score_run(out)
     return out
+
+
+def retrained(run: Path, name: str, jobs: int) -> Path | None:
+    """``run``'s dataset and seed with one detector retrained under other parameters (TRAINED[name]):
+    the variant's run folder, or None when the module it needs is not installed."""
+    import importlib.util
+
+    from scart_bench.benchmark.config import RunConfig
+    from scart_bench.benchmark.runner import run_benchmark
+
+    _, detector, params, module = TRAINED[name]
+    if module is not None and importlib.util.find_spec(module) is None:
+        _log(f"reference: {name} left out: {module} is not installed")
+        return None
+    out = run.parent / "variants" / f"{run.name}.{name}"
+    if (out / "metrics.csv").is_file() and (out / "metrics.csv").stat().st_mtime >= (run / "metrics.csv").stat().st_mtime:
+        return out
+    config = json.loads((run / "config.json").read_text())
+    t0 = time.perf_counter()
+    run_benchmark(RunConfig(detectors=[detector], params={detector: dict(params)}, seed=int(config["seed"]),
+                            dataset=Path(config["dataset"]["path"]), out=out, resume=out.exists(), jobs=jobs,
+                            protocol=Protocol.from_dict(config["protocol"])))
+    (out / "wall_s.json").write_text(json.dumps({"wall_s": time.perf_counter() - t0}))
+    return out
+
+
+def _trained_lines(board: pd.DataFrame, trained: dict[str, list[RunResults]]) -> list[str]:
+    """One table per retrained configuration: ours vs it, with the pooled intervals, and whether they agree."""
+    lines: list[str] = []
+    for name, (what, detector, params, _) in TRAINED.items():
+        if not trained.get(name) or detector not in board.index:
+            continue
+        other = _board(trained[name])
+        if detector not in other.index:
+            continue
+        a, b = board.loc[detector], other.loc[detector]
+        walls = [json.loads((r.path / "wall_s.json").read_text())["wall_s"] for r in trained[name]
+                 if (r.path / "wall_s.json").is_file()]
+        lines += ["", f"**{what}** (`{', '.join(f'{k} = {v!r}' for k, v in params.items())}`; "
+                      f"{len(trained[name])} seeds, {sum(walls) / 60:.1f} min):", "",
+                  "| Configuration | TP simulation | TP csv | TN no attack | ROC-AUC |", "|---|---|---|---|---|"]
+        for label, row in ((f"{detector} (default)", a), (f"{detector} ({name})", b)):
+            lines.append(f"| {label} | {_cell(row, 'tp_simulation')} | {_cell(row, 'tp_csv')} | "
+                         f"{_cell(row, 'tn_no_attack')} | {row.get('roc_auc_mean', np.nan):.3f} |")
+        agree = [key for key in ("tp_simulation", "tp_csv", "tn_no_attack")
+                 if a.get(f"{key}_lo", np.nan) <= b.get(f"{key}_mean", np.nan) <= a.get(f"{key}_hi", np.nan)]
+        lines += ["", f"Within the default's pooled 95 % interval: {', '.join(agree) if agree else 'none'} "
+                      f"(of TP simulation, TP csv, TN)."]
+    return lines
 
 
 # -- the page -----------------------------------------------------------------------------------
@@ -274,7 +332,8 @@ def _attainability(runs: list[RunResults]) -> list[str]:
 
 
 def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults],
-               variants: dict[str, list[RunResults]], wall_s: float, command: str) -> list[Path]:
+               variants: dict[str, list[RunResults]], wall_s: float, command: str,
+               trained: dict[str, list[RunResults]] | None = None) -> list[Path]:
     """docs/results.md and its figures."""
     board = _board(runs)
     rule_keys = ("tp_simulation", "tp_csv", "tp_end_simulation", "tp_end_csv", "flagged_simulation", "flagged_csv",
@@ -354,6 +413,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
             lines.append(f"| {det} | {_pct(a['tp_simulation'])} -> {_pct(b['tp_simulation'])} | "
                          f"{_pct(a['tp_csv'])} -> {_pct(b['tp_csv'])} | {_pct(a['far_no_attack'])} -> "
                          f"{_pct(b['far_no_attack'])} |")
+    lines += _trained_lines(board, trained or {})
     fam = _pooled(runs, "action")
     if len(fam):
         lines += ["", "## Per attack family", "", "TP in window, flights pooled over the seeds (simulation / csv; "
@@ -387,6 +447,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--runs", type=Path, default=Path("runs/reference"), help="folder of the run folders")
     p.add_argument("--data", type=Path, default=Path("data/datasets"), help="folder of the datasets")
     p.add_argument("--out", type=Path, default=Path("docs/results.md"))
+    p.add_argument("--no-retrained", action="store_true",
+                   help="leave out the retrained configurations (Telemanom on TensorFlow)")
     args = p.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     t0 = time.perf_counter()
@@ -394,9 +456,15 @@ def main(argv: list[str] | None = None) -> int:
     runs = load_runs(paths)
     variants = {name: load_runs([rescored(path, name, changes) for path in paths])
                 for name, (_, changes) in VARIANTS.items()}
+    trained = {}
+    for name in ([] if args.no_retrained else TRAINED):
+        folders = [retrained(path, name, args.jobs) for path in paths]
+        if all(f is not None for f in folders):
+            trained[name] = load_runs(folders)
     command = (f"python -m scart_bench.reports.reference --profile {args.profile} --seeds {args.seeds} "
                f"--jobs {args.jobs} --runs {args.runs} --out {args.out}")
-    for f in write_page(args.out, args.profile, seeds, runs, variants, time.perf_counter() - t0, command):
+    for f in write_page(args.out, args.profile, seeds, runs, variants, time.perf_counter() - t0, command,
+                        trained):
         print(f)
     return 0
 

@@ -42,3 +42,30 @@ def test_the_page_puts_the_paper_beside_the_runs_with_factors_and_figures(tmp_pa
     assert "--profile quick --seeds 0" in page  # the command that regenerates it
     assert all(f.is_file() and f.stat().st_size > 1000 for f in files[1:]) and len(files) == 3
     assert "![tp_by_family](results/tp_by_family.png)" in page
+
+
+def test_a_retrained_configuration_runs_on_each_seeds_dataset_and_is_compared(tmp_path, monkeypatch):
+    """TRAINED (e.g. Telemanom on TensorFlow): the same dataset, seed and protocol, one detector
+    retrained with other parameters, and a table of both with whether they agree."""
+    from run_fixtures import write_dataset
+
+    from scart_bench.benchmark.config import RunConfig
+    from scart_bench.benchmark.runner import run_benchmark
+
+    dataset = write_dataset(tmp_path / "ds")
+    run = tmp_path / "runs" / "test-seed0"
+    run_benchmark(RunConfig(detectors=["statistical"], dataset=dataset, out=run, progress=False))
+    monkeypatch.setattr(reference, "TRAINED", {
+        "statistical-window-25": ("Statistical with a 25-row window", "statistical", {"window": 25}, None),
+        "needs-a-module": ("a configuration whose module is missing", "statistical", {}, "no_such_module_here"),
+    })
+    out = reference.retrained(run, "statistical-window-25", jobs=1)
+    config = json.loads((out / "config.json").read_text())
+    assert config["dataset"]["path"] == json.loads((run / "config.json").read_text())["dataset"]["path"]
+    assert (out / "metrics.csv").is_file() and (out / "wall_s.json").is_file()
+    assert reference.retrained(run, "needs-a-module", jobs=1) is None
+    files = reference.write_page(tmp_path / "results.md", "quick", [0], load_runs([run]), {}, 1.0, "cmd",
+                                 {"statistical-window-25": load_runs([out])})
+    page = files[0].read_text()
+    assert "**Statistical with a 25-row window** (`window = 25`; 1 seeds" in page
+    assert "| statistical (statistical-window-25) |" in page and "Within the default's pooled 95 % interval" in page
