@@ -5,6 +5,8 @@ over it::
 
     detectors = ["statistical", "goad"]     # or "all"
     profile = "quick"                        # or: dataset = "path/to/dataset"
+    train_dataset = "path/to/generated"      # optional: train and calibrate there, test on dataset
+                                             #   (scart_bench.benchmark.transfer)
     out = "runs/my-run"
     seed = 0
     jobs = 2
@@ -46,7 +48,7 @@ from scart_bench.generator.profiles import PROFILES
 #: The keys a run file may hold.
 #: values of ``--device``
 DEVICES = ("auto", "cpu", "cuda")
-RUN_KEYS = ("detectors", "profile", "dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
+RUN_KEYS = ("detectors", "profile", "dataset", "train_dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
             "plugins", "params", "protocol", "resume", "features", "exclude", "device")
 
 
@@ -57,6 +59,8 @@ class RunConfig:
     detectors: list[str] = field(default_factory=lambda: ["all"])
     profile: str = "quick"
     dataset: Path | None = None
+    #: train and calibrate on this dataset, test on ``dataset`` (a transfer run: benchmark.transfer)
+    train_dataset: Path | None = None
     out: Path | None = None
     resume: bool = False
     executor: str = "local"
@@ -100,6 +104,8 @@ class RunConfig:
             raise RunError(f"--device {self.device!r}: expected one of {', '.join(DEVICES)}")
         if not self.detectors:
             raise RunError("--detectors: expected 'all' or a comma-separated list of names")
+        if self.train_dataset is not None and self.dataset is None:
+            raise RunError(f"--train-dataset {self.train_dataset}: a transfer run tests on --dataset DIR; none given")
 
     @property
     def timeout_s(self) -> float:
@@ -117,6 +123,8 @@ class RunConfig:
                      "protocol": self.protocol.rules()}
         if self.dataset is not None:
             out["dataset"] = str(self.dataset)
+        if self.train_dataset is not None:
+            out["train_dataset"] = str(self.train_dataset)
         if self.scheduler:
             out["scheduler"] = self.scheduler
         if self.features:
@@ -173,10 +181,10 @@ def _checked(p: Path, data: dict) -> dict:
             out["detectors"] = list(d)
         else:
             raise bad("detectors", '"all" or a list of detector names')
-    for key in ("profile", "executor", "scheduler", "dataset", "out", "device"):
+    for key in ("profile", "executor", "scheduler", "dataset", "train_dataset", "out", "device"):
         if key in data and not isinstance(data[key], str):
             raise bad(key, "a string")
-    for key in ("dataset", "out"):
+    for key in ("dataset", "train_dataset", "out"):
         if key in data:
             out[key] = Path(data[key])
     for key in ("seed", "jobs"):

@@ -34,6 +34,8 @@ class JobSpec:
     #: Also return the detector's own row alarms (``Detector.alarms``) where it has them
     #: (the protocol's alarm rule "own").
     own_alarms: bool = False
+    #: A transfer run (benchmark.transfer.TransferRun.job_args): flights read by meaning from two datasets.
+    transfer: dict | None = None
 
 
 @dataclass
@@ -100,6 +102,11 @@ def open_flights(spec: JobSpec):
             print(f"flight cache {spec.cache} lacks some of the job's flights; reading the dataset", file=sys.stderr)
         except CacheInvalid as exc:
             print(f"flight cache not used ({exc}); reading the dataset", file=sys.stderr)
+    if spec.transfer:
+        from scart_bench.benchmark.transfer import TransferFlights
+
+        t = spec.transfer
+        return TransferFlights(t["train_dataset"], spec.dataset, t["train_ids"], t["columns"], t["interval_us"])
     return open_dataset(spec.dataset)
 
 

@@ -181,12 +181,15 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
     """metrics.md: the paper's table, the extra metrics, failures and the protocol used."""
     ds = config.get("dataset", {})
     proto = config.get("protocol", {})
+    train = config.get("train_dataset") or {}
     lines = [f"# Run {config.get('name', '')}", "",
+             *([f"Trained and calibrated on `{train.get('path')}` (fingerprint {str(train.get('fingerprint'))[:12]}); "
+                "tested on:", ""] if train else []),
              f"Dataset `{ds.get('path')}` (fingerprint {str(ds.get('fingerprint', ''))[:12]}), "
              f"flights per role: {json.dumps(ds.get('flights', {}))}; seed {config.get('seed')}.", "",
              "## The paper's table", "", markdown_table(metrics, PAPER_COLUMNS), "",
              "## Further metrics", "", markdown_table(metrics, EXTRA_COLUMNS, status=False), "",
-             *rate_summary(metrics, ds.get("no_effect", []))]
+             *rate_summary(metrics, ds.get("no_effect", [])), *transfer_summary(config, metrics)]
     failed = metrics[metrics["status"] != "OK"] if "status" in metrics else metrics.iloc[:0]
     if len(failed):
         lines += ["## Failed jobs", ""]
@@ -214,6 +217,32 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
                     f"burn-in and were left out" for _, r in ok.iterrows()
                     if not pd.isna(r.get("threshold_after_arming_s"))), ""]
     return "\n".join(lines)
+
+
+def transfer_summary(config: dict, metrics: pd.DataFrame) -> list[str]:
+    """Markdown lines of a transfer run (``--train-dataset``): which dataset each number comes from and,
+    per detector, the false-alarm rate on the test dataset's normal flights and the TP on its attacked
+    flights (empty for a run on one dataset)."""
+    train = config.get("train_dataset")
+    if not train:
+        return []
+    test = config.get("dataset", {}) or {}
+    flights = test.get("flights", {}) or {}
+    shared = (config.get("transfer") or {}).get("columns", [])
+    g, r = train.get("path", ""), test.get("path", "")
+    lines = ["## Train here, test there", "",
+             f"- trained and calibrated on `{g}`: {train.get('flights', {}).get('train', 0)} train flights fit the "
+             f"detectors, {train.get('flights', {}).get('validation', 0)} validation flights set the thresholds;",
+             f"- tested on `{r}`: TN and false alarms on its {flights.get('test_normal', 0)} normal flights, TP on "
+             f"its {flights.get('test_attacked', 0)} attacked flights;",
+             f"- {len(shared)} quantities matched by meaning: {', '.join(shared)} (columns.csv: what was dropped).", ""]
+    ok = metrics[metrics["status"] == "OK"] if "status" in metrics else metrics.iloc[:0]
+    modes = [m for m in ("csv", "simulation") if len(ok) and (pd.to_numeric(ok[f"n_{m}"], errors="coerce") > 0).any()]
+    cols = [(f"Threshold from ({Path(g).name})", "flight_threshold", "f3"),
+            (f"False alarms, normal flights ({Path(r).name})", "far_no_attack", "pct_ci"),
+            *((f"TP {m} (in window, {Path(r).name})", f"tp_{m}", "pct_ci") for m in modes)]
+    lines += [markdown_table(metrics, cols), ""]
+    return lines
 
 
 def paper_table(metrics: pd.DataFrame) -> str:

@@ -49,6 +49,7 @@ from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign
 from scart_bench.benchmark.results import paper_table, score_run, write_results
 from scart_bench.benchmark.selection import DetectorChoice, load_plugins, resolve_detectors, with_params
 from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
+from scart_bench.benchmark.transfer import TransferRun, open_transfer, plan_fingerprint
 from scart_bench.errors import RunError
 
 __all__ = ["RunConfig", "RunOutcome", "paper_table", "prepare_dataset", "run_benchmark", "score_run"]
@@ -156,7 +157,7 @@ def _truth(ds, flight_ids) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], di
     return out, arming
 
 
-def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note,
+def _flight_cache(store: RunStore, read, key: dict, flight_ids: list[str], note,
                   workers: int = 1) -> FlightCache | None:
     """The run's flight cache holding ``flight_ids``: the one in the run folder when its key matches
     (kept by an unfinished run), else built now, reading each flight once. None (the jobs read
@@ -171,7 +172,7 @@ def _flight_cache(store: RunStore, ds, key: dict, flight_ids: list[str], note,
         pass
     t0 = time.perf_counter()
     try:
-        cache = build_cache(folder, key, flight_ids, DatasetReader(ds.path), workers=workers)
+        cache = build_cache(folder, key, flight_ids, read, workers=workers)
     except Exception as exc:  # an optimisation only: the jobs read the dataset as before
         note(f"flight cache off ({type(exc).__name__}: {exc}); every job reads the dataset")
         return None
@@ -200,9 +201,19 @@ def _check_identity(store: RunStore, old: dict | None, identity: dict) -> None:
 
 
 def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: Splits, identity: dict,
-                chosen: list[DetectorChoice], plugins: dict[str, DetectorChoice], settings: dict) -> dict:
+                chosen: list[DetectorChoice], plugins: dict[str, DetectorChoice], settings: dict,
+                transfer: TransferRun | None = None) -> dict:
     """config.json: identity, dataset, detectors (accumulated over invocations), environment."""
     previous = list(old.get("detectors", [])) if old else []
+    extra = {} if transfer is None else {
+        "train_dataset": {"path": str(transfer.train.path.resolve()), "info": transfer.train.info,
+                          "fingerprint": identity["train_dataset_fingerprint"],
+                          "flights": {"train": len(splits.train), "validation": len(splits.validation)}},
+        "transfer": {**transfer.plan.to_dict(), "dropped": {
+            side: {c: why for c, why in cols.items() if why != "no meaning"}
+            for side, cols in transfer.plan.dropped.items()},
+            "no_meaning": {side: sum(why == "no meaning" for why in cols.values())
+                           for side, cols in transfer.plan.dropped.items()}}}
     return {
         "format": RUN_FORMAT,
         "identity": identity,
@@ -212,6 +223,7 @@ def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: S
         "random_state": int(cfg.seed),
         "dataset": {"path": str(ds.path.resolve()), "info": ds.info, "fingerprint": identity["dataset_fingerprint"],
                     "flights": {r: len(getattr(splits, r)) for r in ROLES}, "no_effect": list(splits.no_effect)},
+        **extra,
         "detectors": list(dict.fromkeys([*previous, *(c.name for c in chosen)])),
         "jobs": {**(old.get("jobs", {}) if old else {}), **settings},
         "plugins": [c.source for c in plugins.values()],
@@ -255,10 +267,18 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     plugins = load_plugins(cfg.plugins, probe_timeout_s=cfg.timeout_s)
     chosen = with_params(resolve_detectors(cfg.detectors, plugins), cfg.params, cfg.device)
     ds = open_dataset(prepare_dataset(cfg))
-    splits = Splits.from_manifest(ds.manifest)
-    ds.check_flights(dict.fromkeys(splits.train + splits.scored))  # a damaged table stops the run here
+    transfer = None
+    if cfg.train_dataset is not None:  # train here, test there: flights read by meaning (benchmark.transfer)
+        transfer = open_transfer(cfg.train_dataset, ds, note=lambda m: print(m, file=sys.stderr))
+        splits = transfer.splits
+    else:
+        splits = Splits.from_manifest(ds.manifest)
+        ds.check_flights(dict.fromkeys(splits.train + splits.scored))  # a damaged table stops the run here
     identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest, ds.path),
                 "seed": int(cfg.seed), "protocol": cfg.protocol.rules()}
+    if transfer is not None:  # absent otherwise: runs on one dataset keep their identity
+        identity["train_dataset_fingerprint"] = dataset_fingerprint(transfer.train.manifest, transfer.train.path)
+        identity["transfer"] = {"columns": list(transfer.plan.columns), "interval_us": transfer.plan.interval_us}
     if cfg.features or cfg.exclude:  # absent otherwise: runs made before these options stay comparable
         identity["features"] = {"include": list(cfg.features or []), "exclude": list(cfg.exclude or [])}
     _check_identity(store, old, identity)
@@ -268,6 +288,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     executor = make_executor(cfg.executor, scheduler=cfg.scheduler, jobs=int(cfg.jobs))
     try:
         executor.check_dataset(str(ds.path.resolve()))
+        if transfer is not None:
+            executor.check_dataset(str(transfer.train.path.resolve()))
     except BaseException:
         executor.close()
         raise
@@ -275,19 +297,24 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         store.path.mkdir(parents=True, exist_ok=True)
         lock = store.lock()  # a second writer to this folder is refused here, before it writes anything
         store.mark_stale()  # old tables must not read as this run's results if it is interrupted
-        store.write_config(_run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings))
-        store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
-            ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])
+        store.write_config(_run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer))
+        if transfer is None:
+            store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
+                ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])
+        else:
+            store.write_flights(transfer.flights)
+            store.write_table("columns.csv", transfer.dropped_table())
         skipped = [c.name for c in chosen if cfg.resume and _finished(store, c.name, keys[c.name])]
         progress = Progress(len(chosen) - len(skipped), enabled=cfg.progress)
         if skipped:
             progress.note(f"resume: {len(skipped)} finished job(s) kept: {', '.join(skipped)}")
-        key = cache_key(identity["dataset_fingerprint"])
+        key = cache_key(identity["dataset_fingerprint"] if transfer is None else plan_fingerprint(identity))
         readers = min(int(cfg.jobs), os.cpu_count() or 1) if cfg.executor == "local" else 1
-        cache = (_flight_cache(store, ds, key, [*splits.train, *splits.scored], progress.note, readers)
+        read = DatasetReader(ds.path) if transfer is None else transfer.reader
+        cache = (_flight_cache(store, read, key, [*splits.train, *splits.scored], progress.note, readers)
                  if len(skipped) < len(chosen) else None)
         if not store.has_truth() or not store.has_arming():
-            truth, arming = _truth(cache or ds, splits.scored)
+            truth, arming = _truth(cache or (ds if transfer is None else transfer.reader), splits.scored)
             store.write_truth(truth)
             store.write_arming(arming)
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
@@ -295,7 +322,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
                          str(ds.path.resolve()), splits.train, splits.scored, threads,
                          tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
                          str(cache.folder.resolve()) if cache else None, key if cache else None,
-                         cfg.protocol.alarm_rule == "own")
+                         cfg.protocol.alarm_rule == "own", transfer.job_args() if transfer else None)
                  for c in chosen if c.name not in skipped]
         # costliest first (a scheduling hint only: tables keep the detectors' order)
         cost = {c.name: float(getattr(c.cls, "relative_cost", 10.0)) for c in chosen}

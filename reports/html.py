@@ -14,7 +14,14 @@ from pathlib import Path
 import pandas as pd
 
 from scart_bench.benchmark.store import to_json
-from scart_bench.reports.leaderboard import HEADLINE_DOC, RULES_DOC, config_link, display_table, failures
+from scart_bench.reports.leaderboard import (
+    HEADLINE_DOC,
+    RULES_DOC,
+    config_link,
+    display_table,
+    failures,
+    transfer_lines,
+)
 from scart_bench.reports.results import RunResults
 
 CSS = """
@@ -94,6 +101,30 @@ def runs_table(runs: list[RunResults], out: Path | None) -> str:
     return "".join(rows)
 
 
+def _transfer_html(runs: list[RunResults]) -> list[str]:
+    """The transfer runs' section (leaderboard.transfer_lines): bullets and their table."""
+    lines = transfer_lines(runs)
+    if not lines:
+        return []
+    parts, rows = [], []
+    for line in [*lines, ""]:
+        if line.startswith("|"):
+            if not line.startswith("|---"):
+                rows.append([c.strip() for c in line.strip("|").split(" | ")])
+            continue
+        if rows:
+            head, *body = rows
+            parts.append('<div class="scroll"><table><thead><tr>' + "".join(f"<th>{esc(h)}</th>" for h in head)
+                         + "</tr></thead><tbody>" + "".join("<tr>" + "".join(f"<td>{esc(c)}</td>" for c in r)
+                                                           + "</tr>" for r in body) + "</tbody></table></div>")
+            rows = []
+        if line.startswith("## "):
+            parts.append(f"<h2>{esc(line[3:])}</h2>")
+        elif line.startswith("- "):
+            parts.append(f"<p class=\"doc\">{esc(line[2:])}</p>")
+    return parts
+
+
 def page(board: pd.DataFrame, runs: list[RunResults], figures: list[tuple[str, Path]], out: Path | None,
          notes: list[str] = ()) -> str:
     """The whole leaderboard page."""
@@ -105,6 +136,7 @@ def page(board: pd.DataFrame, runs: list[RunResults], figures: list[tuple[str, P
              f'<p class="doc">{esc(HEADLINE_DOC)}</p>', f'<p class="doc">{esc(RULES_DOC)}</p>',
              leaderboard_table(board, runs),
              f"<h2>Runs ({len(runs)})</h2>", runs_table(runs, out)]
+    parts += _transfer_html(runs)
     fails = failures(runs)
     if fails:
         parts.append("<h2>Failed or unfinished jobs</h2><ul>")

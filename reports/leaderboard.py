@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.benchmark.intervals import cluster_weights, wilson
+from scart_bench.benchmark.results import transfer_summary
 from scart_bench.reports.results import RunResults, load_runs
 
 #: The three rates averaged into the headline score.
@@ -343,6 +344,7 @@ def to_markdown(board: pd.DataFrame, runs: list[RunResults], out: Path | None = 
         ds = r.config.get("dataset", {}) or {}
         lines.append(f"| {md_text(r.label)} | {md_text(r.config.get('profile', ''))} | {md_text(r.config.get('seed', ''))} | "
                      f"{md_text(ds.get('path', ''))} | {len(r.metrics)} | [config.json]({link}) |")
+    lines += transfer_lines(runs)
     fails = failures(runs)
     if fails:
         lines += ["", "## Failed or unfinished jobs", ""]
@@ -352,6 +354,17 @@ def to_markdown(board: pd.DataFrame, runs: list[RunResults], out: Path | None = 
     if notes:
         lines += ["", "## Notes", ""] + [f"- {md_text(n)}" for n in notes]
     return "\n".join(lines) + "\n"
+
+
+def transfer_lines(runs: list[RunResults]) -> list[str]:
+    """Per transfer run (``--train-dataset``): where its numbers come from, the false-alarm rate on the
+    test dataset's normal flights and the TP on its attacked flights, per detector (Markdown lines)."""
+    out: list[str] = []
+    for r in runs:
+        lines = transfer_summary(r.config, r.metrics)
+        if lines:
+            out += ["", f"{lines[0]}: {md_text(r.label)}", *lines[1:]]
+    return out
 
 
 def config_link(run: RunResults, out: Path | None) -> str:

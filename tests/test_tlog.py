@@ -112,3 +112,62 @@ def test_tlog_cli_import_and_attack(tmp_path, capsys):
         capsys.readouterr().err
     m = open_dataset(ds).manifest
     assert len(m) == 2 and (m["mode"] == "csv").sum() == 1
+
+
+def test_a_tlog_recorded_from_the_sitl_by_pymavlink_matches_the_sitls_own_recording(tmp_path):
+    """A ground station's tlog (each frame a pymavlink client received, after its 8-byte big-endian
+    receive time in microseconds, as mavutil's ``setup_logfile`` writes them; its UDP connection does not
+    log, so the client writes them itself) of a ``scart-bench sitl`` flight imports, and its GPS track is the sitl's
+    own recording of that flight: the same positions (within the 1e-7 deg of MAVLink's integers) at
+    the same boot times."""
+    import os
+    import socket
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from pymavlink import mavutil
+
+    from scart_bench.dataset import open_dataset
+
+    root = Path(__file__).resolve().parents[1]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rec, tlog = tmp_path / "sitl", tmp_path / "gcs.tlog"
+    cmd = [sys.executable, "-m", "scart_bench.cli", "sitl", "--listen", f"udp:127.0.0.1:{port}", "--lockstep",
+           "--duration", "4", "--record", str(rec), "--flight-id", "s1"]
+    proc = subprocess.Popen(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(root)})
+    try:
+        assert "listening on" in proc.stderr.readline()
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255)
+        conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        with tlog.open("wb") as fh:
+            while True:  # record everything until the sitl has stopped and gone quiet
+                m = conn.recv_match(blocking=True, timeout=0.5)
+                if m is None and proc.poll() is not None:
+                    break
+                if m is not None and m.get_type() != "BAD_DATA":
+                    fh.write(struct.pack(">Q", int(time.time() * 1e6)) + m.get_msgbuf())
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    ds_path = tmp_path / "gcs"
+    assert main(["import", str(tlog), "--out", str(ds_path), "--split", "test"]) == 0
+    ds, own = open_dataset(ds_path), open_dataset(rec)
+    (fid,) = ds.manifest["flight_id"]
+    for topic, time_field, scale in (("global_position_int", "time_boot_ms", 1000), ("gps_raw_int", "time_usec", 1)):
+        got = ds.topic(fid, topic)
+        mine = own.topic("s1", topic).set_index("Timestamp")
+        assert len(got) > 20, f"{topic}: {len(got)} messages in the tlog"
+        at = (got[time_field].to_numpy(np.int64) * scale)
+        assert np.isin(at, mine.index).mean() > 0.95, f"{topic}: boot times do not match the sitl's"
+        keep = np.isin(at, mine.index)
+        ref = mine.loc[at[keep]]
+        for f in ("lat", "lon"):
+            assert np.abs(got[f].to_numpy()[keep] - ref[f].to_numpy()).max() <= 1.01e-7, f"{topic}.{f}"
+        assert np.abs(got["alt"].to_numpy()[keep] - ref["alt"].to_numpy()).max() <= 1.01e-3

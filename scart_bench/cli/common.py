@@ -46,13 +46,19 @@ EXIT_JOBS_FAILED = 3
 
 def print_tables(path: Path, metrics) -> None:
     """The paper table and the operating-point lines of a run (stdout); failed jobs and the folder (stderr)."""
-    from scart_bench.benchmark.results import paper_table
+    from scart_bench.benchmark.results import paper_table, transfer_summary
     from scart_bench.benchmark.scoring import rate_summary
     from scart_bench.benchmark.store import RunStore
 
+    config = RunStore(path).read_config()
+    train = (config.get("train_dataset") or {}).get("path")
+    if train:  # a transfer run: where each number comes from, above the table
+        print(f"Trained and calibrated on {train} (thresholds); TP and TN on {config['dataset'].get('path')}")
     print(paper_table(metrics))
-    no_effect = (RunStore(path).read_config().get("dataset") or {}).get("no_effect") or []
+    no_effect = (config.get("dataset") or {}).get("no_effect") or []
     print("\n".join(line for line in rate_summary(metrics, no_effect) if line.startswith("- ")))
+    if train:
+        print("\n".join(line for line in transfer_summary(config, metrics) if line.startswith(("- ", "|"))))
     failed = metrics[metrics["status"] != "OK"]
     for _, r in failed.iterrows():
         print(f"{r['detector']}: {r['status']}: {r['message']}", file=sys.stderr)

@@ -15,7 +15,8 @@ def _patterns(values: list[str] | None) -> list[str] | None:
 
 
 #: run option -> the RunConfig field it sets (the run file uses the field names)
-_OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "out": "out",
+_OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "train_dataset": "train_dataset",
+            "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
             "timeout": "timeout", "seed": "seed", "features": "features",
             "exclude": "exclude", "device": "device"}
@@ -111,6 +112,10 @@ def register(sub) -> None:
                    help="dataset size profile (default quick); sets the default dataset, run folder and timeout")
     r.add_argument("--dataset", type=Path, metavar="DIR",
                    help="an existing dataset folder (default: data/datasets/<profile>-seed<N>, generated when missing)")
+    r.add_argument("--train-dataset", type=Path, metavar="DIR", dest="train_dataset",
+                   help="train and calibrate on this dataset's train and validation flights, test on --dataset "
+                        "(every normal flight of it and its attacked flights), the columns matched by meaning "
+                        "(docs/own_logs.md, 'Train on simulation, test on your flights')")
     r.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/<profile>-seed<N>)")
     r.add_argument("--resume", action="store_true",
                    help="keep jobs that finished OK with the same parameters; run only the others")

@@ -1,0 +1,387 @@
+"""Train here, test there: detectors trained and calibrated on one dataset, tested on another.
+
+``scart-bench run --train-dataset GENERATED --dataset REAL`` (``train_dataset`` in a run file) fits
+every detector on the normal train flights of GENERATED, calibrates its threshold on GENERATED's
+validation flights, and scores the flights of REAL: every normal flight of REAL, whatever its split
+(none is fitted or calibrated on), is a held-out normal flight, and REAL's attacked flights are the
+attacked flights.
+
+The two datasets name their columns differently (MAVLink link topics on generated flights, uORB
+topics in PX4 logs, DataFlash messages in ArduPilot logs). Each flight's table is rewritten by
+meaning (:func:`shared_table`), with the quantities of :mod:`scart_bench.generator.scart.meanings`,
+the table the scenarios by meaning resolve with:
+
+- a column whose ``topic.field`` stands for a quantity (``MEANING_OF``) becomes that quantity's
+  column (``global_position_int.vx``, ``vehicle_local_position.vx`` and ``ekf1.VN`` are all
+  ``velocity.vn``); when a flight has several, the first candidate of the quantity's list is kept;
+- units are the generator's: degrees (ArduPilot's angles and courses) -> rad, pressure in Pa -> hPa
+  and a magnetic field in mGauss -> Gauss (told by their size: above 2000 and 5);
+  a PX4 attitude quaternion gives ``attitude.roll``, ``pitch`` and ``yaw`` where the flight has no
+  Euler angles;
+- what says *where* a flight is rather than how it flies is taken from the flight's own start:
+  latitude/longitude become metres north/east of the flight's first fix (``position.north``,
+  ``position.east``, ``gps.north``, ``gps.east``), and AMSL altitudes, the barometer's pressure and
+  altitude and the battery voltage their change since the first valid value;
+- the mission item and the flight phase (control state, not measurements) are not kept; the arming
+  columns (``armed``, ``arming_state``) are kept as they are for the burn-in;
+- the run keeps the quantities every train, validation and test flight has (:func:`plan_transfer`),
+  and says which columns of either dataset had no counterpart;
+- test flights logged at another rate are resampled to the training flights' row interval (each
+  new row the last row at or before its time; labelled attacked when any row since the previous new
+  row was), so that windows counted in rows span the same time on both.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from scart_bench.errors import RunError
+from scart_bench.generator.geo import ne_from_latlon
+from scart_bench.generator.scart import units
+from scart_bench.generator.scart.meanings import MEANING_OF, QUANTITIES
+
+__all__ = ["TransferFlights", "TransferPlan", "column_meanings", "plan_transfer", "resample", "shared_table"]
+
+#: Columns every flight table starts with; kept as they are.
+LABEL_COLUMNS = ("Index", "Timestamp", "Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
+#: Fields that say when a flight was armed (benchmark.protocol.arming_time_us): kept as they are.
+ARMING_FIELDS = ("armed", "arming_state")
+#: Quantities that are control state, not measurements: never shared.
+NOT_SHARED = ("mission", "phase")
+#: Quantities re-referenced to the flight's first valid value (they say where, or with what pack).
+FROM_START = ("altitude.amsl", "gps.alt", "baro.alt", "baro.pressure", "battery.voltage")
+#: latitude/longitude pairs -> (north, east) columns in metres from the flight's first fix.
+LATLON = {("position.lat", "position.lon"): ("position.north", "position.east"),
+          ("gps.lat", "gps.lon"): ("gps.north", "gps.east")}
+#: A PX4 attitude quaternion (w, x, y, z; body FRD -> NED).
+QUATERNION = ("vehicle_attitude.q_0", "vehicle_attitude.q_1", "vehicle_attitude.q_2", "vehicle_attitude.q_3")
+#: Test flights whose median row interval is within this fraction of the training flights' keep their rows.
+RATE_TOLERANCE = 0.1
+
+
+def column_meanings(columns: Iterable[str]) -> dict[str, str]:
+    """``quantity.field`` -> the column of a flight table that stands for it (the first candidate of
+    the quantity's list that the table has and whose own meaning it is)."""
+    have = set(columns)
+    out: dict[str, str] = {}
+    for q, fields in QUANTITIES.items():
+        if q in NOT_SHARED:
+            continue
+        for f, candidates in fields.items():
+            meaning = f"{q}.{f}"
+            hit = next((c for c in candidates if c in have and MEANING_OF.get(c) == meaning), None)
+            if hit is not None:
+                out[meaning] = hit
+    return out
+
+
+def _numeric(s: pd.Series) -> np.ndarray:
+    v = pd.to_numeric(s, errors="coerce").to_numpy(dtype=np.float64, copy=True)
+    v[np.isinf(v)] = np.nan
+    return v
+
+
+def _first_valid(v: np.ndarray) -> float:
+    ok = np.flatnonzero(np.isfinite(v))
+    return float(v[ok[0]]) if ok.size else float("nan")
+
+
+def _euler(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Roll, pitch, yaw (rad, ZYX) of quaternions ``q`` (rows w, x, y, z)."""
+    w, x, y, z = q
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def shared_values(flight: pd.DataFrame) -> dict[str, np.ndarray]:
+    """The flight's quantities by meaning, in the generator's units, site quantities from the flight's
+    start (see the module docstring): shared column name -> values."""
+    cols = column_meanings(flight.columns)
+    out: dict[str, np.ndarray] = {}
+    for meaning, col in cols.items():
+        v = _numeric(flight[col])
+        topic, _, fld = col.partition(".")
+        if units.quantity(topic, fld) == "angle_deg":
+            v = np.deg2rad(v)
+        if meaning == "baro.pressure" and np.isfinite(v).any() and np.nanmedian(v) > 2000.0:
+            v = v / 100.0  # Pa -> hPa (PX4 and ArduPilot log Pa, MAVLink hPa; sea level is 1013 hPa)
+        out[meaning] = v
+    mag = [out[m] for m in ("mag.x", "mag.y", "mag.z") if m in out]
+    if len(mag) == 3 and np.isfinite(mag[0]).any():
+        if np.nanmedian(np.sqrt(mag[0] ** 2 + mag[1] ** 2 + mag[2] ** 2)) > 5.0:  # mGauss (Earth: 0.25-0.65 G)
+            for m in ("mag.x", "mag.y", "mag.z"):
+                out[m] = out[m] / 1000.0
+    if "attitude.roll" not in out and all(c in flight.columns for c in QUATERNION):
+        out["attitude.roll"], out["attitude.pitch"], out["attitude.yaw"] = _euler(
+            np.stack([_numeric(flight[c]) for c in QUATERNION]))
+    for (lat, lon), (north, east) in LATLON.items():
+        if lat in out and lon in out:
+            la, lo = out.pop(lat), out.pop(lon)
+            ok = np.flatnonzero(np.isfinite(la) & np.isfinite(lo) & ((la != 0) | (lo != 0)))
+            if ok.size:
+                n, e = ne_from_latlon(la, lo, la[ok[0]], lo[ok[0]])
+                out[north], out[east] = np.asarray(n, np.float64), np.asarray(e, np.float64)
+        else:
+            out.pop(lat, None)
+            out.pop(lon, None)
+    for name in FROM_START:
+        if name in out:
+            out[name] = out[name] - _first_valid(out[name])
+    return out
+
+
+def resample(table: pd.DataFrame, interval_us: int) -> pd.DataFrame:
+    """The table on a regular grid of ``interval_us`` from its first row: each new row is the last row
+    at or before its time; ``Is_Anomaly`` (and the attack ids) is set when any row since the
+    previous new row was attacked."""
+    ts = table["Timestamp"].to_numpy(np.int64)
+    if ts.size < 2:
+        return table.reset_index(drop=True)
+    grid = np.arange(ts[0], ts[-1] + 1, int(interval_us), dtype=np.int64)
+    idx = np.searchsorted(ts, grid, side="right") - 1
+    out = table.iloc[idx].reset_index(drop=True)
+    out["Timestamp"] = grid.astype(table["Timestamp"].dtype)
+    if "Index" in out.columns:
+        out["Index"] = np.arange(len(out), dtype=table["Index"].dtype)
+    if "Is_Anomaly" in table.columns:
+        lab = table["Is_Anomaly"].to_numpy() > 0
+        count = np.concatenate([[0], np.cumsum(lab)])
+        hi = idx + 1
+        lo = np.concatenate([[0], hi[:-1]])
+        hit = count[hi] - count[lo] > 0
+        out["Is_Anomaly"] = hit.astype(table["Is_Anomaly"].dtype)
+        last = np.maximum.accumulate(np.where(lab, np.arange(ts.size), -1))[idx]
+        for col in ("Anomaly_Ids", "Anomaly_Kind"):
+            if col in table.columns:
+                src = table[col].iloc[np.where(hit, last, idx)].reset_index(drop=True)
+                out[col] = src.astype(table[col].dtype)
+    return out
+
+
+def median_interval_us(table: pd.DataFrame) -> float:
+    ts = table["Timestamp"].to_numpy(np.int64)
+    return float(np.median(np.diff(ts))) if ts.size > 1 else float("nan")
+
+
+def shared_table(flight: pd.DataFrame, columns: Iterable[str] | None = None,
+                 interval_us: int | None = None) -> pd.DataFrame:
+    """The flight's table by meaning: its label columns, its arming columns and the shared quantity
+    columns (``columns``: these, in this order, NaN where the flight lacks one; default every one it
+    has); resampled to ``interval_us`` when its own interval differs by more than RATE_TOLERANCE."""
+    values = shared_values(flight)
+    names = list(values) if columns is None else list(columns)
+    keep = [c for c in LABEL_COLUMNS if c in flight.columns]
+    arming = [c for c in flight.columns if isinstance(c, str) and c.rpartition(".")[2] in ARMING_FIELDS]
+    n = len(flight)
+    data = {c: flight[c].to_numpy(copy=True) for c in keep + arming}
+    for name in names:
+        data[name] = values.get(name, np.full(n, np.nan))
+    out = pd.DataFrame(data, index=pd.RangeIndex(n))
+    for c in keep + arming:  # text columns keep their dtype
+        if out[c].dtype != flight[c].dtype:
+            out[c] = out[c].astype(flight[c].dtype)
+    if interval_us:
+        own = median_interval_us(out)
+        if math.isfinite(own) and abs(own - interval_us) > RATE_TOLERANCE * interval_us:
+            out = resample(out, int(interval_us))
+    return out
+
+
+@dataclass(frozen=True)
+class TransferPlan:
+    """What a transfer run shares between its datasets: the quantity columns, the row interval of the
+    training flights, and what had no counterpart."""
+
+    columns: tuple[str, ...]
+    interval_us: int
+    #: dataset ("train" / "test") -> columns of its flights that were left out, with why
+    dropped: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"columns": list(self.columns), "interval_us": int(self.interval_us),
+                "dropped": {k: dict(v) for k, v in self.dropped.items()}}
+
+    def describe(self) -> str:
+        """One line: how many quantities are shared and what was dropped."""
+        parts = [f"{len(self.columns)} quantities shared by meaning ({', '.join(self.columns)})"]
+        for side, cols in self.dropped.items():
+            if cols:
+                named = sorted(c for c in cols if cols[c] != "no meaning")
+                rest = len(cols) - len(named)
+                parts.append(f"dropped from the {side} dataset: {', '.join(named) or 'none by meaning'}"
+                             + (f" and {rest} column(s) with no quantity" if rest else ""))
+        parts.append(f"test flights resampled to {self.interval_us / 1000:g} ms rows where theirs differ")
+        return "; ".join(parts)
+
+
+def plan_transfer(train_tables: Iterable[pd.DataFrame], test_tables: Iterable[pd.DataFrame],
+                  train_name: str = "train", test_name: str = "test") -> TransferPlan:
+    """The shared quantities: those every training/validation flight and every test flight has.
+    Raises RunError naming both datasets when none is shared."""
+    sides: dict[str, tuple[set[str] | None, set[str], set[str]]] = {}
+    intervals: list[float] = []
+    for side, tables in (("train", train_tables), ("test", test_tables)):
+        common: set[str] | None = None
+        cols: set[str] = set()
+        used: set[str] = set()
+        for t in tables:
+            meanings = column_meanings(t.columns)
+            have = set(shared_values(t))
+            common = have if common is None else common & have
+            cols |= {c for c in t.columns if isinstance(c, str) and "." in c}
+            used |= set(meanings.values()) | ({*QUATERNION} if "attitude.roll" in have else set())
+            if side == "train":
+                intervals.append(median_interval_us(t))
+        sides[side] = (common, cols, used)
+    train_common = sides["train"][0] or set()
+    test_common = sides["test"][0] or set()
+    order = [*(f"{q}.{f}" for q, fs in QUANTITIES.items() for f in fs), *(v for pair in LATLON.values() for v in pair)]
+    shared = [c for c in dict.fromkeys(order) if c in train_common and c in test_common]
+    if not shared:
+        raise RunError(f"--train-dataset {train_name} / --dataset {test_name}: no quantity is in every flight of "
+                       f"both (train flights have: {', '.join(sorted(train_common)) or 'none'}; test flights have: "
+                       f"{', '.join(sorted(test_common)) or 'none'}); import the logs with their sensor topics")
+    dropped: dict[str, dict[str, str]] = {}
+    for side, (common, cols, used) in sides.items():
+        other = test_common if side == "train" else train_common
+        why = {c: "not in every flight of the other dataset" for c in sorted((common or set()) - set(shared))
+               if c not in other}
+        why.update({c: "not in every flight of this dataset" for c in sorted((common or set()) - set(shared))
+                    if c in other})
+        arming = {c for c in cols if c.rpartition(".")[2] in ARMING_FIELDS}
+        why.update({c: "no meaning" for c in sorted(cols - used - arming)})
+        dropped[side] = why
+    finite = [i for i in intervals if math.isfinite(i) and i > 0]
+    interval = int(round(float(np.median(finite)))) if finite else 0
+    return TransferPlan(tuple(shared), interval, dropped)
+
+
+def plan_fingerprint(*parts: object) -> str:
+    """sha256 of JSON parts (the datasets' fingerprints and the plan): the flight cache's key."""
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode("utf-8")).hexdigest()
+
+
+class TransferFlights:
+    """``flight(fid)``: a flight of either dataset as its shared table (picklable: opens the datasets
+    in the process that reads). ``train_ids`` are read from the train dataset, the rest from the test
+    dataset, which is resampled to the plan's interval."""
+
+    def __init__(self, train_path: str, test_path: str, train_ids: Iterable[str], columns: Iterable[str],
+                 interval_us: int):
+        self.train_path, self.test_path = str(train_path), str(test_path)
+        self.train_ids = frozenset(str(f) for f in train_ids)
+        self.columns = tuple(columns)
+        self.interval_us = int(interval_us)
+        self._open: dict = {}
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_open": {}}
+
+    def _dataset(self, path: str):
+        if path not in self._open:
+            from scart_bench.dataset import open_dataset
+
+            self._open[path] = open_dataset(path)
+        return self._open[path]
+
+    def flight(self, flight_id: str) -> pd.DataFrame:
+        fid = str(flight_id)
+        if fid in self.train_ids:
+            return shared_table(self._dataset(self.train_path).flight(fid), self.columns)
+        return shared_table(self._dataset(self.test_path).flight(fid), self.columns, self.interval_us)
+
+    __call__ = flight
+
+
+@dataclass
+class TransferRun:
+    """The two datasets of a transfer run and what the runner needs of them."""
+
+    train: object  # the train Dataset
+    test: object  # the test Dataset
+    splits: object  # benchmark.protocol.Splits
+    plan: TransferPlan
+    reader: TransferFlights
+    flights: pd.DataFrame  # flights.csv: the run's flights with their role and dataset
+
+    def job_args(self) -> dict:
+        """What a job needs to read the flights by meaning (JobSpec.transfer; plain data)."""
+        return {"train_dataset": str(self.train.path.resolve()), "train_ids": [*self.splits.train,
+                                                                               *self.splits.validation],
+                "columns": list(self.plan.columns), "interval_us": int(self.plan.interval_us)}
+
+    def dropped_table(self) -> pd.DataFrame:
+        """columns.csv: every column of either dataset left out of the shared table, and why."""
+        rows = [{"dataset": side, "column": c, "why": why} for side, cols in self.plan.dropped.items()
+                for c, why in cols.items()]
+        return pd.DataFrame(rows, columns=["dataset", "column", "why"])
+
+
+def transfer_roles(manifest: pd.DataFrame) -> pd.Series:
+    """Roles of the test dataset's flights in a transfer run: every normal flight is a held-out normal
+    flight (``test_normal``, whatever its split: nothing is fitted or calibrated on it), attacked
+    flights are ``test_attacked`` (or ``no_effect``)."""
+    from scart_bench.benchmark.protocol import NORMAL_MODE, assign_roles
+
+    normal = manifest["mode"].astype(str) == NORMAL_MODE
+    return assign_roles(manifest.assign(split=manifest["split"].where(~normal, "test")))
+
+
+def open_transfer(train_path, test_ds, note=print) -> TransferRun:
+    """The transfer run of ``test_ds`` trained on the dataset at ``train_path``: splits, shared columns
+    (every flight of both is read once) and the flight reader. Raises RunError (one line, naming the
+    dataset) when the train dataset is missing or lacks train/validation flights, the test dataset has
+    no test flights, flight ids clash, or no quantity is shared."""
+    from scart_bench.benchmark.protocol import ProtocolError, Splits, assign_roles
+    from scart_bench.dataset import DatasetError, is_dataset, open_dataset
+
+    if not is_dataset(train_path):
+        raise RunError(f"--train-dataset {train_path}: not a dataset (no manifest there)")
+    try:
+        train = open_dataset(train_path)
+        train_roles = assign_roles(train.manifest)
+        test_roles = transfer_roles(test_ds.manifest)
+    except (DatasetError, ProtocolError) as exc:
+        raise RunError(f"--train-dataset {train_path} / --dataset {test_ds.path}: {exc}") from None
+    ids = train.manifest["flight_id"].astype(str)
+    test_ids = test_ds.manifest["flight_id"].astype(str)
+    part = {r: tuple(ids[train_roles == r]) for r in ("train", "validation")}
+    for role, got in part.items():
+        if not got:
+            raise RunError(f"--train-dataset {train_path}: no normal flights with split {role!r}; a transfer run "
+                           "trains and calibrates on the train dataset's train and validation flights")
+    tested = {r: tuple(test_ids[test_roles == r]) for r in ("test_normal", "test_attacked", "no_effect")}
+    if not tested["test_normal"] and not tested["test_attacked"]:
+        raise RunError(f"--dataset {test_ds.path}: no flights to test (normal or attacked)")
+    clash = sorted(set(part["train"] + part["validation"]) & set(test_ids))
+    if clash:
+        raise RunError(f"--train-dataset {train_path} / --dataset {test_ds.path}: flight id {clash[0]!r} is in both "
+                       f"({len(clash)} such); a transfer run needs distinct flight ids")
+    splits = Splits(part["train"], part["validation"], tested["test_normal"], tested["test_attacked"],
+                    tested["no_effect"], ())
+    used_test = tested["test_normal"] + tested["test_attacked"]
+    train.check_flights(dict.fromkeys(part["train"] + part["validation"]))
+    test_ds.check_flights(dict.fromkeys(used_test))
+    plan = plan_transfer((train.flight(f) for f in part["train"] + part["validation"]),
+                         (test_ds.flight(f) for f in used_test), str(train_path), str(test_ds.path))
+    note(f"transfer: trained and calibrated on {train.path} ({len(part['train'])} train, "
+         f"{len(part['validation'])} validation flights), tested on {test_ds.path} ({len(tested['test_normal'])} "
+         f"normal, {len(tested['test_attacked'])} attacked flights); {plan.describe()}")
+    reader = TransferFlights(str(train.path.resolve()), str(test_ds.path.resolve()),
+                             part["train"] + part["validation"], plan.columns, plan.interval_us)
+    tm = train.manifest.assign(role=train_roles, dataset=str(train.path))
+    tm = tm[tm["role"].isin(("train", "validation"))]
+    rm = test_ds.manifest.assign(role=test_roles, dataset=str(test_ds.path))
+    flights = pd.concat([tm, rm], ignore_index=True)
+    flights = flights[["flight_id", "role", "dataset", *(c for c in flights.columns
+                                                         if c not in ("flight_id", "role", "dataset"))]]
+    return TransferRun(train, test_ds, splits, plan, reader, flights)

@@ -1,0 +1,144 @@
+"""Train here, test there: a transfer run trained on generated flights and tested on imported PX4 logs
+with attacked copies, from the command line (benchmark.transfer)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from scart_bench.benchmark.transfer import column_meanings, resample, shared_table
+from scart_bench.cli.main import main
+
+SHARED = Path(__file__).parents[1].parent / "shared/data/ulog"
+ULOGS = sorted(SHARED.glob("*.ulg"))
+SCENARIOS = Path(__file__).parents[1] / "data" / "scenarios"
+TOPICS = ("vehicle_gps_position,vehicle_local_position,vehicle_attitude,sensor_combined,vehicle_air_data,"
+          "vehicle_magnetometer,battery_status,actuator_armed,vehicle_status")
+needs_ulogs = pytest.mark.skipif(len(ULOGS) < 4, reason=f"shared PX4 logs not found in {SHARED}")
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory) -> tuple[Path, Path]:
+    """(generated, real): 3 generated normal flights (train, validation, test); the 4 shared ULogs
+    imported with --split auto and attacked with the 50 m GPS jump (by meaning) wherever it applies."""
+    root = tmp_path_factory.mktemp("transfer")
+    gen, real = root / "gen", root / "real"
+    assert main(["generate", "--profile", "quick", "--flights", "3", "--normal-only", "--out", str(gen)]) == 0
+    assert main(["import", *map(str, ULOGS), "--out", str(real), "--split", "auto", "--topics", TOPICS]) == 0
+    assert main(["attack", "--dataset", str(real), "--scenario", str(SCENARIOS / "sensor_gps_jump.toml"),
+                 "--sources", "train,validation,test,csv_source"]) == 0
+    return gen, real
+
+
+@needs_ulogs
+def test_a_transfer_run_trains_on_generated_flights_and_tests_on_real_logs(datasets, tmp_path, capsys):
+    gen, real = datasets
+    out = tmp_path / "run"
+    capsys.readouterr()
+    assert main(["run", "--train-dataset", str(gen), "--dataset", str(real), "--detectors", "statistical,tsbitmaps",
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr()
+    # the table says where each number comes from
+    assert f"Trained and calibrated on {gen}" in printed.out and f"TP and TN on {real}" in printed.out
+    assert f"False alarms, normal flights ({real.name})" in printed.out and f"Threshold from ({gen.name})" in printed.out
+    assert "quantities shared by meaning" in printed.err
+    config = json.loads((out / "config.json").read_text())
+    assert config["train_dataset"]["path"] == str(gen.resolve()) and config["dataset"]["path"] == str(real.resolve())
+    assert config["identity"]["train_dataset_fingerprint"] and "transfer" in config["identity"]
+    shared = config["transfer"]["columns"]
+    # PX4 quaternions become Euler angles; lat/lon become metres from the first fix
+    assert {"attitude.roll", "imu.zacc", "gps.north", "gps.east"} <= set(shared)
+    assert not any(c.endswith((".lat", ".lon")) for c in shared)
+    flights = pd.read_csv(out / "flights.csv")
+    by_role = flights.groupby("role")["dataset"].agg(set).to_dict()
+    assert by_role["train"] == {str(gen)} and by_role["validation"] == {str(gen)}
+    assert by_role["test_normal"] == {str(real)} and by_role["test_attacked"] == {str(real)}
+    assert (flights["role"] == "test_normal").sum() == 4  # every real normal flight, whatever its split
+    metrics = pd.read_csv(out / "metrics.csv").set_index("detector")
+    assert (metrics["n_no_attack"] == 4).all() and (metrics["n_csv"] >= 1).all()
+    md = (out / "metrics.md").read_text()
+    assert "## Train here, test there" in md and f"`{gen}`" in md
+    dropped = pd.read_csv(out / "columns.csv")
+    assert set(dropped["dataset"]) == {"train", "test"}
+    assert "vehicle_attitude.q_0" not in set(dropped["column"])  # used (as Euler angles), not dropped
+    # the report shows the false-alarm rate on the real normal flights and the TP on their attacked copies
+    assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-figures"]) == 0
+    board = (tmp_path / "report" / "leaderboard.md").read_text()
+    assert "Train here, test there" in board and f"False alarms, normal flights ({real.name})" in board
+
+    # resume: same identity, nothing rerun; another train dataset is another identity (refused, nothing written)
+    assert main(["run", "--train-dataset", str(gen), "--dataset", str(real), "--detectors", "statistical",
+                 "--out", str(out), "--resume"]) == 0
+    before = (out / "config.json").read_text()
+    assert main(["run", "--dataset", str(real), "--train-dataset", str(real), "--detectors", "statistical",
+                 "--out", str(out)]) == 2
+    assert (out / "config.json").read_text() == before
+
+
+@needs_ulogs
+def test_transfer_runs_are_deterministic(datasets, tmp_path):
+    gen, real = datasets
+    scores = []
+    for name in ("a", "b"):
+        assert main(["run", "--train-dataset", str(gen), "--dataset", str(real), "--detectors", "statistical",
+                     "--out", str(tmp_path / name)]) == 0
+        with np.load(tmp_path / name / "jobs" / "statistical" / "scores.npz") as z:
+            scores.append({k: z[k] for k in z.files})
+    assert scores[0].keys() == scores[1].keys()
+    assert all(np.array_equal(scores[0][k], scores[1][k]) for k in scores[0])
+
+
+@needs_ulogs
+def test_bad_transfer_input_is_one_line_and_writes_nothing(datasets, tmp_path, capsys):
+    gen, real = datasets
+    out = tmp_path / "run"
+    cases = [
+        (["--train-dataset", str(tmp_path / "missing"), "--dataset", str(real)], "missing: not a dataset"),
+        (["--train-dataset", str(gen)], "--train-dataset"),  # no --dataset to test on
+    ]
+    for args, needle in cases:
+        capsys.readouterr()
+        assert main(["run", *args, "--detectors", "statistical", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
+        assert not out.exists()
+    # a real dataset sharing no quantity with the train dataset: refused naming both
+    bare = tmp_path / "bare.csv"
+    pd.DataFrame({"timestamp_us": np.arange(0, 20_000_000, 20_000), "rpm": 1.0}).to_csv(bare, index=False)
+    assert main(["import", str(bare), "--out", str(tmp_path / "bare"), "--split", "test"]) == 0
+    capsys.readouterr()
+    assert main(["run", "--train-dataset", str(gen), "--dataset", str(tmp_path / "bare"), "--detectors",
+                 "statistical", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no quantity is in every flight of both" in err, err
+    assert not out.exists()
+
+
+def test_columns_map_by_meaning_and_units():
+    ts = np.arange(0, 2_000_000, 4_000, dtype=np.int64)
+    n = ts.size
+    px4 = pd.DataFrame({"Index": np.arange(n), "Timestamp": ts, "Is_Anomaly": np.zeros(n, np.int8),
+                        "vehicle_local_position.vx": 1.0, "vehicle_air_data.baro_pressure_pa": 101325.0 - ts / 1e5,
+                        "vehicle_attitude.q_0": np.cos(0.25), "vehicle_attitude.q_1": 0.0,
+                        "vehicle_attitude.q_2": 0.0, "vehicle_attitude.q_3": np.sin(0.25),
+                        "vehicle_gps_position.lat": 40.0 + np.arange(n) * 1e-7, "vehicle_gps_position.lon": 116.0,
+                        "actuator_armed.armed": 1, "cpuload.load": 0.3})
+    assert column_meanings(px4.columns)["velocity.vn"] == "vehicle_local_position.vx"
+    t = shared_table(px4)
+    assert "cpuload.load" not in t.columns and "actuator_armed.armed" in t.columns
+    assert np.allclose(t["attitude.yaw"], 0.5) and np.allclose(t["attitude.roll"], 0.0)
+    assert t["baro.pressure"].iloc[0] == 0.0 and np.isclose(t["baro.pressure"].iloc[-1], -ts[-1] / 1e7)  # hPa
+    assert np.isclose(t["gps.north"].iloc[-1], (n - 1) * 1e-7 * 111_034, rtol=2e-3)  # metres north, 40 deg N
+    ardupilot = pd.DataFrame({"Timestamp": ts, "Is_Anomaly": np.zeros(n, np.int8), "att.Yaw": 90.0,
+                              "mag.MagX": 200.0, "mag.MagY": 0.0, "mag.MagZ": 400.0})
+    t = shared_table(ardupilot)
+    assert np.allclose(t["attitude.yaw"], np.pi / 2) and np.allclose(t["mag.z"], 0.4)  # deg -> rad, mG -> G
+    # resampling keeps an attacked row's label
+    lab = np.zeros(n, np.int8)
+    lab[101] = 1
+    r = resample(px4.assign(Is_Anomaly=lab), 20_000)
+    assert len(r) == 100 and r["Is_Anomaly"].sum() == 1 and r["Timestamp"].iloc[1] == 20_000
