@@ -361,9 +361,13 @@ def test_score_of_a_non_run_folder_exits_2(tmp_path, capsys):
 def test_profile_dataset_is_generated_once_and_reused(dataset, tmp_path, monkeypatch):
     calls = []
 
+    from scart_bench.generator.engine.flight_batch import FLIGHT_DEFAULTS
+
     def generate_dataset(profile: str, out: Path, seed: int, fmt: str = "parquet") -> Path:
         calls.append((profile, Path(out), seed))
         shutil.copytree(dataset, out)
+        info = json.loads((Path(out) / "dataset.json").read_text())  # as this version's generator writes it
+        (Path(out) / "dataset.json").write_text(json.dumps({**info, "flight_defaults": FLIGHT_DEFAULTS}))
         return Path(out)
 
     fake = types.ModuleType("scart_bench.generator.generate")
