@@ -618,3 +618,64 @@ def init_node(name: str) -> None:
     except ImportError:  # pragma: no cover (rosgraph comes with rospy)
         pass
     rospy.init_node(name, anonymous=False, disable_signals=True)
+
+
+class RosCore:
+    """A ``roscore`` of our own on a free port (tests, the perf script): ``with RosCore() as uri: ...``; sets
+    ``ROS_MASTER_URI`` for this process and its children while it runs."""
+
+    def __init__(self, port: int | None = None, timeout_s: float = 20.0):
+        import shutil
+
+        if shutil.which("roscore") is None:
+            raise RosError("roscore is not installed: apt-get install ros-core")
+        self.port = port or _free_port()
+        self.uri = f"http://localhost:{self.port}"
+        self.timeout_s = timeout_s
+        self.proc = None
+
+    def __enter__(self) -> str:
+        import os
+        import subprocess
+
+        import rosgraph
+
+        self._old = os.environ.get("ROS_MASTER_URI")
+        os.environ["ROS_MASTER_URI"] = self.uri
+        self.proc = subprocess.Popen(
+            ["roscore", "-p", str(self.port)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        end = time.monotonic() + self.timeout_s
+        while not rosgraph.is_master_online(self.uri):
+            if self.proc.poll() is not None or time.monotonic() > end:
+                self.__exit__()
+                raise RosError(f"roscore -p {self.port} did not start within {self.timeout_s:.0f} s")
+            time.sleep(0.2)
+        return self.uri
+
+    def __exit__(self, *exc) -> None:
+        import os
+        import signal as _signal
+
+        if self.proc is not None and self.proc.poll() is None:
+            os.killpg(self.proc.pid, _signal.SIGINT)  # roscore's own group: it stops rosmaster and rosout
+            try:
+                self.proc.wait(timeout=10)
+            except Exception:  # noqa: BLE001 (a stuck roscore: kill its group)
+                os.killpg(self.proc.pid, _signal.SIGKILL)
+                self.proc.wait()
+        if self._old is None:
+            os.environ.pop("ROS_MASTER_URI", None)
+        else:
+            os.environ["ROS_MASTER_URI"] = self._old
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
