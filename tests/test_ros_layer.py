@@ -192,3 +192,26 @@ def test_the_mission_flies_the_square_from_what_it_perceives():
     path = np.array(seen)
     for n, e in ((10, 10), (40, 10), (40, 40), (10, 40)):
         assert np.hypot(path[:, 0] - e, path[:, 1] - n).min() < 1.0
+
+
+def test_the_live_monitor_reads_detector_columns_of_mavros_topics():
+    """The navigator's anomaly notice: a detector fitted on flights recorded by the node scores ROS topics."""
+    import pandas as pd
+
+    from scart_bench.benchmark.live import StreamMonitor
+    from scart_bench.generator.ros.topics import topic_fields
+
+    class Far:
+        columns_ = ["local_position_pose.x", "local_position_pose.y"]
+        history_rows_ = 1
+
+        def score(self, frame: pd.DataFrame) -> np.ndarray:
+            return np.hypot(frame.iloc[:, 0], frame.iloc[:, 1]).to_numpy()
+
+    monitor = StreamMonitor(Far(), threshold=10.0, log=lambda msg: None)
+    monitor.add_topics(topic_fields(), {n: t.rate_hz for n, t in MAVROS_TOPICS.items()})
+    assert monitor.base_topic == "local_position_pose"
+    for k, (x, y) in enumerate([(1, 1), (2, 2), (30, 0), (1, 0)]):
+        monitor.on_message("local_position_pose", k * 33_000, _pose(x, y))
+    monitor.flush()
+    assert [round(s) for _, s in monitor.scores] == [1, 3, 30, 1] and len(monitor.alarms) == 1

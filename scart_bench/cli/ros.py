@@ -144,10 +144,10 @@ def cmd_navigator(args: argparse.Namespace) -> int:
     monitor = None
     if args.detector:
         from scart_bench.benchmark.live import monitor_from_run
-        from scart_bench.generator.ros.topics import topic_fields
+        from scart_bench.generator.ros.topics import MAVROS_TOPICS, topic_fields
 
         monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
-        monitor.add_topics(topic_fields())
+        monitor.add_topics(topic_fields(), {n: t.rate_hz for n, t in MAVROS_TOPICS.items()})
     ros1 = _ros1()
     ros1.init_node(args.name)
     nav = ros1.NavigatorNode(ns=args.ns, monitor=monitor, notice_topic=args.notice_topic, log=_log).start()
