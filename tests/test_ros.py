@@ -47,6 +47,17 @@ direction_deg = 0.0
 """
 
 
+@pytest.fixture
+def procs():
+    """Processes a test starts: stopped at its end even when it fails."""
+    started: list[subprocess.Popen] = []
+    yield started
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.fixture(scope="module")
 def master():
     import rospy
@@ -142,8 +153,9 @@ def _pubsub(ns_in: str, ns_out: str, names):
     return pubs, subs, got
 
 
-def test_without_a_scenario_every_field_of_every_message_passes_unchanged(master, tmp_path):
+def test_without_a_scenario_every_field_of_every_message_passes_unchanged(master, tmp_path, procs):
     node = _cli(tmp_path, "node", "ros", "node", "--input-ns", "/a_in", "--output-ns", "/a_out")
+    procs.append(node)
     names = [n for n, t in ros1.MAVROS_TOPICS.items() if t.direction == "telemetry"]
     pubs, subs, got = _pubsub("/a_in", "/a_out", names)
     rng = np.random.default_rng(1)
@@ -163,7 +175,9 @@ def test_without_a_scenario_every_field_of_every_message_passes_unchanged(master
         s.unregister()
 
 
-def test_a_gps_bias_offsets_the_navigator_side_inside_the_window_only_and_is_labelled(master, tmp_path):
+def test_a_gps_bias_offsets_the_navigator_side_inside_the_window_only_and_is_labelled(
+    master, tmp_path, procs
+):
     from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import NavSatFix
 
@@ -185,6 +199,7 @@ def test_a_gps_bias_offsets_the_navigator_side_inside_the_window_only_and_is_lab
         "--flight-id",
         "b1",
     )
+    procs.append(node)
     pubs, subs, got = _pubsub("/b_in", "/b_out", ["global_position_global", "local_position_pose"])
     import rospy
 
@@ -241,7 +256,7 @@ def _off_path(truth) -> tuple[float, float]:
 
 
 @pytest.mark.parametrize("scenario", [None, "gps_spoof.toml"])
-def test_the_whole_loop_flies_the_square_and_a_gps_spoof_moves_it_off(master, tmp_path, scenario):
+def test_the_whole_loop_flies_the_square_and_a_gps_spoof_moves_it_off(master, tmp_path, scenario, procs):
     port = ros1._free_port()  # noqa: SLF001 (a test helper)
     sitl = _cli(
         tmp_path,
@@ -273,6 +288,7 @@ def test_the_whole_loop_flies_the_square_and_a_gps_spoof_moves_it_off(master, tm
         *extra,
     )
     nav = _cli(tmp_path, "nav", "ros", "navigator", "--ns", "/mc", "--timeout", "150")
+    procs.extend([sitl, standin, node, nav])
     try:
         nav.wait(timeout=170)
     finally:
