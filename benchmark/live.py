@@ -88,6 +88,18 @@ class StreamMonitor:
         self._first_us: int | None = None
         self._arming_seen = False  # a topic with an arming field has been seen
 
+    def add_topics(self, fields: dict[str, tuple[str, ...]], rates: dict[str, float]) -> None:
+        """Also read the detector's columns from these topics (``topic -> field names``, e.g. the MAVROS
+        topics of the ROS node); the base topic is then the fastest of all the columns' topics."""
+        for j, col in enumerate(self.columns):
+            topic, _, fld = col.partition(".")
+            if topic in fields and fld in fields[topic] and topic not in TOPICS:
+                self._index.setdefault(topic, []).append((j, fields[topic].index(fld)))
+        known = {t: TOPICS[t].rate_hz for t in self._index if t in TOPICS and TOPICS[t].direction == "telemetry"}
+        known |= {t: rates[t] for t in self._index if t in rates}
+        if known:
+            self.base_topic = max(known, key=known.get)
+
     def _watch_arming(self, topic: str, t_us: int, values: np.ndarray) -> None:
         if self.armed_us is not None:
             return

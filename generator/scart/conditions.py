@@ -61,6 +61,9 @@ def position_ne(values: np.ndarray, fields: tuple[str, ...], origin: np.ndarray,
         o1 = np.where(np.isfinite(o[:, 1]), o[:, 1], lon)
         n, e = ne_from_latlon(lat, lon, o0, o1)
         return np.column_stack([n, e])
+    q = [quantity(topic, f) for f in fields]
+    if "position_n" in q and "position_e" in q:  # by quantity: an ENU pose (ROS) has x east, y north
+        return np.column_stack([values[:, q.index("position_n")], values[:, q.index("position_e")]])
     if "x" in fields and "y" in fields:
         return np.column_stack([values[:, fields.index("x")], values[:, fields.index("y")]])
     raise KeyError(f"{topic}: no position fields (lat/lon or x/y) in {', '.join(fields)}")
@@ -75,8 +78,9 @@ def altitude(values: np.ndarray, fields: tuple[str, ...], field: str | None = No
     for name in ("relative_alt", "altitude_relative"):
         if name in fields:
             return values[:, fields.index(name)]
-    if "z" in fields:
-        return -values[:, fields.index("z")]
+    if "z" in fields:  # a down position, or an up one (ENU: ROS)
+        sign = 1.0 if quantity(topic, "z") == "position_up" else -1.0
+        return sign * values[:, fields.index("z")]
     raise KeyError("no altitude field (relative_alt, altitude_relative or z)")
 
 

@@ -4,7 +4,8 @@ A scenario may name a *quantity* (``gps``, ``position``, ...) instead of a topic
 field of the quantity) or with one of its fields (``gps.lat``). Against a given input (the
 topics passing an injection point of the generator, or the topics of a user's log) a quantity
 resolves to every candidate ``topic.field`` the input has: MAVLink names on generated flights,
-PX4 uORB names on ULogs, and the generator's sensor topics at the sensor point. The table below
+PX4 uORB names on ULogs, the generator's sensor topics at the sensor point, and the MAVROS topics of
+the ROS node (generator.ros.topics, ENU). The table below
 is the documented mapping (docs/scenarios.md, "Topics by meaning", is generated from it).
 
 An action target that is a topic of the input is that topic (``altitude`` on a generated flight
@@ -22,30 +23,32 @@ QUANTITIES: dict[str, dict[str, tuple[str, ...]]] = {
     "position": {
         "lat": ("global_position_int.lat", "gps_raw_int.lat", "sensor_gps.lat", "vehicle_global_position.lat",
                 "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg", "sensor_gps.latitude_deg",
-                "gps.Lat", "pos.Lat", "ahr2.Lat"),
+                "gps.Lat", "pos.Lat", "ahr2.Lat", "global_position_global.latitude",
+                "global_position_raw_fix.latitude"),
         "lon": ("global_position_int.lon", "gps_raw_int.lon", "sensor_gps.lon", "vehicle_global_position.lon",
                 "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg", "sensor_gps.longitude_deg",
-                "gps.Lng", "pos.Lng", "ahr2.Lng"),
-        "x": ("local_position_ned.x", "vehicle_local_position.x", "ekf1.PN", "xkf1.PN"),
-        "y": ("local_position_ned.y", "vehicle_local_position.y", "ekf1.PE", "xkf1.PE"),
+                "gps.Lng", "pos.Lng", "ahr2.Lng", "global_position_global.longitude",
+                "global_position_raw_fix.longitude"),
+        "x": ("local_position_ned.x", "vehicle_local_position.x", "ekf1.PN", "xkf1.PN", "local_position_pose.y"),
+        "y": ("local_position_ned.y", "vehicle_local_position.y", "ekf1.PE", "xkf1.PE", "local_position_pose.x"),
     },
     "velocity": {
         "vn": ("global_position_int.vx", "local_position_ned.vx", "gps_raw_int.vn", "sensor_gps.vn",
                "vehicle_local_position.vx", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s", "ekf1.VN",
-               "xkf1.VN"),
+               "xkf1.VN", "local_position_velocity_local.vy", "global_position_raw_gps_vel.vy"),
         "ve": ("global_position_int.vy", "local_position_ned.vy", "gps_raw_int.ve", "sensor_gps.ve",
                "vehicle_local_position.vy", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s", "ekf1.VE",
-               "xkf1.VE"),
+               "xkf1.VE", "local_position_velocity_local.vx", "global_position_raw_gps_vel.vx"),
         "vd": ("global_position_int.vz", "local_position_ned.vz", "gps_raw_int.vd", "sensor_gps.vd",
                "vehicle_local_position.vz", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s", "ekf1.VD",
-               "xkf1.VD", "gps.VZ"),
+               "xkf1.VD", "gps.VZ", "local_position_velocity_local.vz", "global_position_raw_gps_vel.vz"),
     },
     "altitude": {
-        "z": ("local_position_ned.z", "vehicle_local_position.z", "ekf1.PD", "xkf1.PD"),
+        "z": ("local_position_ned.z", "vehicle_local_position.z", "ekf1.PD", "xkf1.PD", "local_position_pose.z"),
         "relative": ("global_position_int.relative_alt", "altitude.altitude_relative", "ctun.Alt", "gps.RelAlt",
-                     "pos.RelHomeAlt"),
+                     "pos.RelHomeAlt", "global_position_rel_alt.data"),
         "amsl": ("global_position_int.alt", "altitude.altitude_amsl", "vehicle_global_position.alt", "ahr2.Alt",
-                 "pos.Alt"),
+                 "pos.Alt", "global_position_global.altitude"),
     },
     "attitude": {
         "roll": ("attitude.roll", "att.Roll"),  # ArduPilot's ATT in degrees (generator.scart.units)
@@ -56,43 +59,47 @@ QUANTITIES: dict[str, dict[str, tuple[str, ...]]] = {
     },
     "gps": {
         "lat": ("gps_raw_int.lat", "sensor_gps.lat", "vehicle_gps_position.lat", "vehicle_gps_position.latitude_deg",
-                "sensor_gps.latitude_deg", "gps.Lat"),
+                "sensor_gps.latitude_deg", "gps.Lat", "global_position_raw_fix.latitude"),
         "lon": ("gps_raw_int.lon", "sensor_gps.lon", "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg",
-                "sensor_gps.longitude_deg", "gps.Lng"),
+                "sensor_gps.longitude_deg", "gps.Lng", "global_position_raw_fix.longitude"),
         "alt": ("gps_raw_int.alt", "sensor_gps.alt", "vehicle_gps_position.alt", "vehicle_gps_position.altitude_msl_m",
-                "sensor_gps.altitude_msl_m", "gps.Alt"),
-        "vn": ("gps_raw_int.vn", "sensor_gps.vn", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s"),
-        "ve": ("gps_raw_int.ve", "sensor_gps.ve", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s"),
-        "vd": ("gps_raw_int.vd", "sensor_gps.vd", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s", "gps.VZ"),
+                "sensor_gps.altitude_msl_m", "gps.Alt", "global_position_raw_fix.altitude"),
+        "vn": ("gps_raw_int.vn", "sensor_gps.vn", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s",
+               "global_position_raw_gps_vel.vy"),
+        "ve": ("gps_raw_int.ve", "sensor_gps.ve", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s",
+               "global_position_raw_gps_vel.vx"),
+        "vd": ("gps_raw_int.vd", "sensor_gps.vd", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s", "gps.VZ",
+               "global_position_raw_gps_vel.vz"),
         "cog": ("gps_raw_int.cog", "vehicle_gps_position.cog_rad", "sensor_gps.cog_rad", "gps.GCrs"),
     },
     "imu": {
-        "xacc": ("highres_imu.xacc", "sensor_accel.x", "sensor_combined.accelerometer_m_s2_0", "imu.AccX"),
-        "yacc": ("highres_imu.yacc", "sensor_accel.y", "sensor_combined.accelerometer_m_s2_1", "imu.AccY"),
-        "zacc": ("highres_imu.zacc", "sensor_accel.z", "sensor_combined.accelerometer_m_s2_2", "imu.AccZ"),
-        "xgyro": ("highres_imu.xgyro", "sensor_gyro.x", "sensor_combined.gyro_rad_0", "imu.GyrX"),
-        "ygyro": ("highres_imu.ygyro", "sensor_gyro.y", "sensor_combined.gyro_rad_1", "imu.GyrY"),
-        "zgyro": ("highres_imu.zgyro", "sensor_gyro.z", "sensor_combined.gyro_rad_2", "imu.GyrZ"),
+        "xacc": ("highres_imu.xacc", "sensor_accel.x", "sensor_combined.accelerometer_m_s2_0", "imu.AccX", "imu_data.ax"),
+        "yacc": ("highres_imu.yacc", "sensor_accel.y", "sensor_combined.accelerometer_m_s2_1", "imu.AccY", "imu_data.ay"),
+        "zacc": ("highres_imu.zacc", "sensor_accel.z", "sensor_combined.accelerometer_m_s2_2", "imu.AccZ", "imu_data.az"),
+        "xgyro": ("highres_imu.xgyro", "sensor_gyro.x", "sensor_combined.gyro_rad_0", "imu.GyrX", "imu_data.wx"),
+        "ygyro": ("highres_imu.ygyro", "sensor_gyro.y", "sensor_combined.gyro_rad_1", "imu.GyrY", "imu_data.wy"),
+        "zgyro": ("highres_imu.zgyro", "sensor_gyro.z", "sensor_combined.gyro_rad_2", "imu.GyrZ", "imu_data.wz"),
     },
     "baro": {
         "pressure": ("scaled_pressure.press_abs", "highres_imu.abs_pressure", "sensor_baro.pressure",
-                     "vehicle_air_data.baro_pressure_pa", "baro.Press"),
+                     "vehicle_air_data.baro_pressure_pa", "baro.Press",
+                     "imu_static_pressure.fluid_pressure"),
         "alt": ("highres_imu.pressure_alt", "vehicle_air_data.baro_alt_meter", "baro.Alt"),
     },
     "mag": {
-        "x": ("highres_imu.xmag", "sensor_mag.x", "vehicle_magnetometer.magnetometer_ga_0", "mag.MagX"),
-        "y": ("highres_imu.ymag", "sensor_mag.y", "vehicle_magnetometer.magnetometer_ga_1", "mag.MagY"),
-        "z": ("highres_imu.zmag", "sensor_mag.z", "vehicle_magnetometer.magnetometer_ga_2", "mag.MagZ"),
+        "x": ("highres_imu.xmag", "sensor_mag.x", "vehicle_magnetometer.magnetometer_ga_0", "mag.MagX", "imu_mag.x"),
+        "y": ("highres_imu.ymag", "sensor_mag.y", "vehicle_magnetometer.magnetometer_ga_1", "mag.MagY", "imu_mag.y"),
+        "z": ("highres_imu.zmag", "sensor_mag.z", "vehicle_magnetometer.magnetometer_ga_2", "mag.MagZ", "imu_mag.z"),
     },
     "battery": {
-        "voltage": ("battery_status.voltage", "battery_status.voltage_v", "curr.Volt", "bat.Volt"),
-        "current": ("battery_status.current", "battery_status.current_a", "curr.Curr", "bat.Curr"),
+        "voltage": ("battery_status.voltage", "battery_status.voltage_v", "curr.Volt", "bat.Volt", "battery.voltage"),
+        "current": ("battery_status.current", "battery_status.current_a", "curr.Curr", "bat.Curr", "battery.current"),
         "remaining": ("battery_status.remaining",),
     },
     "mission": {
         # flight_phase: derived from a recording in csv mode (generator.logs.phases), the log's own mission
         # progress where it carries a mission, else read from its phases
-        "seq": ("setpoint.seq", "flight_phase.seq", "mission_result.seq_current"),
+        "seq": ("setpoint.seq", "flight_phase.seq", "mission_result.seq_current", "mission_current.data"),
     },
     "phase": {
         "phase": ("flight_phase.phase",),  # csv mode only: generator.logs.phases.PHASES index

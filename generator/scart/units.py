@@ -17,6 +17,7 @@ import re
 
 from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.geo import metres_per_degree
+from scart_bench.generator.ros.topics import field_quantity
 
 #: Metres per degree at the generator's home (WGS-84): for tests and plots only, never for attacks.
 M_PER_DEG_LAT, M_PER_DEG_LON = (float(v) for v in metres_per_degree())
@@ -34,6 +35,11 @@ _QUANTITY = {
     "position_up": (1.0, "", 1.0),
     "position_d": (1.0, "", -1.0),
     "velocity_d": (1.0, "", -1.0),
+    "velocity_up": (1.0, "", 1.0),  # ROS (MAVROS): ENU velocities
+    "rate_flu": (1.0, "", -1.0),  # ROS body axes y, z (FLU) against the project's FRD magnitudes
+    "accel_flu": (1.0, "", -1.0),
+    "field_tesla": (1e-4, "", 1.0),  # ROS magnetic field in tesla, magnitudes in gauss
+    "field_tesla_flu": (1e-4, "", -1.0),
     "pressure": (HPA_PER_M, "", -1.0),
     "pressure_pa": (HPA_PER_M * 100.0, "", -1.0),
     "angle_deg": (180.0 / math.pi, "", 1.0),  # magnitudes in rad, the field in degrees (ArduPilot)
@@ -72,6 +78,9 @@ def quantity(topic: str, field: str) -> str:
     t = TOPICS.get(topic)
     if t is not None and field in t.field_names:
         return t.fields[t.field_names.index(field)].quantity
+    ros = field_quantity(topic, field)  # MAVROS topics (ENU, FLU): not guessed from the field name
+    if ros is not None:
+        return ros
     for pattern, q in _GUESSES:
         if re.match(pattern, field):
             return q

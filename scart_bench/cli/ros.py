@@ -1,0 +1,256 @@
+"""``scart-bench ros``: SCART inside ROS 1, as the paper built it (docs/ros.md).
+
+- ``ros node``: the SCART layer as a ROS node between MAVROS (``--input-ns``) and the mission computer
+  (``--output-ns``), with ``--record`` into a dataset;
+- ``ros mavros``: a MAVROS stand-in that bridges ``scart-bench sitl`` to MAVROS topic names and types;
+- ``ros navigator``: the mission computer that flies the default square from the telemetry it receives,
+  with an optional live detector whose alarms it publishes as an anomaly notice.
+
+The engines are in :mod:`scart_bench.generator.ros`; this module parses options, joins the ROS master
+and runs a node until Ctrl-C, SIGTERM or ``--duration``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from scart_bench.cli.common import UsageError
+from scart_bench.names import check_id
+
+
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _ros1():
+    from scart_bench.generator.ros import ros1
+
+    return ros1
+
+
+def _positive(value: float | None, option: str) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UsageError(f"{option} {value}: expected a positive, finite number of seconds")
+
+
+def _run_until(stop: threading.Event, duration: float | None, done: threading.Event | None = None) -> bool:
+    """Wait for Ctrl-C/SIGTERM, ``duration`` wall seconds or ``done``; True when ``done`` was set."""
+    old = {s: signal.signal(s, lambda signum, frame: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    end = time.monotonic() + duration if duration else math.inf
+    try:
+        while not stop.is_set() and time.monotonic() < end:
+            if done is not None and done.is_set():
+                return True
+            stop.wait(0.05)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    return done is not None and done.is_set()
+
+
+def _check_record(record: Path | None) -> None:
+    from scart_bench.dataset import is_dataset
+
+    if record is not None and record.exists():
+        if not record.is_dir():
+            raise UsageError(f"--record {record}: exists and is not a folder")
+        if any(record.iterdir()) and not is_dataset(record):
+            raise UsageError(
+                f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
+                "give a new folder or an existing dataset to add the flight to"
+            )
+
+
+def cmd_node(args: argparse.Namespace) -> int:
+    from scart_bench.generator.mavlink.recording import new_flight_id
+    from scart_bench.generator.ros.layer import RosLayer, save_recording
+    from scart_bench.generator.scart.scenario import load_scenarios
+
+    _positive(args.duration, "--duration")
+    if args.scenario is not None and not Path(args.scenario).is_file():
+        raise UsageError(f"--scenario {args.scenario}: no such file")
+    if args.flight_id is not None:
+        check_id(args.flight_id, "--flight-id")
+    record = Path(args.record) if args.record else None
+    _check_record(record)
+    scenarios = load_scenarios(args.scenario) if args.scenario else []
+    layer = RosLayer(scenarios, seed=args.seed, record=record is not None)
+    ros1 = _ros1()
+    ros1.init_node(args.name)
+    node = ros1.ScartNode(layer, args.input_ns, args.output_ns, log=_log).start()
+    _log(
+        f"ros node: {args.input_ns} -> {args.output_ns}; scenario {', '.join(s.id for s in scenarios) or 'none'} on "
+        f"{', '.join(sorted(layer.used)) or 'no topic'}; Ctrl-C stops"
+    )
+    t0 = time.monotonic()
+    stop = threading.Event()
+    try:
+        _run_until(stop, args.duration)
+    finally:
+        node.stop()
+    _log(
+        f"ros node: stopped after {time.monotonic() - t0:.1f} s: {layer.stats.summary()}; {node.relayed} setpoints, "
+        "commands and states relayed"
+    )
+    for text in layer.log_errors:
+        _log(f"ros node: error in the layer ({text}); the message passed unchanged")
+    for s, e in layer.windows():
+        _log(f"ros node: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
+    if record is not None:
+        fid = args.flight_id or new_flight_id(record, prefix="ros")
+        extra = {"scenario_file": args.scenario, "input_ns": args.input_ns, "output_ns": args.output_ns}
+        rec = layer.record(fid, json.loads(json.dumps(extra)), split=args.split)
+        path = save_recording(rec, record, fmt=args.format)
+        print(f"flight {fid} recorded in {record} ({path.name})")
+    return 0
+
+
+def cmd_mavros(args: argparse.Namespace) -> int:
+    from scart_bench.generator.mavlink import parse_endpoint
+
+    _positive(args.duration, "--duration")
+    connect = parse_endpoint(args.connect, "--connect")
+    ros1 = _ros1()
+    ros1.init_node(args.name)
+    standin = ros1.MavrosStandIn(connect, ns=args.ns, log=_log).start()
+    _log(f"mavros stand-in: udp:{connect[0]}:{connect[1]} -> {args.ns}; Ctrl-C stops")
+    stop = threading.Event()
+    reader = threading.Thread(target=standin.spin, args=(stop,), name="mavlink-reader", daemon=True)
+    reader.start()
+    try:
+        _run_until(stop, args.duration)
+    finally:
+        stop.set()
+        reader.join(timeout=2.0)
+        standin.close()
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(standin.counts.items()))
+    _log(f"mavros stand-in: stopped; published {counts or 'nothing'}; {standin.setpoints} setpoints sent")
+    return 0
+
+
+def cmd_navigator(args: argparse.Namespace) -> int:
+    _positive(args.timeout, "--timeout")
+    if (args.detector is None) != (args.run is None):
+        raise UsageError(
+            "--detector and --run go together: the detector is the one fitted in that benchmark run"
+        )
+    monitor = None
+    if args.detector:
+        from scart_bench.benchmark.live import monitor_from_run
+        from scart_bench.generator.ros.topics import MAVROS_TOPICS, topic_fields
+
+        monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
+        monitor.add_topics(topic_fields(), {n: t.rate_hz for n, t in MAVROS_TOPICS.items()})
+    ros1 = _ros1()
+    ros1.init_node(args.name)
+    nav = ros1.NavigatorNode(ns=args.ns, monitor=monitor, notice_topic=args.notice_topic, log=_log).start()
+    _log(f"navigator: flying the square from {args.ns}; Ctrl-C stops")
+    stop = threading.Event()
+    try:
+        done = _run_until(stop, args.timeout, nav.done)
+    finally:
+        nav.close()
+    for t, what in nav.mission.log:
+        _log(f"navigator: t={t:.2f} s {what}")
+    if monitor is not None:
+        monitor.flush()
+        _log(
+            f"navigator: {monitor.summary()}; {nav.notices} anomaly notices published on {args.notice_topic}"
+        )
+    if not done:
+        _log(f"navigator: the mission did not finish (phase {nav.mission.phase})")
+        return 1
+    print("navigator: mission flown, landed and disarmed")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "ros",
+        help="SCART inside ROS 1: the SCART node, a MAVROS stand-in, the mission computer",
+        description="The paper's ROS setting: MAVROS telemetry remapped through the SCART node to the "
+        "mission computer (docs/ros.md). Needs ROS 1 (rospy and the sensor/geometry message packages).",
+    )
+    nodes = p.add_subparsers(dest="node", required=True)
+
+    n = nodes.add_parser("node", help="the SCART layer as a ROS node on the MAVROS telemetry topics")
+    n.add_argument(
+        "--scenario",
+        metavar="FILE",
+        help="a scenario file (TOML), point link (default: none, every message passes unchanged)",
+    )
+    n.add_argument("--seed", type=int, default=0, help="seed of the scenario's random draws (default 0)")
+    n.add_argument(
+        "--input-ns",
+        default="/mavros_raw",
+        metavar="NS",
+        help="where MAVROS (or the stand-in) publishes the telemetry (default /mavros_raw)",
+    )
+    n.add_argument(
+        "--output-ns",
+        default="/mavros",
+        metavar="NS",
+        help="where the mission computer reads it (default /mavros)",
+    )
+    n.add_argument("--record", metavar="DIR", help="write the flight (both views, labels) into this dataset")
+    n.add_argument(
+        "--split",
+        choices=("train", "validation", "test"),
+        default="test",
+        help="split of a flight recorded without a scenario (default test)",
+    )
+    n.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
+    n.add_argument("--flight-id", help="flight id of the recording (default ros-<UTC time>)")
+    n.add_argument("--name", default="scart", help="the ROS node name (default scart)")
+    n.add_argument(
+        "--duration", type=float, metavar="SECONDS", help="stop after this many seconds (default: Ctrl-C)"
+    )
+    n.set_defaults(func=cmd_node)
+
+    m = nodes.add_parser("mavros", help="a MAVROS stand-in for scart-bench sitl")
+    m.add_argument(
+        "--connect",
+        default="udp:127.0.0.1:14580",
+        metavar="udp:HOST:PORT",
+        help="the sitl's --listen address (default udp:127.0.0.1:14580)",
+    )
+    m.add_argument(
+        "--ns",
+        default="/mavros_raw",
+        help="the namespace it publishes under (default /mavros_raw, "
+        "the SCART node's input; /mavros without the node)",
+    )
+    m.add_argument("--name", default="mavros", help="the ROS node name (default mavros)")
+    m.add_argument(
+        "--duration", type=float, metavar="SECONDS", help="stop after this many seconds (default: Ctrl-C)"
+    )
+    m.set_defaults(func=cmd_mavros)
+
+    v = nodes.add_parser("navigator", help="the mission computer: flies the default square by setpoints")
+    v.add_argument(
+        "--ns", default="/mavros", help="the MAVROS namespace it reads and commands (default /mavros)"
+    )
+    v.add_argument(
+        "--detector", metavar="NAME", help="score the telemetry it receives with this detector of --run"
+    )
+    v.add_argument("--run", metavar="RUN", help="the benchmark run folder the detector comes from")
+    v.add_argument(
+        "--plugin", action="append", metavar="SPEC", help="load a plugin detector from module:Class"
+    )
+    v.add_argument(
+        "--notice-topic",
+        default="/navigator/anomaly",
+        help="where the anomaly notices go (std_msgs/String; default /navigator/anomaly)",
+    )
+    v.add_argument("--name", default="navigator", help="the ROS node name (default navigator)")
+    v.add_argument(
+        "--timeout", type=float, metavar="SECONDS", help="give up after this many seconds (exit 1)"
+    )
+    v.set_defaults(func=cmd_navigator)
