@@ -84,6 +84,8 @@ class BatchMonitor:
         self._streams = None if self._block else [detector.stream() for _ in range(self.n)]
         self.rows_scored = 0
         self.score_s = 0.0
+        #: (row times (B,), scores (N, B)) of every block (-inf: a row not scored), kept for checks and figures
+        self.blocks: list[tuple[np.ndarray, np.ndarray]] = []
 
     # -- AlarmSource ------------------------------------------------------------------------------
     def observe(self, point: str, t_us: int, messages: dict) -> tuple[np.ndarray, int] | None:
@@ -151,6 +153,7 @@ class BatchMonitor:
                 stream = self._streams[i]
                 scores[i] = [stream.update(r) for r in rows[i]]
         self.score_s += time.perf_counter() - t0
+        self.blocks.append((times, scores))
         self.rows_scored += int(counted.sum())
         return ((scores > self.threshold) & counted).sum(axis=1)
 
