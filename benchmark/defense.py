@@ -27,7 +27,7 @@ import pandas as pd
 from scart_bench.benchmark.intervals import BOOTSTRAP_SEED, N_BOOTSTRAP, wilson
 from scart_bench.benchmark.live import ARMING_FIELDS
 from scart_bench.dataset.schema import TOPICS
-from scart_bench.detectors.base import Detector, _angle_columns
+from scart_bench.detectors.base import Detector
 
 #: Rows scored at a time per flight (0.5 s of a 50 Hz base topic): the alarm time is the block's last row.
 BLOCK_ROWS = 25
@@ -161,13 +161,10 @@ class BatchMonitor:
         """Raw rows (N, B, C) prepared as ``Detector._prepare_row`` prepares each: angles as sine and cosine,
         standardised, a missing value filled with the flight's previous prepared value (0 at the start)."""
         d = self.detector
-        arr = rows.astype(np.float64, copy=True)
-        arr[np.isinf(arr)] = np.nan
-        angles = _angle_columns(tuple(self.columns))
-        if angles:
-            a = arr[:, :, angles]
-            arr = np.concatenate([np.delete(arr, angles, axis=2), np.sin(a), np.cos(a)], axis=2)
-        z = (arr - d.mean_) / d.scale_
+        n, b, c = rows.shape
+        flat = pd.DataFrame(rows.reshape(n * b, c), columns=self.columns)
+        arr = Detector._raw_matrix(flat, self.columns)  # inf as missing, angles as sine and cosine
+        z = ((arr - d.mean_) / d.scale_).reshape(n, b, -1)
         gap = np.isnan(z)
         if gap.any():
             prev = self._buffer[:, -1] if self._buffer is not None else np.zeros((self.n, z.shape[2]))
@@ -240,7 +237,6 @@ def defend(
     from scart_bench.generator.defense import DefenseHook
     from scart_bench.generator.engine.simulate import simulate
     from scart_bench.generator.impact import MISSION_TOLERANCE_M, impact
-    from scart_bench.generator.modes import _builtin_rates
     from scart_bench.generator.params import STEP_US
     from scart_bench.generator.scart.layer import AttackLayer
 
@@ -259,7 +255,7 @@ def defend(
         t0 = time.perf_counter()
         twin = simulate(sds, flight_config)
         if cfgs is not None:
-            layer = AttackLayer(cfgs, sds, rates=_builtin_rates())
+            layer = AttackLayer(cfgs, sds, rates=_rates())
             und = simulate(sds, flight_config, layer=layer)
         else:
             layer, und = None, twin
@@ -284,7 +280,7 @@ def defend(
         for det in detectors:
             for resp in responses:
                 monitor = det.monitor(n, block_rows)
-                inner = AttackLayer(cfgs, sds, rates=_builtin_rates()) if cfgs is not None else None
+                inner = AttackLayer(cfgs, sds, rates=_rates()) if cfgs is not None else None
                 hook = DefenseHook(monitor, resp, n, layer=inner)
                 t0 = time.perf_counter()
                 dfd = simulate(sds, flight_config, layer=hook)
@@ -322,6 +318,15 @@ def defend(
     if len(flights):
         flights["far_m"] = far_m
     return DefenseRun(flights, wall)
+
+
+def _rates() -> dict[str, float]:
+    """Message rates of the built-in topics, as simulation mode gives the attack layer."""
+    from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS
+
+    rates = {t: v.rate_hz for t, v in TOPICS.items()}
+    rates.update({t: r for t, (r, _) in SENSOR_TOPICS.items()})
+    return rates
 
 
 def _onset(layer, i: int, end_us: int) -> int:
