@@ -19,6 +19,7 @@ from scart_bench.errors import ScartBenchError
 #: One module per sub-command, in the order ``scart-bench --help`` lists them.
 COMMAND_MODULES = tuple(f"scart_bench.cli.{name}" for name in (
     "detectors", "generate", "import_logs", "attack", "run", "score", "report", "plot", "proxy", "sitl", "ros",
+    "defend",
 ))
 
 
