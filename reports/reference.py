@@ -357,7 +357,8 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
         "",
         f"Made on {datetime.now(UTC):%Y-%m-%d} on {platform.machine()} with {_cpus()} CPUs"
         + (f"; the {len(run_walls)} benchmark runs (dataset generation included) took {sum(run_walls) / 60:.1f} min"
-           if run_walls else "") + f"; writing this page from finished runs took {wall_s / 60:.1f} min.",
+           if run_walls else "") + f"; the command's last invocation took {wall_s / 60:.1f} min (runs and "
+        "retrained configurations it found finished are reused, not timed again).",
         "",
         *([f"Not yet the paper profile: its 2048 configurations per mode and 100 held-out normal flights per "
            f"seed give intervals of a few points where the {profile} profile's are ten; the same command with "
