@@ -81,10 +81,11 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     frac_val = prof.n_validation / prof.n_normal
     frac_src = prof.n_csv_source / prof.n_normal
     n_train = max(1, int(round(count * frac_train))) if count > 2 else count
-    n_val = int(round(count * frac_val)) if count > 2 else 0
     reserve = with_attacks and prof.scenario_grid is not None and prof.n_csv_source > 0
     n_src = max(1, int(round(count * frac_src))) if count > 2 and reserve else 0
-    n_src = min(n_src, count - n_train - n_val)
+    n_src = min(n_src, count - n_train)
+    # a scaled-down profile keeps its csv sources (csv mode needs one): validation takes what is left
+    n_val = min(int(round(count * frac_val)), count - n_train - n_src) if count > 2 else 0
     seeds = normal_seeds(seed, count)
     split_of = splits(count, n_train, n_val, n_src)
     config_dict = {"flight_config": dataclasses.asdict(cfg), "versions": versions(), "profile": prof.name}
