@@ -159,10 +159,11 @@ def _trained_lines(board: pd.DataFrame, trained: dict[str, list[RunResults]]) ->
         for label, row in ((f"{detector} (default)", a), (f"{detector} ({name})", b)):
             lines.append(f"| {label} | {_cell(row, 'tp_simulation')} | {_cell(row, 'tp_csv')} | "
                          f"{_cell(row, 'tn_no_attack')} | {row.get('roc_auc_mean', np.nan):.3f} |")
-        agree = [key for key in ("tp_simulation", "tp_csv", "tn_no_attack")
+        names = {"tp_simulation": "TP simulation", "tp_csv": "TP csv", "tn_no_attack": "TN"}
+        agree = [label for key, label in names.items()
                  if a.get(f"{key}_lo", np.nan) <= b.get(f"{key}_mean", np.nan) <= a.get(f"{key}_hi", np.nan)]
-        lines += ["", f"Within the default's pooled 95 % interval: {', '.join(agree) if agree else 'none'} "
-                      f"(of TP simulation, TP csv, TN)."]
+        lines += ["", f"Its means within the default's pooled 95 % intervals: {', '.join(agree) if agree else 'none'} "
+                      f"(of {', '.join(names.values())})."]
     return lines
 
 

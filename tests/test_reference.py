@@ -68,4 +68,4 @@ def test_a_retrained_configuration_runs_on_each_seeds_dataset_and_is_compared(tm
                                  {"statistical-window-25": load_runs([out])})
     page = files[0].read_text()
     assert "**Statistical with a 25-row window** (`window = 25`; 1 seeds" in page
-    assert "| statistical (statistical-window-25) |" in page and "Within the default's pooled 95 % interval" in page
+    assert "| statistical (statistical-window-25) |" in page and "Its means within the default's pooled 95 % intervals" in page
