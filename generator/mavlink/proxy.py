@@ -29,9 +29,8 @@ import socket
 import sys
 import threading
 import time
-from array import array
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -51,6 +50,7 @@ from scart_bench.generator.mavlink.codec import (
     Packer,
     split_frames,
 )
+from scart_bench.generator.scart.handling import HandlingStats
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
 
@@ -72,7 +72,7 @@ def _is_loopback(host: str) -> bool:
 
 
 @dataclass
-class ProxyStats:
+class ProxyStats(HandlingStats):
     """Counters of a proxy run and the time it took to handle each datagram."""
 
     datagrams: int = 0
@@ -93,13 +93,6 @@ class ProxyStats:
     lost: int = 0  # frames dropped by link_loss (the whole link silent)
     flooded: int = 0  # flooding frames the proxy added (flood)
     errors: int = 0  # datagrams passed unchanged because handling them raised
-    handle_ns: array = field(default_factory=lambda: array("q"))
-
-    def latency_ms(self, q: float) -> float:
-        """The ``q`` quantile (0..1) of the per-datagram handling time, in milliseconds."""
-        if not len(self.handle_ns):
-            return float("nan")
-        return float(np.quantile(np.frombuffer(self.handle_ns, dtype=np.int64), q)) / 1e6
 
     def summary(self) -> str:
         return (f"{self.datagrams} datagrams, {self.frames} frames: {self.forwarded} forwarded "
@@ -110,12 +103,6 @@ class ProxyStats:
                 f"flooding frames added; "
                 f"handling p50 "
                 f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms")
-
-    def to_dict(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k != "handle_ns"}
-        d["handle_p50_ms"] = self.latency_ms(0.5)
-        d["handle_p99_ms"] = self.latency_ms(0.99)
-        return d
 
 
 class _Views:

@@ -16,8 +16,7 @@ a message without a header (``std_msgs/Float64``) takes the last. Scenarios name
 from __future__ import annotations
 
 import time
-from array import array
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from scart_bench.dataset import FlightRecord, append_flights, flight_record, ins
 from scart_bench.generator.modes import scenario_manifest
 from scart_bench.generator.ros import RosError
 from scart_bench.generator.ros.topics import MAVROS_TOPICS, RosTopic, topic_fields
+from scart_bench.generator.scart.handling import HandlingStats
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
 
@@ -38,7 +38,7 @@ POINT = "link"
 
 
 @dataclass
-class NodeStats:
+class NodeStats(HandlingStats):
     """Counters of the node and the time it took to run the layer on each message."""
 
     received: int = 0
@@ -46,13 +46,6 @@ class NodeStats:
     altered: int = 0
     dropped: int = 0  # by a scenario action
     errors: int = 0  # messages passed unchanged because the layer raised
-    handle_ns: array = field(default_factory=lambda: array("q"))
-
-    def latency_ms(self, q: float) -> float:
-        """The ``q`` quantile (0..1) of the layer's handling time per message, in milliseconds."""
-        if not len(self.handle_ns):
-            return float("nan")
-        return float(np.quantile(np.frombuffer(self.handle_ns, dtype=np.int64), q)) / 1e6
 
     def summary(self) -> str:
         return (
@@ -60,12 +53,6 @@ class NodeStats:
             f"{self.dropped} dropped by the scenario, {self.errors} errors; layer p50 "
             f"{self.latency_ms(0.5):.3f} ms, p99 {self.latency_ms(0.99):.3f} ms"
         )
-
-    def to_dict(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k != "handle_ns"}
-        d["handle_p50_ms"] = self.latency_ms(0.5)
-        d["handle_p99_ms"] = self.latency_ms(0.99)
-        return d
 
 
 class RosLayer:
