@@ -98,6 +98,12 @@ def protocol_variant(protocol: Protocol, alpha: float | None = None, **changes) 
     return dataclasses.replace(protocol, **changes)
 
 
+def _newer(variant: Path, run: Path) -> bool:
+    """The variant folder was scored after its run (so it is still that run's variant)."""
+    done = variant / "metrics.csv"
+    return done.is_file() and done.stat().st_mtime >= (run / "metrics.csv").stat().st_mtime
+
+
 def rescored(run: Path, name: str, changes: dict) -> Path:
     """A copy of ``run`` (scores, truth, flights; not its flight cache) scored under the changed protocol."""
     from scart_bench.benchmark.results import score_run
@@ -105,7 +111,7 @@ def rescored(run: Path, name: str, changes: dict) -> Path:
     out = run.parent / "variants" / f"{run.name}.{name}"
     config = json.loads((run / "config.json").read_text())
     protocol = protocol_variant(Protocol.from_dict(config["identity"]["protocol"]), **changes)
-    if (out / "metrics.csv").is_file() and (out / "metrics.csv").stat().st_mtime >= (run / "metrics.csv").stat().st_mtime:
+    if _newer(out, run):
         return out
     shutil.rmtree(out, ignore_errors=True)
     shutil.copytree(run, out, ignore=shutil.ignore_patterns("cache"))
@@ -130,7 +136,7 @@ def retrained(run: Path, name: str, jobs: int) -> Path | None:
         _log(f"reference: {name} left out: {module} is not installed")
         return None
     out = run.parent / "variants" / f"{run.name}.{name}"
-    if (out / "metrics.csv").is_file() and (out / "metrics.csv").stat().st_mtime >= (run / "metrics.csv").stat().st_mtime:
+    if _newer(out, run):
         return out
     config = json.loads((run / "config.json").read_text())
     t0 = time.perf_counter()
