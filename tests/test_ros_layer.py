@@ -215,3 +215,23 @@ def test_the_live_monitor_reads_detector_columns_of_mavros_topics():
         monitor.on_message("local_position_pose", k * 33_000, _pose(x, y))
     monitor.flush()
     assert [round(s) for _, s in monitor.scores] == [1, 3, 30, 1] and len(monitor.alarms) == 1
+
+
+def test_an_attacked_recording_must_be_a_test_flight(tmp_path, capsys):
+    """As sitl: `ros node --scenario X --record D --split train` is refused before ROS is touched."""
+    from scart_bench.cli.main import main
+
+    spoof = Path(__file__).resolve().parents[1] / "data" / "scenarios" / "gps_spoof.toml"
+    out = tmp_path / "rec"
+    assert main(["ros", "node", "--scenario", str(spoof), "--record", str(out), "--split", "train"]) == 2
+    assert "--split train: an attacked flight (--scenario) is always a test flight" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_messages_without_a_stamp_take_the_last_stamped_time():
+    """Float64 topics (rel_alt, compass_hdg) carry no header: their flight time is the last stamped one."""
+    from scart_bench.generator.ros.layer import StampClock
+
+    clock = StampClock()
+    assert [clock.tick(s) for s in (None, 5_000_000, None, 5_400_000, 5_300_000, 0)] == [0, 0, 0, 400_000,
+                                                                                          400_000, 400_000]

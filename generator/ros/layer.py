@@ -37,6 +37,22 @@ SOURCE = "ros-node"
 POINT = "link"
 
 
+class StampClock:
+    """Flight time (µs) from message header stamps: counted from the first stamp and never decreasing; a
+    message without a stamp (None or 0, e.g. ``std_msgs/Float64``) takes the last time."""
+
+    def __init__(self) -> None:
+        self.first_stamp_us: int | None = None
+        self.clock_us = 0
+
+    def tick(self, stamp_us: int | None) -> int:
+        if stamp_us:
+            if self.first_stamp_us is None:
+                self.first_stamp_us = int(stamp_us)
+            self.clock_us = max(self.clock_us, int(stamp_us) - self.first_stamp_us)
+        return self.clock_us
+
+
 @dataclass
 class NodeStats(HandlingStats):
     """Counters of the node and the time it took to run the layer on each message."""
@@ -97,8 +113,7 @@ class RosLayer:
             "navigator": {},
             "simulator": {},
         }
-        self.first_stamp_us: int | None = None
-        self.clock_us = 0
+        self.clock = StampClock()
         self.started_wall = time.time()
         self.log_errors: list[str] = []
 
@@ -108,11 +123,7 @@ class RosLayer:
 
     def tick(self, stamp_us: int | None) -> int:
         """The flight time (µs) of a message stamped ``stamp_us`` (None or 0: no stamp; the last time)."""
-        if stamp_us:
-            if self.first_stamp_us is None:
-                self.first_stamp_us = int(stamp_us)
-            self.clock_us = max(self.clock_us, int(stamp_us) - self.first_stamp_us)
-        return self.clock_us
+        return self.clock.tick(stamp_us)
 
     def on_message(
         self, topic: str, stamp_us: int | None, values: np.ndarray
@@ -164,7 +175,7 @@ class RosLayer:
     # -- the recorded flight ----------------------------------------------------------------------
     @property
     def end_us(self) -> int:
-        return self.clock_us + 1
+        return self.clock.clock_us + 1
 
     def windows(self) -> list[tuple[int, int]]:
         """Attack windows so far (an open one is closed at the current clock)."""
@@ -209,7 +220,7 @@ class RosLayer:
             "scenarios": [s.to_dict() for s in self.scenarios],
             "stats": self.stats.to_dict(),
             "topics": {t: self.topics[t].ros_name for t in sorted(views["simulator"])},
-            "first_stamp_us": self.first_stamp_us,
+            "first_stamp_us": self.clock.first_stamp_us,
             "recorded_at": datetime.fromtimestamp(self.started_wall, UTC).isoformat(timespec="seconds"),
         }
         return flight_record(

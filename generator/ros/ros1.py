@@ -25,7 +25,7 @@ from operator import attrgetter
 import numpy as np
 
 from scart_bench.generator.ros import RosError, require_rospy
-from scart_bench.generator.ros.layer import RosLayer
+from scart_bench.generator.ros.layer import RosLayer, StampClock
 from scart_bench.generator.ros.mission import SquareMission
 from scart_bench.generator.ros.topics import (
     COMMAND,
@@ -526,7 +526,7 @@ class NavigatorNode:
         self._lock = threading.Lock()
         self.notices = 0
         self._alarms_seen = 0
-        self._first_us: int | None = None
+        self._clock = StampClock()  # a Float64 without a header takes the last stamped time, as in the node
         self.notice_topic = notice_topic
 
     def start(self) -> NavigatorNode:
@@ -558,12 +558,8 @@ class NavigatorNode:
         self.state.update(parse_state(msg.data))
 
     def _on_telemetry(self, msg, topic: str) -> None:
-        t = stamp_us(msg)
         with self._lock:
-            if t is not None and self._first_us is None:
-                self._first_us = t
-            t_rel = (t - self._first_us) if t is not None and self._first_us is not None else 0
-            self.monitor.on_message(topic, max(t_rel, 0), self._codecs[topic].values(msg))
+            self.monitor.on_message(topic, self._clock.tick(stamp_us(msg)), self._codecs[topic].values(msg))
             for alarm in self.monitor.alarms[self._alarms_seen :]:
                 self.notices += 1
                 self.pub_notice.publish(

@@ -73,3 +73,19 @@ def name_failed(command: str, failed, what: str, hint: str) -> int:
     names = ", ".join(f"{r['detector']} ({r['status']})" for _, r in failed.iterrows())
     print(f"scart-bench {command}: {len(failed)} job(s) {what}: {names}; {hint}", file=sys.stderr)
     return EXIT_JOBS_FAILED
+
+
+def record_folder(record: str | Path | None) -> Path | None:
+    """``--record``'s folder: new, empty, or an existing dataset to add the flight to (UsageError otherwise)."""
+    from scart_bench.dataset import is_dataset
+
+    if not record:
+        return None
+    record = Path(record)
+    if record.exists():
+        if not record.is_dir():
+            raise UsageError(f"--record {record}: exists and is not a folder")
+        if any(record.iterdir()) and not is_dataset(record):
+            raise UsageError(f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
+                             "give a new folder or an existing dataset to add the flight to")
+    return record

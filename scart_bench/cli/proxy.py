@@ -18,7 +18,7 @@ import threading
 import time
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError
+from scart_bench.cli.common import UsageError, record_folder
 from scart_bench.names import check_id
 
 
@@ -37,7 +37,6 @@ def _require_mavlink():
 
 def cmd_proxy(args: argparse.Namespace) -> int:
     px = _require_mavlink()
-    from scart_bench.dataset import is_dataset
     from scart_bench.generator.mavlink.recording import (
         RecordingCheckpoint,
         new_flight_id,
@@ -58,13 +57,7 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         raise UsageError(f"--duration {args.duration}: expected a positive, finite number of seconds")
     if args.flight_id is not None:
         check_id(args.flight_id, "--flight-id")
-    record = Path(args.record) if args.record else None
-    if record is not None and record.exists():
-        if not record.is_dir():
-            raise UsageError(f"--record {record}: exists and is not a folder")
-        if any(record.iterdir()) and not is_dataset(record):
-            raise UsageError(f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
-                             "give a new folder or an existing dataset to add the flight to")
+    record = record_folder(args.record)
     scenarios = load_scenarios(args.scenario)
     monitor = None
     if args.detector:

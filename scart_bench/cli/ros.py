@@ -16,17 +16,12 @@ import argparse
 import json
 import math
 import signal
-import sys
 import threading
 import time
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError
+from scart_bench.cli.common import UsageError, log, record_folder
 from scart_bench.names import check_id
-
-
-def _log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def _ros1():
@@ -55,19 +50,6 @@ def _run_until(stop: threading.Event, duration: float | None, done: threading.Ev
     return done is not None and done.is_set()
 
 
-def _check_record(record: Path | None) -> None:
-    from scart_bench.dataset import is_dataset
-
-    if record is not None and record.exists():
-        if not record.is_dir():
-            raise UsageError(f"--record {record}: exists and is not a folder")
-        if any(record.iterdir()) and not is_dataset(record):
-            raise UsageError(
-                f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
-                "give a new folder or an existing dataset to add the flight to"
-            )
-
-
 def cmd_node(args: argparse.Namespace) -> int:
     from scart_bench.generator.mavlink.recording import new_flight_id
     from scart_bench.generator.ros.layer import RosLayer, save_recording
@@ -78,14 +60,15 @@ def cmd_node(args: argparse.Namespace) -> int:
         raise UsageError(f"--scenario {args.scenario}: no such file")
     if args.flight_id is not None:
         check_id(args.flight_id, "--flight-id")
-    record = Path(args.record) if args.record else None
-    _check_record(record)
+    record = record_folder(args.record)
     scenarios = load_scenarios(args.scenario) if args.scenario else []
+    if scenarios and record is not None and args.split != "test":
+        raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
     layer = RosLayer(scenarios, seed=args.seed, record=record is not None)
     ros1 = _ros1()
     ros1.init_node(args.name)
-    node = ros1.ScartNode(layer, args.input_ns, args.output_ns, log=_log).start()
-    _log(
+    node = ros1.ScartNode(layer, args.input_ns, args.output_ns, log=log).start()
+    log(
         f"ros node: {args.input_ns} -> {args.output_ns}; scenario {', '.join(s.id for s in scenarios) or 'none'} on "
         f"{', '.join(sorted(layer.used)) or 'no topic'}; Ctrl-C stops"
     )
@@ -95,14 +78,14 @@ def cmd_node(args: argparse.Namespace) -> int:
         _run_until(stop, args.duration)
     finally:
         node.stop()
-    _log(
+    log(
         f"ros node: stopped after {time.monotonic() - t0:.1f} s: {layer.stats.summary()}; {node.relayed} setpoints, "
         "commands and states relayed"
     )
     for text in layer.log_errors:
-        _log(f"ros node: error in the layer ({text}); the message passed unchanged")
+        log(f"ros node: error in the layer ({text}); the message passed unchanged")
     for s, e in layer.windows():
-        _log(f"ros node: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
+        log(f"ros node: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
     if record is not None:
         fid = args.flight_id or new_flight_id(record, prefix="ros")
         extra = {"scenario_file": args.scenario, "input_ns": args.input_ns, "output_ns": args.output_ns}
@@ -119,8 +102,8 @@ def cmd_mavros(args: argparse.Namespace) -> int:
     connect = parse_endpoint(args.connect, "--connect")
     ros1 = _ros1()
     ros1.init_node(args.name)
-    standin = ros1.MavrosStandIn(connect, ns=args.ns, log=_log).start()
-    _log(f"mavros stand-in: udp:{connect[0]}:{connect[1]} -> {args.ns}; Ctrl-C stops")
+    standin = ros1.MavrosStandIn(connect, ns=args.ns, log=log).start()
+    log(f"mavros stand-in: udp:{connect[0]}:{connect[1]} -> {args.ns}; Ctrl-C stops")
     stop = threading.Event()
     reader = threading.Thread(target=standin.spin, args=(stop,), name="mavlink-reader", daemon=True)
     reader.start()
@@ -131,7 +114,7 @@ def cmd_mavros(args: argparse.Namespace) -> int:
         reader.join(timeout=2.0)
         standin.close()
     counts = ", ".join(f"{k} {v}" for k, v in sorted(standin.counts.items()))
-    _log(f"mavros stand-in: stopped; published {counts or 'nothing'}; {standin.setpoints} setpoints sent")
+    log(f"mavros stand-in: stopped; published {counts or 'nothing'}; {standin.setpoints} setpoints sent")
     return 0
 
 
@@ -146,26 +129,26 @@ def cmd_navigator(args: argparse.Namespace) -> int:
         from scart_bench.benchmark.live import monitor_from_run
         from scart_bench.generator.ros.topics import MAVROS_TOPICS, topic_fields
 
-        monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
+        monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=log)
         monitor.add_topics(topic_fields(), {n: t.rate_hz for n, t in MAVROS_TOPICS.items()})
     ros1 = _ros1()
     ros1.init_node(args.name)
-    nav = ros1.NavigatorNode(ns=args.ns, monitor=monitor, notice_topic=args.notice_topic, log=_log).start()
-    _log(f"navigator: flying the square from {args.ns}; Ctrl-C stops")
+    nav = ros1.NavigatorNode(ns=args.ns, monitor=monitor, notice_topic=args.notice_topic, log=log).start()
+    log(f"navigator: flying the square from {args.ns}; Ctrl-C stops")
     stop = threading.Event()
     try:
         done = _run_until(stop, args.timeout, nav.done)
     finally:
         nav.close()
     for t, what in nav.mission.log:
-        _log(f"navigator: t={t:.2f} s {what}")
+        log(f"navigator: t={t:.2f} s {what}")
     if monitor is not None:
         monitor.flush()
-        _log(
+        log(
             f"navigator: {monitor.summary()}; {nav.notices} anomaly notices published on {args.notice_topic}"
         )
     if not done:
-        _log(f"navigator: the mission did not finish (phase {nav.mission.phase})")
+        log(f"navigator: the mission did not finish (phase {nav.mission.phase})")
         return 1
     print("navigator: mission flown, landed and disarmed")
     return 0

@@ -14,7 +14,7 @@ import threading
 import time
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError
+from scart_bench.cli.common import UsageError, record_folder
 
 DEFAULT_LISTEN = "udp:127.0.0.1:14580"
 
@@ -52,18 +52,11 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     except ImportError as exc:
         raise UsageError(f"the sitl needs pymavlink, which is not installed: pip install scart-bench[mavlink] "
                          f"({exc})") from exc
-    from scart_bench.dataset import is_dataset
     from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
     from scart_bench.generator.scart.scenario import load_scenarios
     from scart_bench.generator.sitl.journal import Journal, recover
 
-    record = Path(args.record) if args.record else None
-    if record is not None and record.exists():
-        if not record.is_dir():
-            raise UsageError(f"--record {record}: exists and is not a folder")
-        if any(record.iterdir()) and not is_dataset(record):
-            raise UsageError(f"--record {record}: not empty and not a scart-bench dataset (no manifest); "
-                             "give a new folder or an existing dataset to add the flight to")
+    record = record_folder(args.record)
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
