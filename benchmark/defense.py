@@ -263,7 +263,7 @@ def defend(
         base = []
         for i in range(n):
             twin_truth, twin_xy = _truth_xy(twin, i)
-            und_truth, und_xy = _truth_xy(und, i)
+            und_truth, und_xy = (twin_truth, twin_xy) if und is twin else _truth_xy(und, i)
             imp = impact(und_truth, twin_truth, und.status[i])
             plan = twin_xy[-1]
             base.append(
@@ -274,7 +274,6 @@ def defend(
                     "und": imp,
                     "und_status": und.status[i],
                     "und_off_m": float(np.hypot(*(und_xy[-1] - plan))),
-                    "onset_us": _onset(layer, i, (int(und.exit_step[i]) + 1) * STEP_US),
                 }
             )
         for det in detectors:
@@ -291,7 +290,7 @@ def defend(
                     d_truth, d_xy = _truth_xy(dfd, i)
                     d_imp = impact(d_truth, b["twin_truth"], dfd.status[i])
                     end_us = (int(dfd.exit_step[i]) + 1) * STEP_US
-                    onset = _onset(inner, i, end_us) if inner is not None else -1
+                    onset = _onset(inner, i, end_us)
                     rows.append(
                         {
                             "detector": det.name,

@@ -207,6 +207,9 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     if name not in registry.available():
         raise RunError(f"--detector {name!r}: not a built-in or installed detector; the run folder's record of "
                        "where it came from is not executed: load it with --plugin module:Class or file.py:Class")
+    if config.get("train_dataset"):
+        raise RunError(f"--run {run}: a transfer run (--train-dataset) fits its detectors on columns matched by "
+                       "meaning, which a live stream does not carry; give a run on one dataset")
     flights = store.read_flights()
     train = flights.loc[flights["role"] == "train", "flight_id"].astype(str).tolist()
     validation = flights.loc[flights["role"] == "validation", "flight_id"].astype(str).tolist()

@@ -61,7 +61,7 @@ FROM_START = ("altitude.amsl", "gps.alt", "baro.alt", "baro.pressure", "battery.
 LATLON = {("position.lat", "position.lon"): ("position.north", "position.east"),
           ("gps.lat", "gps.lon"): ("gps.north", "gps.east")}
 #: A PX4 attitude quaternion (w, x, y, z; body FRD -> NED).
-QUATERNION = ("vehicle_attitude.q_0", "vehicle_attitude.q_1", "vehicle_attitude.q_2", "vehicle_attitude.q_3")
+QUATERNION = QUANTITIES["attitude"]["q"]
 #: Test flights whose median row interval is within this fraction of the training flights' keep their rows.
 RATE_TOLERANCE = 0.1
 
@@ -75,6 +75,8 @@ def column_meanings(columns: Iterable[str]) -> dict[str, str]:
         if q in NOT_SHARED:
             continue
         for f, candidates in fields.items():
+            if (q, f) == ("attitude", "q"):
+                continue  # its four parts are one quaternion: shared as roll, pitch and yaw instead
             meaning = f"{q}.{f}"
             hit = next((c for c in candidates if c in have and MEANING_OF.get(c) == meaning), None)
             if hit is not None:

@@ -53,6 +53,7 @@ def test_a_transfer_run_trains_on_generated_flights_and_tests_on_real_logs(datas
     # PX4 quaternions become Euler angles; lat/lon become metres from the first fix
     assert {"attitude.roll", "imu.zacc", "gps.north", "gps.east"} <= set(shared)
     assert not any(c.endswith((".lat", ".lon")) for c in shared)
+    assert "attitude.q" not in shared  # the quaternion's parts are not a quantity of their own
     flights = pd.read_csv(out / "flights.csv")
     by_role = flights.groupby("role")["dataset"].agg(set).to_dict()
     assert by_role["train"] == {str(gen)} and by_role["validation"] == {str(gen)}
@@ -69,6 +70,12 @@ def test_a_transfer_run_trains_on_generated_flights_and_tests_on_real_logs(datas
     assert main(["report", str(out), "--out", str(tmp_path / "report"), "--no-figures"]) == 0
     board = (tmp_path / "report" / "leaderboard.md").read_text()
     assert "Train here, test there" in board and f"False alarms, normal flights ({real.name})" in board
+    # a live monitor (proxy/ros/defend --run) cannot stream columns by meaning: refused in one line
+    from scart_bench.benchmark.live import monitor_from_run
+    from scart_bench.errors import ScartBenchError
+
+    with pytest.raises(ScartBenchError, match="a transfer run"):
+        monitor_from_run(out, "statistical")
 
     # resume: same identity, nothing rerun; another train dataset is another identity (refused, nothing written)
     assert main(["run", "--train-dataset", str(gen), "--dataset", str(real), "--detectors", "statistical",

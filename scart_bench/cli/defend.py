@@ -8,8 +8,7 @@ import time
 from pathlib import Path
 
 from scart_bench.cli.common import UsageError, log
-
-CLI_RESPONSES = ("hold", "return", "land", "reject_gps", "reject_gps_then_return")
+from scart_bench.generator.defense import RESPONSES
 
 
 def cmd_defend(args: argparse.Namespace) -> int:
@@ -87,7 +86,7 @@ def register(sub) -> None:
         "--response",
         required=True,
         action="append",
-        choices=CLI_RESPONSES,
+        choices=RESPONSES,
         help="what the flight controller does on the alarm (repeat for several)",
     )
     s.add_argument(
