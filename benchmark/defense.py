@@ -26,6 +26,7 @@ import pandas as pd
 
 from scart_bench.benchmark.intervals import BOOTSTRAP_SEED, N_BOOTSTRAP, wilson
 from scart_bench.benchmark.live import ARMING_FIELDS
+from scart_bench.benchmark.protocol import is_armed
 from scart_bench.dataset.schema import TOPICS
 from scart_bench.detectors.base import Detector
 
@@ -98,7 +99,7 @@ class BatchMonitor:
             ok = np.asarray(ok, dtype=bool)
             for k, name in ARMING_FIELDS.get(topic, ()):
                 self._arming_seen = True
-                on = vals[:, k] >= 0.5 if name == "armed" else vals[:, k] == 2.0
+                on = is_armed(name, vals[:, k])
                 self.armed_us[ok & on & (self.armed_us < 0)] = t_us
                 self.ended_us[ok & ~on & (self.armed_us >= 0) & (self.ended_us < 0)] = t_us
             cols = self._index.get(topic)

@@ -32,13 +32,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.benchmark.protocol import ARMING_FIELD_NAMES, is_armed
 from scart_bench.dataset.schema import TOPICS
 from scart_bench.errors import RunError
 
 #: topic -> (index, name) of its fields that say the vehicle is armed (looked up once, not per message)
-ARMING_FIELDS = {name: [(k, f) for k, f in enumerate(spec.field_names) if f in ("armed", "arming_state")]
-                 for name, spec in TOPICS.items()}
-ARMING_FIELDS = {name: fields for name, fields in ARMING_FIELDS.items() if fields}
+ARMING_FIELDS = {name: fields for name, spec in TOPICS.items()
+                 if (fields := [(k, f) for k, f in enumerate(spec.field_names) if f in ARMING_FIELD_NAMES])}
 #: rows scored when a detector does not say how much history it needs (10 s at 50 Hz)
 DEFAULT_HISTORY_ROWS = 500
 
@@ -106,7 +106,7 @@ class StreamMonitor:
         for k, name in ARMING_FIELDS.get(topic, ()):
             if k < len(values):
                 self._arming_seen = True
-                if values[k] >= 0.5 if name == "armed" else values[k] == 2.0:
+                if is_armed(name, values[k]):
                     self.armed_us = int(t_us)
 
     def counts(self, t_us: int) -> bool:

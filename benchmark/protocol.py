@@ -236,6 +236,16 @@ class ThresholdRule:
         return f"{self.q:g} quantile of validation scores + {self.margin:g} x |quantile|"
 
 
+#: Fields that say the vehicle is armed: ``armed`` (the navigator's arm request, on at >= 0.5) and PX4's
+#: ``arming_state`` (2 = armed).
+ARMING_FIELD_NAMES = ("armed", "arming_state")
+
+
+def is_armed(field_name: str, value):
+    """Whether ``value`` (a number or an array) of an arming field says armed."""
+    return value >= 0.5 if field_name == "armed" else value == 2.0
+
+
 def arming_time_us(flight: pd.DataFrame) -> tuple[int, str]:
     """When a flight was armed (its ``Timestamp``, microseconds) and the column that says so.
 
@@ -250,10 +260,10 @@ def arming_time_us(flight: pd.DataFrame) -> tuple[int, str]:
         if not isinstance(col, str) or "." not in col:
             continue
         field_name = col.rpartition(".")[2]
-        if field_name not in ("armed", "arming_state"):
+        if field_name not in ARMING_FIELD_NAMES:
             continue
         v = pd.to_numeric(flight[col], errors="coerce").to_numpy(np.float64)
-        on = (v >= 0.5) if field_name == "armed" else (v == 2.0)
+        on = is_armed(field_name, v)
         hit = np.flatnonzero(on)
         if hit.size:
             return int(ts[hit[0]]), col
