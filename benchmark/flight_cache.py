@@ -133,18 +133,18 @@ class _Builder:
         return self.kind_ids[key]
 
     def _codes(self, s: pd.Series) -> np.ndarray:
-        values = s.to_numpy(dtype=object)
-        codes = np.empty(values.shape[0], dtype=np.int32)
-        for i, v in enumerate(values):
+        """The column's strings as int32 codes into ``self.strings`` (-1: missing), new strings
+        numbered in order of first appearance."""
+        local, uniques = pd.factorize(s.to_numpy(dtype=object), use_na_sentinel=True)
+        ids = np.full(len(uniques) + 1, -1, dtype=np.int32)  # the last slot: factorize's -1
+        for k, v in enumerate(uniques):
             if isinstance(v, str):
                 j = self.string_ids.get(v)
                 if j is None:
                     j = self.string_ids[v] = len(self.strings)
                     self.strings.append(v)
-                codes[i] = j
-            else:
-                codes[i] = -1  # missing
-        return codes
+                ids[k] = j
+        return ids[local]
 
     def add(self, fid: str, df: pd.DataFrame) -> None:
         if fid in self.flights:

@@ -47,6 +47,21 @@ def rolling_var(X: np.ndarray, window: int) -> np.ndarray:
     return np.maximum(rolling_mean(X * X, window) - mean * mean, 0.0)
 
 
+def _sorted4(values: np.ndarray) -> list[np.ndarray]:
+    """The four entries of ``values``' last axis in ascending order, as four arrays.
+
+    A five-comparator sorting network over whole arrays: the same values as ``np.sort`` (only
+    comparisons, no arithmetic) several times faster than a sort or partition along an axis of 4.
+    """
+    a, b, c, d = (values[..., i] for i in range(4))
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    c, d = np.minimum(c, d), np.maximum(c, d)
+    a, c = np.minimum(a, c), np.maximum(a, c)
+    b, d = np.minimum(b, d), np.maximum(b, d)
+    b, c = np.minimum(b, c), np.maximum(b, c)
+    return [a, b, c, d]
+
+
 def _increments(X: np.ndarray) -> np.ndarray:
     """Row-to-row change of each channel; zero on the first row."""
     return np.diff(X, axis=0, prepend=X[:1])
@@ -174,7 +189,10 @@ class Statistical(Detector):
     def _score(self, X: np.ndarray) -> np.ndarray:
         k = int(self.min_exceed)
         ratios = self._ratios(X)
-        kth_largest = np.partition(ratios, N_STATISTICS - k, axis=-1)[..., N_STATISTICS - k]
+        if np.isnan(ratios).any():  # np.partition's order for NaN (last), which the network below lacks
+            kth_largest = np.partition(ratios, N_STATISTICS - k, axis=-1)[..., N_STATISTICS - k]
+        else:
+            kth_largest = _sorted4(ratios)[N_STATISTICS - k]
         return kth_largest.max(axis=1)
 
     def alarms(self, flight: pd.DataFrame) -> np.ndarray:

@@ -87,3 +87,20 @@ def test_pairwise_sum_is_numpys_sum(dtype):
     for n in [*range(1, 140), 255, 256, 257, 1000, 4099]:  # n >= 1: the kernels never sum nothing
         x = (rng.standard_normal(n + 3) * 1e3).astype(dtype)
         assert pairwise_sum(x, 3, n) == np.add.reduce(x[3:]), n
+
+
+@pytest.mark.parametrize("min_exceed", [1, 2, 3, 4])
+def test_statistical_kth_largest_ratio_is_the_partitions(min_exceed):
+    """The statistical detector's k-of-4 rule picks the same ratio as np.partition, ties and NaN included."""
+    from scart_bench.detectors.statistical import N_STATISTICS, Statistical
+
+    rng = np.random.default_rng(min_exceed)
+    ratios = rng.standard_normal((400, 9, 4)) ** 2
+    ratios[::5, :, 1] = ratios[::5, :, 3]  # ties
+    ratios[::7, 2, :] = 1.0  # all four equal
+    det = Statistical(min_exceed=min_exceed)
+    k = N_STATISTICS - min_exceed
+    for r in (ratios, np.where(rng.random(ratios.shape) < 0.01, np.nan, ratios)):
+        det._ratios = lambda X, r=r: r  # noqa: B023 (the ratios under test, bypassing the statistics)
+        expected = np.partition(r, k, axis=-1)[..., k].max(axis=1)
+        np.testing.assert_array_equal(det._score(np.zeros((400, 9))), expected)

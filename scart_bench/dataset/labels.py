@@ -78,8 +78,9 @@ def insert_labels(df: pd.DataFrame, timestamps: np.ndarray, windows: Iterable[tu
     return df
 
 
-def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = None) -> dict[str, pd.DataFrame]:
-    """The two combined tables of one view.
+def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = None,
+            tables: tuple[str, ...] = ("all_sensors", "most_frequent")) -> dict[str, pd.DataFrame]:
+    """The two combined tables of one view (or only those named in ``tables``).
 
     ``all_sensors``: every timestamp of every topic; a topic's columns are NaN where it has no
     message. ``most_frequent``: resampled on the timestamps of the most frequently sampled topic
@@ -98,12 +99,15 @@ def combine(topics: dict[str, pd.DataFrame], windows, base_topic: str | None = N
         frames.append((name, ts_sorted[last], [(f"{name}.{c}", np.asarray(df[c])[rows]) for c in cols]))
     if not frames:
         raise DatasetError("cannot combine a flight with no topics")
-    union = np.unique(np.concatenate([ts for _, ts, _ in frames]))
-    if base_topic is None:
-        base_topic = _base_topic([(name, ts) for name, ts, _ in frames])
-    base = next(ts for name, ts, _ in frames if name == base_topic)
+    indexes = {}
+    if "all_sensors" in tables:
+        indexes["all_sensors"] = np.unique(np.concatenate([ts for _, ts, _ in frames]))
+    if "most_frequent" in tables:
+        if base_topic is None:
+            base_topic = _base_topic([(name, ts) for name, ts, _ in frames])
+        indexes["most_frequent"] = next(ts for name, ts, _ in frames if name == base_topic)
     out = {}
-    for key, index in (("all_sensors", union), ("most_frequent", base)):
+    for key, index in indexes.items():
         data: dict[str, np.ndarray] = {"Index": np.arange(len(index), dtype=np.int64), "Timestamp": index,
                                        **label_columns(index, windows)}
         for _, ts, columns in frames:

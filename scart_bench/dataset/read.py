@@ -77,7 +77,7 @@ class Dataset:
             return read_table(self.flight_dir(flight_id) / "combined" / f"{view}_{table}", columns)
         topics = read_view(self.flight_dir(flight_id), view, arrays=True)
         windows = self._windows(flight_id, view)
-        df = combine({k: v for k, v in topics.items() if k not in TRUTH_TOPICS}, windows)[table]
+        df = combine({k: v for k, v in topics.items() if k not in TRUTH_TOPICS}, windows, tables=(table,))[table]
         if columns is None:
             return df
         missing = [c for c in columns if c not in df.columns]
