@@ -33,10 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scart_bench.benchmark.jobs import JobResult, run_job
+from scart_bench.cluster import CONNECT_TIMEOUT_S
 from scart_bench.errors import RunError
 
-#: Seconds allowed to connect to a dask scheduler.
-CONNECT_TIMEOUT_S = 5.0
 #: Seconds a worker may take to start Python and import the benchmark before its job begins; the
 #: job's own ``--timeout`` is counted from then, so a loaded machine does not time out fast jobs.
 STARTUP_GRACE_S = 120.0
@@ -178,23 +177,10 @@ class DaskExecutor:
     """One dask task per job; each task runs the job in an isolated worker process."""
 
     def __init__(self, scheduler: str | None = None, jobs: int = 1, connect_timeout: float = CONNECT_TIMEOUT_S):
-        import logging
+        from scart_bench.cluster import connect
 
-        from distributed import Client, LocalCluster
-
-        self.cluster = None
-        if scheduler:
-            try:
-                self.client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
-            except Exception as exc:
-                raise RunError(f"--scheduler {scheduler}: cannot reach a dask scheduler there within "
-                               f"{connect_timeout:g} s ({type(exc).__name__}: {exc}); expected the address "
-                               "of a running scheduler such as tcp://host:8786, or no --scheduler for a "
-                               "local cluster") from None
-        else:
-            self.cluster = LocalCluster(n_workers=max(1, int(jobs)), threads_per_worker=1, processes=True,
-                                        dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
-            self.client = Client(self.cluster, set_as_default=False)
+        self._cluster = connect(scheduler, jobs, connect_timeout, error=RunError)
+        self.client, self.cluster = self._cluster.client, self._cluster.local
 
     def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
         import uuid
@@ -228,9 +214,7 @@ class DaskExecutor:
                            "mounts at the same path, or copy it there on each host (docs/scaling.md)")
 
     def close(self) -> None:
-        self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        self._cluster.close()
 
 
 def _dataset_readable(path: str) -> str:

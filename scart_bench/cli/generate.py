@@ -38,13 +38,20 @@ def cmd_generate(args: argparse.Namespace) -> int:
         if args.timing not in TIMINGS:
             raise UsageError(f"--timing {args.timing!r}: expected one of {', '.join(TIMINGS)}")
         profile = dataclasses.replace(profile, timing=args.timing)
+    if args.batch_size is not None and args.batch_size < 1:
+        raise UsageError(f"--batch-size must be at least 1, got {args.batch_size}")
+    if args.scheduler and args.executor != "dask":
+        raise UsageError("--scheduler needs --executor dask")
+    if args.jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
     out = Path(args.out)
     existed = out.exists()
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=log,
                          scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
-                         uorb=args.uorb or None)
+                         uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
+                         scheduler=args.scheduler, jobs=args.jobs)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
@@ -74,5 +81,13 @@ def register(sub) -> None:
                    "(realistic: jitter, drops, late messages, GPS after its fix; default: the profile's)")
     g.add_argument("--uorb", action="store_true", help="also write each flight's uORB view (sensors/uorb/: PX4 "
                    "topic names, fields and units, to score real ULogs; see docs/own_logs.md)")
+    g.add_argument("--executor", choices=("local", "dask"), default="local",
+                   help="local (default) or dask: every batch of flights is a shard flown and written by a dask "
+                   "worker, the manifest is committed here; same bytes as local (docs/scaling.md)")
+    g.add_argument("--scheduler", default=None, help="with --executor dask: a running scheduler's address "
+                   "(tcp://host:8786); default a local cluster of --jobs workers")
+    g.add_argument("--jobs", type=int, default=2, help="with --executor dask and no --scheduler: local workers (default 2)")
+    g.add_argument("--batch-size", type=int, default=None, help="flights flown together, and one dask shard "
+                   "(default: the profile's, 256); the flights depend on it, so compare datasets made with the same")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.set_defaults(func=cmd_generate)
