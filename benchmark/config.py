@@ -11,6 +11,7 @@ over it::
     seed = 0
     jobs = 2
     timeout = 1800                           # seconds per job
+    score_shards = 1                         # >1: fit once, score the flights in this many parallel jobs
     executor = "local"                       # or "dask" (with scheduler = "tcp://host:8786")
     plugins = ["my_detector.py:MyDetector"]
     features = ["vehicle_gps_position.*"]    # optional: the feature columns (glob patterns), or
@@ -49,7 +50,7 @@ from scart_bench.generator.profiles import PROFILES
 #: values of ``--device``
 DEVICES = ("auto", "cpu", "cuda")
 RUN_KEYS = ("detectors", "profile", "dataset", "train_dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
-            "plugins", "params", "protocol", "resume", "features", "exclude", "device")
+            "plugins", "params", "protocol", "resume", "features", "exclude", "device", "score_shards")
 
 
 @dataclass
@@ -67,6 +68,9 @@ class RunConfig:
     scheduler: str | None = None
     jobs: int = 1
     timeout: float | None = None
+    #: score each detector's flights in this many parallel jobs after one fit (benchmark.sharding);
+    #: same scores and metrics as 1, so it is not part of the run's identity
+    score_shards: int = 1
     seed: int = 0
     plugins: list[str] = field(default_factory=list)
     params: dict[str, dict] = field(default_factory=dict)
@@ -91,6 +95,8 @@ class RunConfig:
             raise RunError("--scheduler needs --executor dask")
         if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
             raise RunError(f"--jobs {self.jobs!r}: expected a positive number of parallel jobs")
+        if isinstance(self.score_shards, bool) or not isinstance(self.score_shards, int) or self.score_shards < 1:
+            raise RunError(f"--score-shards {self.score_shards!r}: expected a positive number of scoring shards")
         if self.timeout is not None:
             try:
                 t = float(self.timeout)
@@ -119,6 +125,7 @@ class RunConfig:
         """The run as plain data, in the run file's schema (what ``--config`` reads back)."""
         out: dict = {"detectors": list(self.detectors), "profile": self.profile, "seed": int(self.seed),
                      "jobs": int(self.jobs), "executor": self.executor, "timeout": self.timeout_s,
+                     "score_shards": int(self.score_shards),
                      "plugins": list(self.plugins), "params": {k: dict(v) for k, v in self.params.items()},
                      "protocol": self.protocol.rules()}
         if self.dataset is not None:
@@ -187,7 +194,7 @@ def _checked(p: Path, data: dict) -> dict:
     for key in ("dataset", "train_dataset", "out"):
         if key in data:
             out[key] = Path(data[key])
-    for key in ("seed", "jobs"):
+    for key in ("seed", "jobs", "score_shards"):
         if key in data and (isinstance(data[key], bool) or not isinstance(data[key], int)):
             raise bad(key, "an integer")
     if "timeout" in data and (isinstance(data["timeout"], bool) or not isinstance(data["timeout"], int | float)):

@@ -44,7 +44,9 @@ LOG_LIMIT = 256 * 1024
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS",
                 "VECLIB_MAXIMUM_THREADS")
 
-OnDone = Callable[[object, object], None]
+#: Called with (spec, result) as each job ends; may return more specs to run (a sharded job's
+#: scoring shards once its fit is done), which the executor runs like the first ones.
+OnDone = Callable[[object, object], "list | None"]
 
 
 @dataclass
@@ -155,11 +157,11 @@ class LocalExecutor:
                 for w in list(running):
                     if w.proc.poll() is not None:
                         running.remove(w)
-                        on_done(w.spec, _collect(w))
+                        pending.extendleft(reversed(on_done(w.spec, _collect(w)) or []))
                     elif w.expired():
                         _kill(w)
                         running.remove(w)
-                        on_done(w.spec, _collect(w, timed_out=True, timeout=timeout))
+                        pending.extendleft(reversed(on_done(w.spec, _collect(w, timed_out=True, timeout=timeout)) or []))
         finally:
             for w in running:  # interrupted: no unfinished job leaves a process or a status
                 _kill(w)
@@ -187,17 +189,23 @@ class DaskExecutor:
 
         from distributed import as_completed
 
-        futures = {self.client.submit(run_isolated, spec, timeout, pure=False,
-                                      key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}"): spec
-                   for spec in specs}
+        def submit(spec):
+            return self.client.submit(run_isolated, spec, timeout, pure=False,
+                                      key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}")
+
+        futures = {submit(spec): spec for spec in specs}
+        done = as_completed(list(futures), loop=self.client.loop)
         try:
-            for fut in as_completed(futures, loop=self.client.loop):
+            for fut in done:
                 spec = futures[fut]
                 try:
                     res = fut.result()
                 except Exception as exc:
                     res = JobResult("ERROR", f"the dask task failed: {type(exc).__name__}: {exc}")
-                on_done(spec, res)
+                for more in on_done(spec, res) or []:
+                    f = submit(more)
+                    futures[f] = more
+                    done.add(f)
         finally:
             for fut in futures:
                 fut.cancel()

@@ -48,6 +48,7 @@ from scart_bench.benchmark.jobs import JobResult, JobSpec
 from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign_roles
 from scart_bench.benchmark.results import paper_table, score_run, write_results
 from scart_bench.benchmark.selection import DetectorChoice, load_plugins, resolve_detectors, with_params
+from scart_bench.benchmark.sharding import ShardedScoring
 from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
 from scart_bench.benchmark.transfer import TransferRun, open_transfer, plan_fingerprint
 from scart_bench.errors import RunError
@@ -332,6 +333,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         statuses: list[str] = []
 
         def on_done(spec: JobSpec, res: JobResult) -> None:
+            """Save a finished job (a sharded one once all its shards are merged)."""
             params = {"detector": spec.detector, **settings[spec.detector], "key": keys[spec.detector]}
             store.finish_job(spec.detector, _status(spec, res), json_safe(params),
                              res.scores if res.status == "OK" else None, res.log,
@@ -339,8 +341,11 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
             statuses.append(res.status)
             progress.done(spec.detector, res)
 
+        rows = ({str(f): int(r) for f, r in zip(ds.manifest["flight_id"], ds.manifest["rows"]) if pd.notna(r)}
+                if transfer is None and "rows" in ds.manifest else {})
+        sharded = ShardedScoring(cfg.score_shards, rows, on_done, progress.note)
         try:
-            executor.run(specs, cfg.timeout_s, on_done)
+            executor.run([sharded.plan(spec) for spec in specs], cfg.timeout_s, sharded)
             if cache is not None and len(statuses) == len(specs) and all(s == "OK" for s in statuses):
                 remove_cache(cache.folder)  # nothing left to resume; a failed job keeps it for --resume
                 with contextlib.suppress(OSError):

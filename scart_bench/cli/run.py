@@ -18,6 +18,7 @@ def _patterns(values: list[str] | None) -> list[str] | None:
 _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "train_dataset": "train_dataset",
             "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
+            "score_shards": "score_shards",
             "timeout": "timeout", "seed": "seed", "features": "features",
             "exclude": "exclude", "device": "device"}
 
@@ -124,6 +125,10 @@ def register(sub) -> None:
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask scheduler address, e.g. tcp://host:8786 (default: a LocalCluster with --jobs workers)")
     r.add_argument("--jobs", type=int, metavar="N", help="jobs run in parallel (default 1)")
+    r.add_argument("--score-shards", type=int, metavar="N", dest="score_shards",
+                   help="fit each detector once, then score its flights in N parallel jobs (slices of about equal "
+                        "rows) on the executor and merge them: same scores and metrics as 1 (default 1); for "
+                        "large datasets, where scoring is the long pole (docs/scaling.md)")
     r.add_argument("--timeout", type=float, metavar="SECONDS",
                    help="per-job limit; a job past it is killed and reported TIMEOUT "
                         "(default 1800 quick, 7200 standard, 21600 paper)")
