@@ -45,6 +45,7 @@ from pathlib import Path
 from scart_bench.benchmark.protocol import Protocol, ProtocolError, ThresholdRule
 from scart_bench.errors import RunError
 from scart_bench.generator.profiles import PROFILES
+from scart_bench.storage import is_url
 
 #: The keys a run file may hold.
 #: values of ``--device``
@@ -59,10 +60,11 @@ class RunConfig:
 
     detectors: list[str] = field(default_factory=lambda: ["all"])
     profile: str = "quick"
-    dataset: Path | None = None
+    #: a dataset folder, or an fsspec URL (str) of one (scart_bench.storage)
+    dataset: Path | str | None = None
     #: train and calibrate on this dataset, test on ``dataset`` (a transfer run: benchmark.transfer)
     train_dataset: Path | None = None
-    out: Path | None = None
+    out: Path | str | None = None
     resume: bool = False
     executor: str = "local"
     scheduler: str | None = None
@@ -192,8 +194,8 @@ def _checked(p: Path, data: dict) -> dict:
         if key in data and not isinstance(data[key], str):
             raise bad(key, "a string")
     for key in ("dataset", "train_dataset", "out"):
-        if key in data:
-            out[key] = Path(data[key])
+        if key in data:  # an fsspec URL (s3://...) stays a string: Path would fold its "//"
+            out[key] = data[key] if is_url(data[key]) else Path(data[key])
     for key in ("seed", "jobs", "score_shards"):
         if key in data and (isinstance(data[key], bool) or not isinstance(data[key], int)):
             raise bad(key, "an integer")

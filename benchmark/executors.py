@@ -126,7 +126,21 @@ def _collect(w: _Worker, timed_out: bool = False, timeout: float = 0.0):
 
 
 def run_isolated(spec, timeout: float):
-    """Run one job in its own worker process and wait (at most ``timeout`` s); used by dask tasks."""
+    """Run one job in its own worker process and wait (at most ``timeout`` s); used by dask tasks.
+
+    A dataset given by URL is downloaded first, once per worker and dataset, into the worker's own
+    folder (scart_bench.storage.fetch_dataset)."""
+    from scart_bench.storage import is_url
+
+    if is_url(spec.dataset):
+        import dataclasses
+
+        from scart_bench.cluster import worker_temp_root
+        from scart_bench.storage import default_cache, fetch_dataset
+
+        root = worker_temp_root()
+        local = fetch_dataset(spec.dataset, Path(root) / "scart-bench" if root else default_cache())
+        spec = dataclasses.replace(spec, dataset=str(local))
     w = _launch(spec, timeout)
     try:
         while w.proc.poll() is None:
@@ -219,7 +233,8 @@ class DaskExecutor:
             worker, why = next(iter(bad.items()))
             raise RunError(f"--executor dask: {len(bad)} of {len(answers)} worker(s) cannot read the dataset "
                            f"{path} (e.g. {worker}: {why}); put the dataset on a file system every worker "
-                           "mounts at the same path, or copy it there on each host (docs/scaling.md)")
+                           "mounts at the same path, copy it there on each host, or give it as a URL every "
+                           "worker can read (s3://...; docs/scaling.md)")
 
     def close(self) -> None:
         self._cluster.close()
@@ -227,6 +242,13 @@ class DaskExecutor:
 
 def _dataset_readable(path: str) -> str:
     """Why this process cannot read the dataset's manifest at ``path`` ("" when it can)."""
+    from scart_bench.storage import has_manifest, is_url
+
+    if is_url(path):
+        try:
+            return "" if has_manifest(path) else f"no manifest.parquet or manifest.csv at {path}"
+        except Exception as exc:  # a StorageError naming the URL, or a backend's own error
+            return str(exc)
     folder = Path(path)
     for name in ("manifest.parquet", "manifest.csv"):
         f = folder / name

@@ -52,6 +52,7 @@ from scart_bench.benchmark.sharding import ShardedScoring
 from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
 from scart_bench.benchmark.transfer import TransferRun, open_transfer, plan_fingerprint
 from scart_bench.errors import RunError
+from scart_bench.storage import fetch_dataset, is_url
 
 __all__ = ["RunConfig", "RunOutcome", "paper_table", "prepare_dataset", "run_benchmark", "score_run"]
 
@@ -65,6 +66,8 @@ def prepare_dataset(cfg: RunConfig) -> Path:
     from scart_bench.dataset import is_dataset, open_dataset
 
     if cfg.dataset is not None:
+        if is_url(cfg.dataset):  # read here from a local copy (downloaded once per manifest)
+            return fetch_dataset(str(cfg.dataset))
         return Path(cfg.dataset)
     path = cfg.data_root / f"{cfg.profile}-seed{cfg.seed}"
     try:
@@ -288,7 +291,9 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     keys = {name: {"identity": identity, **s} for name, s in settings.items()}
     executor = make_executor(cfg.executor, scheduler=cfg.scheduler, jobs=int(cfg.jobs))
     try:
-        executor.check_dataset(str(ds.path.resolve()))
+        # dask workers read a dataset at a URL from the URL themselves (no shared disk needed)
+        job_dataset = str(cfg.dataset) if cfg.executor == "dask" and is_url(cfg.dataset) else str(ds.path.resolve())
+        executor.check_dataset(job_dataset)
         if transfer is not None:
             executor.check_dataset(str(transfer.train.path.resolve()))
     except BaseException:
@@ -320,7 +325,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
             store.write_arming(arming)
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
         specs = [JobSpec(c.name, c.source, c.overrides(cfg.seed), tuple(p.source for p in plugins.values()),
-                         str(ds.path.resolve()), splits.train, splits.scored, threads,
+                         job_dataset, splits.train, splits.scored, threads,
                          tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
                          str(cache.folder.resolve()) if cache else None, key if cache else None,
                          cfg.protocol.alarm_rule == "own", transfer.job_args() if transfer else None)

@@ -23,6 +23,7 @@ from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.telemetry.tables import normal_record
+from scart_bench.storage import is_url, local_path
 
 
 def normal_seeds(seed: int, count: int) -> list[int]:
@@ -117,8 +118,10 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
                      config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
                      scenarios: str | Path | None = None, layout: str | None = None,
                      uorb: bool | None = None, batch_size: int | None = None, executor: str = "local",
-                     scheduler: str | None = None, jobs: int = 1) -> Path:
-    """Generate a complete dataset; returns its folder. The manifest is written last.
+                     scheduler: str | None = None, jobs: int = 1) -> Path | str:
+    """Generate a complete dataset; returns its folder (or URL). The manifest is written last.
+
+    ``out``: a folder, or an fsspec URL (``s3://bucket/prefix``; :mod:`scart_bench.storage`).
 
     ``layout``: "compact" (default for Parquet) or "paper" (the paper's per-topic files; the
     default for CSV); see scart_bench.dataset.
@@ -136,7 +139,10 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     layout = check_layout(fmt, layout)
     if executor not in ("local", "dask"):
         raise DatasetError(f"executor {executor!r}: expected local or dask")
-    out = Path(out)
+    if is_url(out):
+        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log)
+        return out
+    out = local_path(out)
     check_output_dir(out, overwrite=overwrite)
     # write into a hidden sibling folder and move it into place at the end: an interrupted
     # generation leaves nothing at ``out``, and an existing dataset stays until the new one is done
@@ -148,6 +154,44 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
         else:
             _write_all(partial, plan, fmt, log, layout)
     return out
+
+
+def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, overwrite: bool, executor: str,
+                     scheduler: str | None, jobs: int, log) -> None:
+    """A dataset at an object-store URL (scart_bench.storage): written here and uploaded with its
+    manifest last; with dask, the workers upload their flights and this process the manifest.
+    An old dataset there is removed, manifest first, just before the new one is uploaded."""
+    import tempfile
+
+    from scart_bench.storage import check_writable, clear, has_manifest, has_objects, publish_dataset
+
+    check_writable(url)
+    old = has_manifest(url)
+    if old and not overwrite:
+        raise DatasetError(f"{url}: a dataset is already there; pass --overwrite to replace it")
+    if not old and has_objects(url):
+        raise DatasetError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
+                           "choose a new prefix")
+    with tempfile.TemporaryDirectory(prefix="scart-generate-") as tmp:
+        local = Path(tmp) / "dataset"
+        if executor == "dask":
+            from scart_bench.generator.sharded import generate_sharded
+
+            clear(url)
+            try:
+                generate_sharded(plan, local, fmt, layout, scheduler=scheduler, jobs=jobs, log=log, target=url)
+                publish_dataset(local, url, flights_uploaded=True)
+            except BaseException:
+                clear(url)  # what the workers uploaded: no manifest was written
+                raise
+            return
+        _write_all(local, plan, fmt, log, layout)
+        clear(url)
+        try:
+            publish_dataset(local, url)
+        except BaseException:
+            clear(url)
+            raise
 
 
 def _write_all(partial: Path, plan: GenerationPlan, fmt: str, log, layout: str | None = None) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import shutil
-from pathlib import Path
 
 from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, log
 from scart_bench.generator.profiles import PROFILES
@@ -44,8 +43,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
         raise UsageError("--scheduler needs --executor dask")
     if args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
-    out = Path(args.out)
-    existed = out.exists()
+    from scart_bench.storage import is_url, local_path
+
+    out = args.out if is_url(args.out) else local_path(args.out)
+    existed = is_url(out) or out.exists()
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=log,
@@ -64,7 +65,8 @@ def register(sub) -> None:
     g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
     g.add_argument("--profile", default="quick",
                    help=f"{' | '.join(PROFILES)}: flight counts and attack grid (default quick)")
-    g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite)")
+    g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite), or an fsspec URL "
+                   "such as s3://bucket/datasets/quick (uploaded with the manifest last; docs/scaling.md)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--format", choices=("parquet", "csv"), default="parquet")
     g.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP)
