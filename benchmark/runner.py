@@ -273,7 +273,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     ds = open_dataset(prepare_dataset(cfg))
     transfer = None
     if cfg.train_dataset is not None:  # train here, test there: flights read by meaning (benchmark.transfer)
-        transfer = open_transfer(cfg.train_dataset, ds, note=lambda m: print(m, file=sys.stderr))
+        train_dataset = fetch_dataset(cfg.train_dataset) if is_url(cfg.train_dataset) else cfg.train_dataset
+        transfer = open_transfer(train_dataset, ds, note=lambda m: print(m, file=sys.stderr))
         splits = transfer.splits
     else:
         splits = Splits.from_manifest(ds.manifest)
@@ -303,7 +304,10 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         store.path.mkdir(parents=True, exist_ok=True)
         lock = store.lock()  # a second writer to this folder is refused here, before it writes anything
         store.mark_stale()  # old tables must not read as this run's results if it is interrupted
-        store.write_config(_run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer))
+        config = _run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer)
+        if is_url(cfg.dataset):  # where the dataset lives (its "path" is this machine's copy)
+            config["dataset"]["url"] = str(cfg.dataset)
+        store.write_config(config)
         if transfer is None:
             store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
                 ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])

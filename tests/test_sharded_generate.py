@@ -56,8 +56,9 @@ def test_sharded_generation_is_byte_identical_to_local(tmp_path, cluster, capsys
 
 def test_failed_shard_commits_nothing(tmp_path, monkeypatch, capsys):
     """A shard that fails on its worker: one line naming the shard, exit 2, no dataset at --out."""
-    import scart_bench.generator.generate as gen
     from distributed import LocalCluster
+
+    import scart_bench.generator.generate as gen
 
     def broken(*a, **k):
         raise OSError(28, "No space left on device")

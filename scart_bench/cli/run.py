@@ -127,7 +127,7 @@ def register(sub) -> None:
     r.add_argument("--dataset", metavar="DIR|URL",
                    help="an existing dataset folder or fsspec URL (s3://bucket/prefix: read from a local copy, and by "
                         "dask workers from the URL) (default: data/datasets/<profile>-seed<N>, generated when missing)")
-    r.add_argument("--train-dataset", type=Path, metavar="DIR", dest="train_dataset",
+    r.add_argument("--train-dataset", metavar="DIR|URL", dest="train_dataset",
                    help="train and calibrate on this dataset's train and validation flights, test on --dataset "
                         "(every normal flight of it and its attacked flights), the columns matched by meaning "
                         "(docs/own_logs.md, 'Train on simulation, test on your flights')")
