@@ -137,3 +137,40 @@ def test_bad_urls_and_missing_credentials_are_one_line(s3, tmp_path, monkeypatch
     finally:
         s3fs.S3FileSystem.clear_instance_cache()
     assert not s3.find(f"{BUCKET}/nocreds")
+
+
+def test_import_and_attack_add_to_a_dataset_at_a_url(s3, tmp_path, monkeypatch, capsys):
+    """import creates and then adds to a dataset in the bucket; attack --dataset adds labelled copies
+    of its test flights; each publish leaves a complete dataset (manifest last)."""
+    import numpy as np
+
+    monkeypatch.setenv("SCART_BENCH_CACHE", str(tmp_path / "cache"))
+    url = f"s3://{BUCKET}/datasets/mine"
+    logs = []
+    for i in range(2):
+        t = np.arange(3000) * 20_000
+        df = pd.DataFrame({"timestamp": t, "attitude.roll": 0.05 * np.sin(t / 1e6 + i),
+                           "local_position_ned.x": 10 * np.sin(0.2 * t / 1e6), "local_position_ned.y": 10 * np.cos(0.2 * t / 1e6),
+                           "local_position_ned.z": -10.0 + 0 * t})
+        logs.append(tmp_path / f"flight{i}.csv")
+        df.to_csv(logs[-1], index=False)
+    assert main(["import", str(logs[0]), "--out", url, "--split", "train"]) == 0
+    assert main(["import", str(logs[1]), "--out", url, "--split", "test"]) == 0
+    manifest = pd.read_parquet(s3.open(f"{BUCKET}/datasets/mine/manifest.parquet"))
+    assert list(manifest["split"]) == ["train", "test"]
+    scenario = tmp_path / "bias.toml"
+    scenario.write_text('[scenario]\nid = "roll-bias"\ninjection_point = "link"\n'
+                        '[[scenario.start]]\ncondition = "time_window"\nstart_s = 20.0\n'
+                        '[[scenario.end]]\ncondition = "duration"\nseconds = 10.0\n'
+                        '[[scenario.actions]]\naction = "bias"\ntarget = ["attitude.roll"]\noffset = 0.3\n')
+    rc = main(["attack", "--dataset", url, "--scenario", str(scenario)])
+    assert rc == 0, capsys.readouterr().err
+    manifest = pd.read_parquet(s3.open(f"{BUCKET}/datasets/mine/manifest.parquet"))
+    assert len(manifest) == 3 and manifest["mode"].tolist()[-1] == "csv"
+    assert manifest["attack_start_us"].notna().sum() == 1
+    # a failing attack (bad scenario) leaves the dataset in the bucket as it was
+    keys = s3.find(f"{BUCKET}/datasets/mine")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[scenario]\nid = 'x'\n[[scenario.actions]]\naction = 'no-such-action'\n")
+    assert main(["attack", "--dataset", url, "--scenario", str(bad)]) == 2
+    assert s3.find(f"{BUCKET}/datasets/mine") == keys
