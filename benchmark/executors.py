@@ -47,6 +47,10 @@ _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "N
 #: Called with (spec, result) as each job ends; may return more specs to run (a sharded job's
 #: scoring shards once its fit is done), which the executor runs like the first ones.
 OnDone = Callable[[object, object], "list | None"]
+#: Called with (spec, progress) while a job runs: flights scored, total, rows, score seconds.
+OnProgress = Callable[[object, dict], None]
+#: The dask topic on which workers publish the progress of their jobs.
+PROGRESS_TOPIC = "scart-bench-job-progress"
 
 
 @dataclass
@@ -58,6 +62,25 @@ class _Worker:
     started: float
     timeout: float
     job_started: float | None = None
+
+    last_report: float = 0.0
+
+    def progress(self) -> dict | None:
+        """The job's latest progress (flights, total, rows, score_s), None before its first flight."""
+        import json
+
+        try:
+            return json.loads((self.folder / "progress.json").read_text())
+        except (OSError, ValueError):
+            return None
+
+    def due(self, every_s: float) -> dict | None:
+        """The progress to report now (every ``every_s`` seconds), else None."""
+        now = time.monotonic()
+        if now - max(self.last_report, self.started) < every_s:
+            return None
+        self.last_report = now
+        return self.progress()
 
     def expired(self) -> bool:
         """True when the job has run past its timeout (counted from the worker's start marker)."""
@@ -142,8 +165,12 @@ def run_isolated(spec, timeout: float):
         local = fetch_dataset(spec.dataset, Path(root) / "scart-bench" if root else default_cache())
         spec = dataclasses.replace(spec, dataset=str(local))
     w = _launch(spec, timeout)
+    every, worker = progress_every_s(), _dask_worker()
     try:
         while w.proc.poll() is None:
+            info = w.due(every) if worker is not None else None
+            if info:
+                worker.log_event(PROGRESS_TOPIC, {"detector": spec.detector, "shard": spec.shard, **info})
             if w.expired():
                 _kill(w)
                 return _collect(w, timed_out=True, timeout=timeout)
@@ -155,19 +182,34 @@ def run_isolated(spec, timeout: float):
         raise
 
 
+def _dask_worker():
+    """The dask worker running this task (None outside one)."""
+    try:
+        from distributed import get_worker
+
+        return get_worker()
+    except (ImportError, ValueError):
+        return None
+
+
 class LocalExecutor:
     """Up to ``jobs`` worker processes on this machine."""
 
     def __init__(self, jobs: int = 1):
         self.jobs = max(1, int(jobs))
 
-    def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
+    def run(self, specs: list, timeout: float, on_done: OnDone, on_progress: OnProgress | None = None) -> None:
         pending, running = deque(specs), []
+        every = progress_every_s()
         try:
             while pending or running:
                 while pending and len(running) < self.jobs:
                     running.append(_launch(pending.popleft(), timeout))
                 time.sleep(0.05)
+                for w in running if on_progress is not None else ():
+                    info = w.due(every)
+                    if info:
+                        on_progress(w.spec, info)
                 for w in list(running):
                     if w.proc.poll() is not None:
                         running.remove(w)
@@ -198,10 +240,21 @@ class DaskExecutor:
         self._cluster = connect(scheduler, jobs, connect_timeout, error=RunError)
         self.client, self.cluster = self._cluster.client, self._cluster.local
 
-    def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
+    def run(self, specs: list, timeout: float, on_done: OnDone, on_progress: OnProgress | None = None) -> None:
         import uuid
 
         from distributed import as_completed
+
+        by_name = {(s.detector, s.shard): s for s in specs}
+        if on_progress is not None:
+            def relay(event) -> None:  # (time, message) from a worker's log_event
+                msg = event[1]
+                shard = tuple(msg["shard"]) if msg.get("shard") else None
+                spec = by_name.get((msg["detector"], shard))
+                if spec is not None:
+                    on_progress(spec, msg)
+
+            self.client.subscribe_topic(PROGRESS_TOPIC, relay)
 
         def submit(spec):
             return self.client.submit(run_isolated, spec, timeout, pure=False,
@@ -217,10 +270,13 @@ class DaskExecutor:
                 except Exception as exc:
                     res = JobResult("ERROR", f"the dask task failed: {type(exc).__name__}: {exc}")
                 for more in on_done(spec, res) or []:
+                    by_name[(more.detector, more.shard)] = more
                     f = submit(more)
                     futures[f] = more
                     done.add(f)
         finally:
+            if on_progress is not None:
+                self.client.unsubscribe_topic(PROGRESS_TOPIC)
             for fut in futures:
                 fut.cancel()
 
@@ -290,6 +346,16 @@ class Progress:
         else:
             print(line, file=sys.stderr, flush=True)
 
+    def job(self, spec, info: dict) -> None:
+        """A line on a running job: flights scored, rows per second of scoring, time left (a guess
+        from the flights' pace so far)."""
+        done, total, rows, secs = info["flights"], info["total"], info["rows"], info["score_s"]
+        name = spec.detector + (f" [shard {spec.shard[0] + 1}/{spec.shard[1]}]" if spec.shard else "")
+        rate = f", {rows / secs:,.0f} rows/s" if secs > 0 else ""
+        left = secs / done * (total - done) if done else float("nan")
+        eta = f", about {_duration(left)} left" if done and total > done else ""
+        self.note(f"{name}: {done}/{total} flights scored{rate}{eta}")
+
     def done(self, name: str, res) -> None:
         self.count += 1
         detail = f"fit {res.fit_seconds:.1f} s, score {res.score_seconds:.1f} s" if res.status == "OK" else res.message
@@ -307,6 +373,10 @@ class Progress:
             self.bar.close()
 
 
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
 def _watch_parent() -> None:
     """Exit when the launching process dies (so an orphaned job never runs on)."""
     parent = os.getppid()
@@ -320,13 +390,39 @@ def _watch_parent() -> None:
     threading.Thread(target=watch, daemon=True, name="parent-watch").start()
 
 
+def _progress_writer(path: Path, every_s: float = 0.5):
+    """A run_job ``report`` that keeps ``path`` (JSON) up to date, at most every ``every_s`` seconds."""
+    import json
+
+    last = [0.0]
+
+    def report(done: int, total: int, rows: int, score_s: float) -> None:
+        now = time.monotonic()
+        if now - last[0] < every_s and done < total:
+            return
+        last[0] = now
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"flights": done, "total": total, "rows": rows, "score_s": score_s}))
+        os.replace(tmp, path)
+
+    return report
+
+
+def progress_every_s() -> float:
+    """Seconds between progress lines of a running job (``$SCART_BENCH_PROGRESS_S``, default 30)."""
+    try:
+        return max(0.05, float(os.environ.get("SCART_BENCH_PROGRESS_S", "30")))
+    except ValueError:
+        return 30.0
+
+
 def _worker_main(argv: list[str]) -> int:
     spec_path, result_path = argv
     _watch_parent()
     spec = pickle.loads(Path(spec_path).read_bytes())
 
     Path(spec_path).with_name("started").touch()  # the job's timeout counts from here
-    res = run_job(spec)
+    res = run_job(spec, _progress_writer(Path(spec_path).with_name("progress.json")))
     tmp = Path(result_path + ".tmp")
     tmp.write_bytes(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     os.replace(tmp, result_path)

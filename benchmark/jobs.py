@@ -118,7 +118,11 @@ def open_flights(spec: JobSpec):
     return open_dataset(spec.dataset)
 
 
-def run_job(spec: JobSpec) -> JobResult:
+#: ``report(flights_done, flights_total, rows_scored, score_seconds)``, called after each scored flight
+Report = "Callable[[int, int, int, float], None]"
+
+
+def run_job(spec: JobSpec, report=None) -> JobResult:
     """Fit one detector on the train flights and score every validation/test flight.
 
     Never raises for a detector failure: an exception becomes ERROR with its message (the
@@ -173,6 +177,8 @@ def run_job(spec: JobSpec) -> JobResult:
                                  f"(first at row {bad[0]})", fit_s, score_s, rows, max_rss_mb=_max_rss_mb())
             scores[fid] = s
             rows += s.shape[0]
+            if report is not None:
+                report(len(scores), len(spec.scored), rows, score_s)
         return JobResult("OK", "", fit_s, score_s, rows, scores, alarms, max_rss_mb=_max_rss_mb())
     except Exception as exc:  # a detector failure is a status row, never a crash of the run
         traceback.print_exc()

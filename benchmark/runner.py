@@ -354,7 +354,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
                 if transfer is None and "rows" in ds.manifest else {})
         sharded = ShardedScoring(cfg.score_shards, rows, on_done, progress.note)
         try:
-            executor.run([sharded.plan(spec) for spec in specs], cfg.timeout_s, sharded)
+            executor.run([sharded.plan(spec) for spec in specs], cfg.timeout_s, sharded,
+                         on_progress=progress.job if cfg.progress else None)
             if cache is not None and len(statuses) == len(specs) and all(s == "OK" for s in statuses):
                 remove_cache(cache.folder)  # nothing left to resume; a failed job keeps it for --resume
                 with contextlib.suppress(OSError):

@@ -83,3 +83,17 @@ def test_bad_shard_count_exits_2(dataset, tmp_path, capsys):
     assert main(["run", *DETS, "--dataset", str(dataset), "--out", str(tmp_path / "x"), "--score-shards", "0"]) == 2
     assert "--score-shards 0: expected a positive number" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("executor", ["local", "dask"])
+def test_running_jobs_report_their_progress(executor, dataset, tmp_path, monkeypatch, capsys):
+    """A running job says how far it is (flights scored, rows per second, time left), on either
+    executor and per scoring shard, not only when it ends."""
+    monkeypatch.setenv("SCART_BENCH_PROGRESS_S", "0.3")
+    shards = ["--score-shards", "2"] if executor == "dask" else []
+    assert main(["run", "--detectors", "slow_test", "--plugin", plugin("Slow"), "--dataset", str(dataset),
+                 "--out", str(tmp_path / "r"), "--executor", executor, "--jobs", "2", *shards]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "flights scored" in line]
+    assert lines, "no progress line"
+    name = "slow_test [shard " if executor == "dask" else "slow_test: "
+    assert any(line.startswith(name) and "rows/s" in line and "left" in line for line in lines), lines
