@@ -64,7 +64,7 @@ def test_failed_shard_commits_nothing(tmp_path, monkeypatch, capsys):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(gen, "normal_record", broken)  # seen by thread workers of this process
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None,
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0",
                       silence_logs=logging.ERROR) as lc:
         rc = main([*ARGS, "--normal-only", "--out", str(tmp_path / "ds"), "--executor", "dask",
                    "--scheduler", lc.scheduler_address])
