@@ -11,6 +11,7 @@ over it::
     seed = 0
     jobs = 2
     timeout = 1800                           # seconds per job
+    score_shards = 1                         # >1: fit once, score the flights in this many parallel jobs
     executor = "local"                       # or "dask" (with scheduler = "tcp://host:8786")
     plugins = ["my_detector.py:MyDetector"]
     features = ["vehicle_gps_position.*"]    # optional: the feature columns (glob patterns), or
@@ -44,12 +45,13 @@ from pathlib import Path
 from scart_bench.benchmark.protocol import Protocol, ProtocolError, ThresholdRule
 from scart_bench.errors import RunError
 from scart_bench.generator.profiles import PROFILES
+from scart_bench.storage import is_url
 
 #: The keys a run file may hold.
 #: values of ``--device``
 DEVICES = ("auto", "cpu", "cuda")
 RUN_KEYS = ("detectors", "profile", "dataset", "train_dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
-            "plugins", "params", "protocol", "resume", "features", "exclude", "device")
+            "plugins", "params", "protocol", "resume", "features", "exclude", "device", "score_shards")
 
 
 @dataclass
@@ -58,15 +60,19 @@ class RunConfig:
 
     detectors: list[str] = field(default_factory=lambda: ["all"])
     profile: str = "quick"
-    dataset: Path | None = None
+    #: a dataset folder, or an fsspec URL (str) of one (scart_bench.storage)
+    dataset: Path | str | None = None
     #: train and calibrate on this dataset, test on ``dataset`` (a transfer run: benchmark.transfer)
     train_dataset: Path | None = None
-    out: Path | None = None
+    out: Path | str | None = None
     resume: bool = False
     executor: str = "local"
     scheduler: str | None = None
     jobs: int = 1
     timeout: float | None = None
+    #: score each detector's flights in this many parallel jobs after one fit (benchmark.sharding);
+    #: same scores and metrics as 1, so it is not part of the run's identity
+    score_shards: int = 1
     seed: int = 0
     plugins: list[str] = field(default_factory=list)
     params: dict[str, dict] = field(default_factory=dict)
@@ -91,6 +97,8 @@ class RunConfig:
             raise RunError("--scheduler needs --executor dask")
         if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
             raise RunError(f"--jobs {self.jobs!r}: expected a positive number of parallel jobs")
+        if isinstance(self.score_shards, bool) or not isinstance(self.score_shards, int) or self.score_shards < 1:
+            raise RunError(f"--score-shards {self.score_shards!r}: expected a positive number of scoring shards")
         if self.timeout is not None:
             try:
                 t = float(self.timeout)
@@ -119,6 +127,7 @@ class RunConfig:
         """The run as plain data, in the run file's schema (what ``--config`` reads back)."""
         out: dict = {"detectors": list(self.detectors), "profile": self.profile, "seed": int(self.seed),
                      "jobs": int(self.jobs), "executor": self.executor, "timeout": self.timeout_s,
+                     "score_shards": int(self.score_shards),
                      "plugins": list(self.plugins), "params": {k: dict(v) for k, v in self.params.items()},
                      "protocol": self.protocol.rules()}
         if self.dataset is not None:
@@ -185,9 +194,9 @@ def _checked(p: Path, data: dict) -> dict:
         if key in data and not isinstance(data[key], str):
             raise bad(key, "a string")
     for key in ("dataset", "train_dataset", "out"):
-        if key in data:
-            out[key] = Path(data[key])
-    for key in ("seed", "jobs"):
+        if key in data:  # an fsspec URL (s3://...) stays a string: Path would fold its "//"
+            out[key] = data[key] if is_url(data[key]) else Path(data[key])
+    for key in ("seed", "jobs", "score_shards"):
         if key in data and (isinstance(data[key], bool) or not isinstance(data[key], int)):
             raise bad(key, "an integer")
     if "timeout" in data and (isinstance(data["timeout"], bool) or not isinstance(data["timeout"], int | float)):

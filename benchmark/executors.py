@@ -33,10 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scart_bench.benchmark.jobs import JobResult, run_job
+from scart_bench.cluster import CONNECT_TIMEOUT_S
 from scart_bench.errors import RunError
 
-#: Seconds allowed to connect to a dask scheduler.
-CONNECT_TIMEOUT_S = 5.0
 #: Seconds a worker may take to start Python and import the benchmark before its job begins; the
 #: job's own ``--timeout`` is counted from then, so a loaded machine does not time out fast jobs.
 STARTUP_GRACE_S = 120.0
@@ -45,7 +44,13 @@ LOG_LIMIT = 256 * 1024
 _THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS",
                 "VECLIB_MAXIMUM_THREADS")
 
-OnDone = Callable[[object, object], None]
+#: Called with (spec, result) as each job ends; may return more specs to run (a sharded job's
+#: scoring shards once its fit is done), which the executor runs like the first ones.
+OnDone = Callable[[object, object], "list | None"]
+#: Called with (spec, progress) while a job runs: flights scored, total, rows, score seconds.
+OnProgress = Callable[[object, dict], None]
+#: The dask topic on which workers publish the progress of their jobs.
+PROGRESS_TOPIC = "scart-bench-job-progress"
 
 
 @dataclass
@@ -57,6 +62,25 @@ class _Worker:
     started: float
     timeout: float
     job_started: float | None = None
+
+    last_report: float = 0.0
+
+    def progress(self) -> dict | None:
+        """The job's latest progress (flights, total, rows, score_s), None before its first flight."""
+        import json
+
+        try:
+            return json.loads((self.folder / "progress.json").read_text())
+        except (OSError, ValueError):
+            return None
+
+    def due(self, every_s: float) -> dict | None:
+        """The progress to report now (every ``every_s`` seconds), else None."""
+        now = time.monotonic()
+        if now - max(self.last_report, self.started) < every_s:
+            return None
+        self.last_report = now
+        return self.progress()
 
     def expired(self) -> bool:
         """True when the job has run past its timeout (counted from the worker's start marker)."""
@@ -125,10 +149,28 @@ def _collect(w: _Worker, timed_out: bool = False, timeout: float = 0.0):
 
 
 def run_isolated(spec, timeout: float):
-    """Run one job in its own worker process and wait (at most ``timeout`` s); used by dask tasks."""
+    """Run one job in its own worker process and wait (at most ``timeout`` s); used by dask tasks.
+
+    A dataset given by URL is downloaded first, once per worker and dataset, into the worker's own
+    folder (scart_bench.storage.fetch_dataset)."""
+    from scart_bench.storage import is_url
+
+    if is_url(spec.dataset):
+        import dataclasses
+
+        from scart_bench.cluster import worker_temp_root
+        from scart_bench.storage import default_cache, fetch_dataset
+
+        root = worker_temp_root()
+        local = fetch_dataset(spec.dataset, Path(root) / "scart-bench" if root else default_cache())
+        spec = dataclasses.replace(spec, dataset=str(local))
     w = _launch(spec, timeout)
+    every, worker = progress_every_s(), _dask_worker()
     try:
         while w.proc.poll() is None:
+            info = w.due(every) if worker is not None else None
+            if info:
+                worker.log_event(PROGRESS_TOPIC, {"detector": spec.detector, "shard": spec.shard, **info})
             if w.expired():
                 _kill(w)
                 return _collect(w, timed_out=True, timeout=timeout)
@@ -140,27 +182,42 @@ def run_isolated(spec, timeout: float):
         raise
 
 
+def _dask_worker():
+    """The dask worker running this task (None outside one)."""
+    try:
+        from distributed import get_worker
+
+        return get_worker()
+    except (ImportError, ValueError):
+        return None
+
+
 class LocalExecutor:
     """Up to ``jobs`` worker processes on this machine."""
 
     def __init__(self, jobs: int = 1):
         self.jobs = max(1, int(jobs))
 
-    def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
+    def run(self, specs: list, timeout: float, on_done: OnDone, on_progress: OnProgress | None = None) -> None:
         pending, running = deque(specs), []
+        every = progress_every_s()
         try:
             while pending or running:
                 while pending and len(running) < self.jobs:
                     running.append(_launch(pending.popleft(), timeout))
                 time.sleep(0.05)
+                for w in running if on_progress is not None else ():
+                    info = w.due(every)
+                    if info:
+                        on_progress(w.spec, info)
                 for w in list(running):
                     if w.proc.poll() is not None:
                         running.remove(w)
-                        on_done(w.spec, _collect(w))
+                        pending.extendleft(reversed(on_done(w.spec, _collect(w)) or []))
                     elif w.expired():
                         _kill(w)
                         running.remove(w)
-                        on_done(w.spec, _collect(w, timed_out=True, timeout=timeout))
+                        pending.extendleft(reversed(on_done(w.spec, _collect(w, timed_out=True, timeout=timeout)) or []))
         finally:
             for w in running:  # interrupted: no unfinished job leaves a process or a status
                 _kill(w)
@@ -178,41 +235,48 @@ class DaskExecutor:
     """One dask task per job; each task runs the job in an isolated worker process."""
 
     def __init__(self, scheduler: str | None = None, jobs: int = 1, connect_timeout: float = CONNECT_TIMEOUT_S):
-        import logging
+        from scart_bench.cluster import connect
 
-        from distributed import Client, LocalCluster
+        self._cluster = connect(scheduler, jobs, connect_timeout, error=RunError)
+        self.client, self.cluster = self._cluster.client, self._cluster.local
 
-        self.cluster = None
-        if scheduler:
-            try:
-                self.client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
-            except Exception as exc:
-                raise RunError(f"--scheduler {scheduler}: cannot reach a dask scheduler there within "
-                               f"{connect_timeout:g} s ({type(exc).__name__}: {exc}); expected the address "
-                               "of a running scheduler such as tcp://host:8786, or no --scheduler for a "
-                               "local cluster") from None
-        else:
-            self.cluster = LocalCluster(n_workers=max(1, int(jobs)), threads_per_worker=1, processes=True,
-                                        dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)
-            self.client = Client(self.cluster, set_as_default=False)
-
-    def run(self, specs: list, timeout: float, on_done: OnDone) -> None:
+    def run(self, specs: list, timeout: float, on_done: OnDone, on_progress: OnProgress | None = None) -> None:
         import uuid
 
         from distributed import as_completed
 
-        futures = {self.client.submit(run_isolated, spec, timeout, pure=False,
-                                      key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}"): spec
-                   for spec in specs}
+        by_name = {(s.detector, s.shard): s for s in specs}
+        if on_progress is not None:
+            def relay(event) -> None:  # (time, message) from a worker's log_event
+                msg = event[1]
+                shard = tuple(msg["shard"]) if msg.get("shard") else None
+                spec = by_name.get((msg["detector"], shard))
+                if spec is not None:
+                    on_progress(spec, msg)
+
+            self.client.subscribe_topic(PROGRESS_TOPIC, relay)
+
+        def submit(spec):
+            return self.client.submit(run_isolated, spec, timeout, pure=False,
+                                      key=f"scart-job-{spec.detector}-{uuid.uuid4().hex[:8]}")
+
+        futures = {submit(spec): spec for spec in specs}
+        done = as_completed(list(futures), loop=self.client.loop)
         try:
-            for fut in as_completed(futures, loop=self.client.loop):
+            for fut in done:
                 spec = futures[fut]
                 try:
                     res = fut.result()
                 except Exception as exc:
                     res = JobResult("ERROR", f"the dask task failed: {type(exc).__name__}: {exc}")
-                on_done(spec, res)
+                for more in on_done(spec, res) or []:
+                    by_name[(more.detector, more.shard)] = more
+                    f = submit(more)
+                    futures[f] = more
+                    done.add(f)
         finally:
+            if on_progress is not None:
+                self.client.unsubscribe_topic(PROGRESS_TOPIC)
             for fut in futures:
                 fut.cancel()
 
@@ -225,16 +289,22 @@ class DaskExecutor:
             worker, why = next(iter(bad.items()))
             raise RunError(f"--executor dask: {len(bad)} of {len(answers)} worker(s) cannot read the dataset "
                            f"{path} (e.g. {worker}: {why}); put the dataset on a file system every worker "
-                           "mounts at the same path, or copy it there on each host (docs/scaling.md)")
+                           "mounts at the same path, copy it there on each host, or give it as a URL every "
+                           "worker can read (s3://...; docs/scaling.md)")
 
     def close(self) -> None:
-        self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        self._cluster.close()
 
 
 def _dataset_readable(path: str) -> str:
     """Why this process cannot read the dataset's manifest at ``path`` ("" when it can)."""
+    from scart_bench.storage import has_manifest, is_url
+
+    if is_url(path):
+        try:
+            return "" if has_manifest(path) else f"no manifest.parquet or manifest.csv at {path}"
+        except Exception as exc:  # a StorageError naming the URL, or a backend's own error
+            return str(exc)
     folder = Path(path)
     for name in ("manifest.parquet", "manifest.csv"):
         f = folder / name
@@ -276,6 +346,16 @@ class Progress:
         else:
             print(line, file=sys.stderr, flush=True)
 
+    def job(self, spec, info: dict) -> None:
+        """A line on a running job: flights scored, rows per second of scoring, time left (a guess
+        from the flights' pace so far)."""
+        done, total, rows, secs = info["flights"], info["total"], info["rows"], info["score_s"]
+        name = spec.detector + (f" [shard {spec.shard[0] + 1}/{spec.shard[1]}]" if spec.shard else "")
+        rate = f", {rows / secs:,.0f} rows/s" if secs > 0 else ""
+        left = secs / done * (total - done) if done else float("nan")
+        eta = f", about {_duration(left)} left" if done and total > done else ""
+        self.note(f"{name}: {done}/{total} flights scored{rate}{eta}")
+
     def done(self, name: str, res) -> None:
         self.count += 1
         detail = f"fit {res.fit_seconds:.1f} s, score {res.score_seconds:.1f} s" if res.status == "OK" else res.message
@@ -293,6 +373,10 @@ class Progress:
             self.bar.close()
 
 
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
 def _watch_parent() -> None:
     """Exit when the launching process dies (so an orphaned job never runs on)."""
     parent = os.getppid()
@@ -306,13 +390,39 @@ def _watch_parent() -> None:
     threading.Thread(target=watch, daemon=True, name="parent-watch").start()
 
 
+def _progress_writer(path: Path, every_s: float = 0.5):
+    """A run_job ``report`` that keeps ``path`` (JSON) up to date, at most every ``every_s`` seconds."""
+    import json
+
+    last = [0.0]
+
+    def report(done: int, total: int, rows: int, score_s: float) -> None:
+        now = time.monotonic()
+        if now - last[0] < every_s and done < total:
+            return
+        last[0] = now
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"flights": done, "total": total, "rows": rows, "score_s": score_s}))
+        os.replace(tmp, path)
+
+    return report
+
+
+def progress_every_s() -> float:
+    """Seconds between progress lines of a running job (``$SCART_BENCH_PROGRESS_S``, default 30)."""
+    try:
+        return max(0.05, float(os.environ.get("SCART_BENCH_PROGRESS_S", "30")))
+    except ValueError:
+        return 30.0
+
+
 def _worker_main(argv: list[str]) -> int:
     spec_path, result_path = argv
     _watch_parent()
     spec = pickle.loads(Path(spec_path).read_bytes())
 
     Path(spec_path).with_name("started").touch()  # the job's timeout counts from here
-    res = run_job(spec)
+    res = run_job(spec, _progress_writer(Path(spec_path).with_name("progress.json")))
     tmp = Path(result_path + ".tmp")
     tmp.write_bytes(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     os.replace(tmp, result_path)

@@ -36,6 +36,12 @@ class JobSpec:
     own_alarms: bool = False
     #: A transfer run (benchmark.transfer.TransferRun.job_args): flights read by meaning from two datasets.
     transfer: dict | None = None
+    #: "all": fit and score; "fit": fit only and return the fitted detector (``JobResult.model``);
+    #: "score": score ``scored`` with the pickled fitted detector ``model`` (a scoring shard)
+    stage: str = "all"
+    model: bytes | None = None
+    #: which scoring shard this is (index, count), for logs and progress lines
+    shard: tuple[int, int] | None = None
 
 
 @dataclass
@@ -53,6 +59,8 @@ class JobResult:
     max_rss_mb: float = float("nan")
     wall_seconds: float = float("nan")
     log: str = ""
+    #: the fitted detector, pickled (a "fit" stage job only)
+    model: bytes | None = None
 
 
 def _load_class(spec: JobSpec) -> type:
@@ -110,7 +118,11 @@ def open_flights(spec: JobSpec):
     return open_dataset(spec.dataset)
 
 
-def run_job(spec: JobSpec) -> JobResult:
+#: ``report(flights_done, flights_total, rows_scored, score_seconds)``, called after each scored flight
+Report = "Callable[[int, int, int, float], None]"
+
+
+def run_job(spec: JobSpec, report=None) -> JobResult:
     """Fit one detector on the train flights and score every validation/test flight.
 
     Never raises for a detector failure: an exception becomes ERROR with its message (the
@@ -118,16 +130,28 @@ def run_job(spec: JobSpec) -> JobResult:
     """
     fit_s = score_s = float("nan")
     try:
-        det = _load_class(spec)(**spec.overrides)
-        # the run's feature rule is an argument of fit (a plugin's own fit may take no such argument
-        # when the run sets no rule)
-        rule = {k: list(v) for k, v in (("features", spec.features), ("exclude", spec.exclude)) if v}
-        ds = open_flights(spec)
-        train = [ds.flight(fid) for fid in spec.train]
-        t0 = time.perf_counter()
-        det.fit(train, **rule)
-        fit_s = time.perf_counter() - t0
-        del train
+        if spec.stage == "score":
+            import pickle
+
+            _load_class(spec)  # a plugin's module must be importable before its detector is unpickled
+            det, fit_s = pickle.loads(spec.model), 0.0
+            ds = open_flights(spec)
+        else:
+            det = _load_class(spec)(**spec.overrides)
+            # the run's feature rule is an argument of fit (a plugin's own fit may take no such argument
+            # when the run sets no rule)
+            rule = {k: list(v) for k, v in (("features", spec.features), ("exclude", spec.exclude)) if v}
+            ds = open_flights(spec)
+            train = [ds.flight(fid) for fid in spec.train]
+            t0 = time.perf_counter()
+            det.fit(train, **rule)
+            fit_s = time.perf_counter() - t0
+            del train
+            if spec.stage == "fit":
+                import pickle
+
+                return JobResult("OK", "", fit_s, 0.0, 0, max_rss_mb=_max_rss_mb(),
+                                 model=pickle.dumps(det, protocol=pickle.HIGHEST_PROTOCOL))
         scores: dict[str, np.ndarray] = {}
         own = bool(spec.own_alarms and getattr(det, "has_alarms", False))
         alarms: dict[str, np.ndarray] | None = {} if own else None
@@ -153,6 +177,8 @@ def run_job(spec: JobSpec) -> JobResult:
                                  f"(first at row {bad[0]})", fit_s, score_s, rows, max_rss_mb=_max_rss_mb())
             scores[fid] = s
             rows += s.shape[0]
+            if report is not None:
+                report(len(scores), len(spec.scored), rows, score_s)
         return JobResult("OK", "", fit_s, score_s, rows, scores, alarms, max_rss_mb=_max_rss_mb())
     except Exception as exc:  # a detector failure is a status row, never a crash of the run
         traceback.print_exc()

@@ -48,9 +48,11 @@ from scart_bench.benchmark.jobs import JobResult, JobSpec
 from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign_roles
 from scart_bench.benchmark.results import paper_table, score_run, write_results
 from scart_bench.benchmark.selection import DetectorChoice, load_plugins, resolve_detectors, with_params
+from scart_bench.benchmark.sharding import ShardedScoring
 from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
 from scart_bench.benchmark.transfer import TransferRun, open_transfer, plan_fingerprint
 from scart_bench.errors import RunError
+from scart_bench.storage import fetch_dataset, is_url
 
 __all__ = ["RunConfig", "RunOutcome", "paper_table", "prepare_dataset", "run_benchmark", "score_run"]
 
@@ -64,6 +66,8 @@ def prepare_dataset(cfg: RunConfig) -> Path:
     from scart_bench.dataset import is_dataset, open_dataset
 
     if cfg.dataset is not None:
+        if is_url(cfg.dataset):  # read here from a local copy (downloaded once per manifest)
+            return fetch_dataset(str(cfg.dataset))
         return Path(cfg.dataset)
     path = cfg.data_root / f"{cfg.profile}-seed{cfg.seed}"
     try:
@@ -269,7 +273,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     ds = open_dataset(prepare_dataset(cfg))
     transfer = None
     if cfg.train_dataset is not None:  # train here, test there: flights read by meaning (benchmark.transfer)
-        transfer = open_transfer(cfg.train_dataset, ds, note=lambda m: print(m, file=sys.stderr))
+        train_dataset = fetch_dataset(cfg.train_dataset) if is_url(cfg.train_dataset) else cfg.train_dataset
+        transfer = open_transfer(train_dataset, ds, note=lambda m: print(m, file=sys.stderr))
         splits = transfer.splits
     else:
         splits = Splits.from_manifest(ds.manifest)
@@ -287,7 +292,9 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     keys = {name: {"identity": identity, **s} for name, s in settings.items()}
     executor = make_executor(cfg.executor, scheduler=cfg.scheduler, jobs=int(cfg.jobs))
     try:
-        executor.check_dataset(str(ds.path.resolve()))
+        # dask workers read a dataset at a URL from the URL themselves (no shared disk needed)
+        job_dataset = str(cfg.dataset) if cfg.executor == "dask" and is_url(cfg.dataset) else str(ds.path.resolve())
+        executor.check_dataset(job_dataset)
         if transfer is not None:
             executor.check_dataset(str(transfer.train.path.resolve()))
     except BaseException:
@@ -297,7 +304,10 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         store.path.mkdir(parents=True, exist_ok=True)
         lock = store.lock()  # a second writer to this folder is refused here, before it writes anything
         store.mark_stale()  # old tables must not read as this run's results if it is interrupted
-        store.write_config(_run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer))
+        config = _run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer)
+        if is_url(cfg.dataset):  # where the dataset lives (its "path" is this machine's copy)
+            config["dataset"]["url"] = str(cfg.dataset)
+        store.write_config(config)
         if transfer is None:
             store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
                 ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])
@@ -319,7 +329,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
             store.write_arming(arming)
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
         specs = [JobSpec(c.name, c.source, c.overrides(cfg.seed), tuple(p.source for p in plugins.values()),
-                         str(ds.path.resolve()), splits.train, splits.scored, threads,
+                         job_dataset, splits.train, splits.scored, threads,
                          tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
                          str(cache.folder.resolve()) if cache else None, key if cache else None,
                          cfg.protocol.alarm_rule == "own", transfer.job_args() if transfer else None)
@@ -332,6 +342,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
         statuses: list[str] = []
 
         def on_done(spec: JobSpec, res: JobResult) -> None:
+            """Save a finished job (a sharded one once all its shards are merged)."""
             params = {"detector": spec.detector, **settings[spec.detector], "key": keys[spec.detector]}
             store.finish_job(spec.detector, _status(spec, res), json_safe(params),
                              res.scores if res.status == "OK" else None, res.log,
@@ -339,8 +350,12 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
             statuses.append(res.status)
             progress.done(spec.detector, res)
 
+        rows = ({str(f): int(r) for f, r in zip(ds.manifest["flight_id"], ds.manifest["rows"]) if pd.notna(r)}
+                if transfer is None and "rows" in ds.manifest else {})
+        sharded = ShardedScoring(cfg.score_shards, rows, on_done, progress.note)
         try:
-            executor.run(specs, cfg.timeout_s, on_done)
+            executor.run([sharded.plan(spec) for spec in specs], cfg.timeout_s, sharded,
+                         on_progress=progress.job if cfg.progress else None)
             if cache is not None and len(statuses) == len(specs) and all(s == "OK" for s in statuses):
                 remove_cache(cache.folder)  # nothing left to resume; a failed job keeps it for --resume
                 with contextlib.suppress(OSError):

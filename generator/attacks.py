@@ -13,7 +13,7 @@ simulator view, or the csv source) and how large it was (:mod:`generator.attack_
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from importlib import resources
 from pathlib import Path
 
@@ -56,15 +56,18 @@ def config_id(config: list[Scenario]) -> str:
 
 def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], seed: int, cfg: FlightConfig,
                        config_dict: dict, batch_size: int, say: Callable[[str], None],
-                       stds: dict[str, float] | None = None) -> None:
+                       stds: dict[str, float] | None = None, batches: Iterable[int] | None = None) -> None:
     """Fly every configuration (the scenarios of one flight) in the closed loop and write the flights.
+
+    ``batches``: only these batch numbers (a shard of a distributed generation,
+    :mod:`generator.sharded`); the flights of a batch are the same whichever batches are flown.
 
     Each attacked flight's normal twin (its seed flown without the layer) is flown too; its truth
     goes into the attacked flight's simulator view (``twin_truth``) and the attack's impact into
     the manifest (:mod:`generator.impact`). Twins are not dataset flights."""
     seeds = attack_seeds(seed, len(configs))
     order = _order(configs)
-    for start in range(0, len(order), batch_size):
+    for start in _starts(len(order), batch_size, batches):
         idx = order[start:start + batch_size]
         say(f"simulation mode: flying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
         batch, layer = simulation_mode([seeds[i] for i in idx], [configs[i] for i in idx], cfg)
@@ -81,6 +84,17 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
             writer.write(record)
 
 
+def batch_count(n_flights: int, batch_size: int) -> int:
+    """Batches of ``batch_size`` flights that ``n_flights`` flights make (the last may be short)."""
+    return -(-int(n_flights) // int(batch_size))
+
+
+def _starts(n: int, batch_size: int, batches: Iterable[int] | None) -> list[int]:
+    """First flight index of every batch to fly (all of them, or only ``batches``)."""
+    chosen = range(batch_count(n, batch_size)) if batches is None else sorted(set(batches))
+    return [b * batch_size for b in chosen if 0 <= b * batch_size < n]
+
+
 def csv_applicable(config: list[Scenario]) -> bool:
     """True when a scenario of the configuration acts on link messages (what a recording holds)."""
     return any(s.injection_point == "link" for s in config)
@@ -88,11 +102,12 @@ def csv_applicable(config: list[Scenario]) -> bool:
 
 def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: list[tuple[str, dict, int]],
                 config_dict: dict, batch_size: int, say: Callable[[str], None],
-                stds: dict[str, float] | None = None) -> None:
+                stds: dict[str, float] | None = None, batches: Iterable[int] | None = None) -> None:
     """Replay every link configuration on a recorded normal flight (``sources``: id, topic tables,
-    seed); configurations that cannot apply to a recording get no copy."""
+    seed); configurations that cannot apply to a recording get no copy. ``batches``: only these
+    batch numbers (see :func:`simulation_flights`); ``sources`` must then still be the full list."""
     skipped = [config_id(c) for c in configs if not csv_applicable(c)]
-    if skipped:
+    if skipped and batches is None:
         say(f"csv mode: no copy of {len(skipped)} configuration(s) with no link scenario (sensor, command, "
             f"environment, vehicle), which a recording cannot replay: {', '.join(skipped[:5])}"
             + (" ..." if len(skipped) > 5 else ""))
@@ -103,7 +118,7 @@ def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: l
         say("csv mode: skipped, the dataset has no normal flight reserved as a csv source (split csv_source)")
         return
     order = _order(configs)
-    for start in range(0, len(order), batch_size):
+    for start in _starts(len(order), batch_size, batches):
         idx = order[start:start + batch_size]
         say(f"csv mode: replaying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
         src = [sources[i % len(sources)] for i in idx]

@@ -16,3 +16,7 @@ class RunError(ScartBenchError):
 
 class ReportError(ScartBenchError):
     """A report cannot be made from the given run folders."""
+
+
+class ClusterError(ScartBenchError):
+    """A dask cluster cannot be reached, or work sent to it failed (the task, the worker and why)."""

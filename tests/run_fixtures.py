@@ -158,6 +158,16 @@ class Diff(Detector):
         return d.max(axis=1) * self.jitter_
 
 
+class Slow(ZScore):
+    """ZScore at 0.2 s per scored flight: a job long enough to report its progress."""
+
+    name = "slow_test"
+
+    def _score(self, X):
+        time.sleep(0.2)
+        return super()._score(X)
+
+
 class FailFit(ZScore):
     name = "fail_fit_test"
 

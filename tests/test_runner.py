@@ -416,9 +416,9 @@ def test_costliest_jobs_start_first_and_tables_keep_the_order(dataset, tmp_path,
         ex = make(*args, **kwargs)
         run = ex.run
 
-        def run_recorded(specs, timeout, on_done):
+        def run_recorded(specs, timeout, on_done, **kwargs):
             started.extend(s.detector for s in specs)
-            return run(specs, timeout, on_done)
+            return run(specs, timeout, on_done, **kwargs)
 
         ex.run = run_recorded
         return ex

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 import shutil
-from pathlib import Path
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, topic_list
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, staged_dataset, topic_list
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
@@ -17,20 +16,21 @@ def cmd_attack(args: argparse.Namespace) -> int:
             raise UsageError("--dataset adds copies to that dataset: --input, --out, --topics and --overwrite "
                              "belong to the single-log form")
         sources = tuple(s.strip() for s in args.sources.split(",") if s.strip())
-        ids = attack_dataset(args.dataset, args.scenario, sources=sources, seed=args.seed, say=log)
+        with staged_dataset(args.dataset) as dataset:  # at a URL: a local copy, uploaded once done
+            ids = attack_dataset(dataset, args.scenario, sources=sources, seed=args.seed, say=log)
         print(f"{len(ids)} attacked cop{'y' if len(ids) == 1 else 'ies'} added to {args.dataset}")
         return 0
     if not args.input or not args.out:
         raise UsageError("give --input LOG --out DIR (one log), or --dataset DATASET (its test flights)")
-    out = Path(args.out)
-    existed = out.exists()
-    try:
-        attack_file(args.input, args.scenario, out, fmt=args.format, seed=args.seed, overwrite=args.overwrite,
-                    topics=topic_list(args.topics), allow_corrupt=args.allow_corrupt, layout=args.layout)
-    except BaseException:
-        if not existed:
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    with staged_dataset(args.out) as out:  # at a URL: written in a local copy, uploaded once done
+        existed = out.exists()
+        try:
+            attack_file(args.input, args.scenario, out, fmt=args.format, seed=args.seed, overwrite=args.overwrite,
+                        topics=topic_list(args.topics), allow_corrupt=args.allow_corrupt, layout=args.layout)
+        except BaseException:
+            if not existed:
+                shutil.rmtree(out, ignore_errors=True)
+            raise
     print(f"attacked copy written to {out}")
     return 0
 
@@ -40,8 +40,8 @@ def register(sub) -> None:
     a.add_argument("--input", help="a CSV with a timestamp column, a PX4 ULog, a Parquet file or a dataset "
                    "flight folder (with --out)")
     a.add_argument("--scenario", required=True, help="a scenario file or a grid file (TOML)")
-    a.add_argument("--out", help="output dataset folder (with --input)")
-    a.add_argument("--dataset", type=Path, metavar="DATASET", help="add labelled attacked copies of this "
+    a.add_argument("--out", help="output dataset folder or fsspec URL (with --input)")
+    a.add_argument("--dataset", metavar="DATASET", help="add labelled attacked copies of this "
                    "dataset's normal flights to it (ids csv-<source>-<scenario>)")
     a.add_argument("--sources", default="test", metavar="test|csv_source",
                    help="with --dataset: the splits whose normal flights are attacked (default test; "

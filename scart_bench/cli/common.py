@@ -6,7 +6,11 @@ Library code raises the errors of :mod:`scart_bench.errors`; ``UsageError`` is f
 
 from __future__ import annotations
 
+import shutil
 import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from scart_bench.errors import ScartBenchError
@@ -44,7 +48,67 @@ def topic_list(text: str | None) -> list[str] | None:
 EXIT_JOBS_FAILED = 3
 
 
-def print_tables(path: Path, metrics) -> None:
+@contextmanager
+def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), write: bool = True) -> Iterator[Path]:
+    """A local folder for ``location``: itself, or for an fsspec URL a local copy of what is there,
+    uploaded back afterwards (also after an error or an interrupt, so that ``--resume`` finds what
+    was done; ``exclude``: top-level entries kept local, such as a run's flight cache)."""
+    from scart_bench.storage import check_writable, fetch_folder, is_url, local_path, push_folder
+
+    if not is_url(location):
+        yield local_path(location)
+        return
+    url = str(location).rstrip("/")
+    if write:
+        check_writable(url)
+    with tempfile.TemporaryDirectory(prefix="scart-stage-") as tmp:
+        local = Path(tmp) / (url.rsplit("/", 1)[-1] or "folder")
+        if not fetch_folder(url, local) and not write:
+            raise UsageError(f"{url}: nothing there; expected a run folder")
+        try:
+            yield local
+        finally:
+            if write and local.is_dir():
+                push_folder(local, url, exclude)
+
+
+@contextmanager
+def staged_dataset(location: str | Path) -> Iterator[Path]:
+    """A local folder for the dataset at ``location`` that a command creates or adds to: itself, or
+    for an fsspec URL a local copy of the dataset there (if any), published back with its manifest
+    last once the command succeeded (scart_bench.storage); after a failure the URL is untouched."""
+    from scart_bench.dataset import is_dataset
+    from scart_bench.storage import (
+        StorageError,
+        check_writable,
+        clear,
+        fetch_dataset,
+        has_manifest,
+        has_objects,
+        is_url,
+        local_path,
+        publish_dataset,
+    )
+
+    if not is_url(location):
+        yield local_path(location)
+        return
+    url = str(location).rstrip("/")
+    check_writable(url)
+    with tempfile.TemporaryDirectory(prefix="scart-stage-") as tmp:
+        local = Path(tmp) / (url.rsplit("/", 1)[-1] or "dataset")
+        if has_manifest(url):
+            shutil.copytree(fetch_dataset(url), local)
+        elif has_objects(url):
+            raise StorageError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
+                               "choose a new prefix")
+        yield local
+        if is_dataset(local):
+            clear(url)
+            publish_dataset(local, url)
+
+
+def print_tables(path: Path, metrics, shown: str | None = None) -> None:
     """The paper table and the operating-point lines of a run (stdout); failed jobs and the folder (stderr)."""
     from scart_bench.benchmark.results import paper_table, transfer_summary
     from scart_bench.benchmark.scoring import rate_summary
@@ -62,7 +126,7 @@ def print_tables(path: Path, metrics) -> None:
     failed = metrics[metrics["status"] != "OK"]
     for _, r in failed.iterrows():
         print(f"{r['detector']}: {r['status']}: {r['message']}", file=sys.stderr)
-    print(f"\nrun folder: {path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
+    print(f"\nrun folder: {shown or path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
 
 
 def name_failed(command: str, failed, what: str, hint: str) -> int:

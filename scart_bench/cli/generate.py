@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import shutil
-from pathlib import Path
 
 from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, log
 from scart_bench.generator.profiles import PROFILES
@@ -38,13 +37,22 @@ def cmd_generate(args: argparse.Namespace) -> int:
         if args.timing not in TIMINGS:
             raise UsageError(f"--timing {args.timing!r}: expected one of {', '.join(TIMINGS)}")
         profile = dataclasses.replace(profile, timing=args.timing)
-    out = Path(args.out)
-    existed = out.exists()
+    if args.batch_size is not None and args.batch_size < 1:
+        raise UsageError(f"--batch-size must be at least 1, got {args.batch_size}")
+    if args.scheduler and args.executor != "dask":
+        raise UsageError("--scheduler needs --executor dask")
+    if args.jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    from scart_bench.storage import is_url, local_path
+
+    out = args.out if is_url(args.out) else local_path(args.out)
+    existed = is_url(out) or out.exists()
     try:
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=log,
                          scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
-                         uorb=args.uorb or None)
+                         uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
+                         scheduler=args.scheduler, jobs=args.jobs)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
@@ -57,7 +65,8 @@ def register(sub) -> None:
     g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
     g.add_argument("--profile", default="quick",
                    help=f"{' | '.join(PROFILES)}: flight counts and attack grid (default quick)")
-    g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite)")
+    g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite), or an fsspec URL "
+                   "such as s3://bucket/datasets/quick (uploaded with the manifest last; docs/scaling.md)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--format", choices=("parquet", "csv"), default="parquet")
     g.add_argument("--layout", choices=LAYOUTS, default=None, help=LAYOUT_HELP)
@@ -74,5 +83,13 @@ def register(sub) -> None:
                    "(realistic: jitter, drops, late messages, GPS after its fix; default: the profile's)")
     g.add_argument("--uorb", action="store_true", help="also write each flight's uORB view (sensors/uorb/: PX4 "
                    "topic names, fields and units, to score real ULogs; see docs/own_logs.md)")
+    g.add_argument("--executor", choices=("local", "dask"), default="local",
+                   help="local (default) or dask: every batch of flights is a shard flown and written by a dask "
+                   "worker, the manifest is committed here; same bytes as local (docs/scaling.md)")
+    g.add_argument("--scheduler", default=None, help="with --executor dask: a running scheduler's address "
+                   "(tcp://host:8786); default a local cluster of --jobs workers")
+    g.add_argument("--jobs", type=int, default=2, help="with --executor dask and no --scheduler: local workers (default 2)")
+    g.add_argument("--batch-size", type=int, default=None, help="flights flown together, and one dask shard "
+                   "(default: the profile's, 256); the flights depend on it, so compare datasets made with the same")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.set_defaults(func=cmd_generate)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, topic_list
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, staged_dataset, topic_list
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -13,9 +13,10 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     if (args.start is not None and args.start < 0) or (args.end is not None and args.end <= (args.start or 0.0)):
         raise UsageError(f"--start {args.start} / --end {args.end}: expected 0 <= start < end (seconds)")
-    ids = import_logs(args.logs, args.out, split=args.split, topics=topic_list(args.topics), start_s=args.start,
-                      end_s=args.end, seed=args.seed, fmt=args.format, allow_corrupt=args.allow_corrupt, say=log,
-                      layout=args.layout)
+    with staged_dataset(args.out) as out:  # a dataset at a URL: added to in a local copy, then uploaded
+        ids = import_logs(args.logs, out, split=args.split, topics=topic_list(args.topics), start_s=args.start,
+                          end_s=args.end, seed=args.seed, fmt=args.format, allow_corrupt=args.allow_corrupt,
+                          say=log, layout=args.layout)
     print(f"{len(ids)} flight{'' if len(ids) == 1 else 's'} added to {args.out}: {', '.join(ids)}")
     return 0
 
@@ -25,7 +26,7 @@ def register(sub) -> None:
                        "normal flights")
     i.add_argument("logs", nargs="+", metavar="LOG", help="log files or flight folders; flight ids come from "
                    "their names (log-<name>, plus -<start>s-<end>s when trimmed)")
-    i.add_argument("--out", required=True, metavar="DATASET", help="dataset folder: created, or added to atomically")
+    i.add_argument("--out", required=True, metavar="DATASET", help="dataset folder: created, or added to atomically; or an fsspec URL (s3://...)")
     i.add_argument("--split", default="train", choices=("train", "validation", "test", "csv_source", "auto"),
                    help="split of the imported flights (auto: train/validation/test/csv_source by --seed)")
     i.add_argument("--topics", default=None, help="comma-separated topics to keep (default: all)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scart_bench.cli.common import name_failed, print_tables
+from scart_bench.cli.common import name_failed, print_tables, staged_folder
 from scart_bench.generator.profiles import PROFILES
 
 
@@ -18,6 +18,7 @@ def _patterns(values: list[str] | None) -> list[str] | None:
 _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "train_dataset": "train_dataset",
             "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
+            "score_shards": "score_shards",
             "timeout": "timeout", "seed": "seed", "features": "features",
             "exclude": "exclude", "device": "device"}
 
@@ -44,6 +45,10 @@ def run_config(args: argparse.Namespace):
             continue
         if option in ("features", "exclude"):
             value = _patterns(value)
+        if option in ("dataset", "train_dataset", "out"):  # a folder, or an fsspec URL kept as text
+            from scart_bench.storage import is_url, local_path
+
+            value = value if is_url(value) else local_path(value)
         given[key] = [value] if option == "detectors" else value
     given["params"] = merge_params(cfg.params, parse_params(args.param or []))
     given["protocol"] = protocol_options(cfg.protocol, args)
@@ -89,10 +94,19 @@ def protocol_options(protocol, args: argparse.Namespace):
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from scart_bench.benchmark.runner import run_benchmark
+    import dataclasses
 
-    outcome = run_benchmark(run_config(args))
-    print_tables(outcome.path, outcome.metrics)
+    from scart_bench.benchmark.runner import run_benchmark
+    from scart_bench.storage import is_url
+
+    cfg = run_config(args)
+    if is_url(cfg.out):  # a run folder at a URL: worked on in a local copy, uploaded back
+        with staged_folder(cfg.out) as local:
+            outcome = run_benchmark(dataclasses.replace(cfg, out=local))
+            print_tables(outcome.path, outcome.metrics, shown=str(cfg.out))
+    else:
+        outcome = run_benchmark(cfg)
+        print_tables(outcome.path, outcome.metrics)
     failed = outcome.metrics[outcome.metrics["status"].isin(("ERROR", "TIMEOUT"))]
     return name_failed("run", failed, "did not finish OK",
                        "everything else is written (rerun with --resume to run only those again)")
@@ -110,13 +124,15 @@ def register(sub) -> None:
                         "VALUE is a TOML literal (64, 0.5, true, [32, 32], \"cpu\")")
     r.add_argument("--profile", choices=PROFILES,
                    help="dataset size profile (default quick); sets the default dataset, run folder and timeout")
-    r.add_argument("--dataset", type=Path, metavar="DIR",
-                   help="an existing dataset folder (default: data/datasets/<profile>-seed<N>, generated when missing)")
-    r.add_argument("--train-dataset", type=Path, metavar="DIR", dest="train_dataset",
+    r.add_argument("--dataset", metavar="DIR|URL",
+                   help="an existing dataset folder or fsspec URL (s3://bucket/prefix: read from a local copy, and by "
+                        "dask workers from the URL) (default: data/datasets/<profile>-seed<N>, generated when missing)")
+    r.add_argument("--train-dataset", metavar="DIR|URL", dest="train_dataset",
                    help="train and calibrate on this dataset's train and validation flights, test on --dataset "
                         "(every normal flight of it and its attacked flights), the columns matched by meaning "
                         "(docs/own_logs.md, 'Train on simulation, test on your flights')")
-    r.add_argument("--out", type=Path, metavar="DIR", help="run folder (default runs/<profile>-seed<N>)")
+    r.add_argument("--out", metavar="DIR|URL", help="run folder (default runs/<profile>-seed<N>), or an fsspec URL "
+                   "(worked on in a local copy and uploaded back, also after a failure, so --resume works)")
     r.add_argument("--resume", action="store_true",
                    help="keep jobs that finished OK with the same parameters; run only the others")
     r.add_argument("--executor", choices=("local", "dask"),
@@ -124,6 +140,10 @@ def register(sub) -> None:
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask scheduler address, e.g. tcp://host:8786 (default: a LocalCluster with --jobs workers)")
     r.add_argument("--jobs", type=int, metavar="N", help="jobs run in parallel (default 1)")
+    r.add_argument("--score-shards", type=int, metavar="N", dest="score_shards",
+                   help="fit each detector once, then score its flights in N parallel jobs (slices of about equal "
+                        "rows) on the executor and merge them: same scores and metrics as 1 (default 1); for "
+                        "large datasets, where scoring is the long pole (docs/scaling.md)")
     r.add_argument("--timeout", type=float, metavar="SECONDS",
                    help="per-job limit; a job past it is killed and reported TIMEOUT "
                         "(default 1800 quick, 7200 standard, 21600 paper)")
