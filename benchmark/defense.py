@@ -176,6 +176,76 @@ class BatchMonitor:
         return z
 
 
+# -- can it keep up with the link? -------------------------------------------------------------------
+#: Wall time spent measuring a detector's streaming rate (after its history is filled).
+RATE_BUDGET_S = 0.5
+
+
+def link_rate_hz(detector) -> tuple[str, float]:
+    """The base topic of the detector's rows and its link rate (rows the detector must score per second)."""
+    base = BatchMonitor(detector, math.inf, 1).base_topic
+    return base, float(TOPICS[base].rate_hz) if base in TOPICS else 50.0
+
+
+def streaming_rate(detector, block_rows: int | None = None, seed: int = 0) -> float:
+    """Rows per second one flight's online monitor scores with ``detector``, history full (rows of noise).
+
+    ``block_rows``: scored in blocks, as :class:`BatchMonitor` scores them in simulation mode; None: row by row
+    through the detector's own stream, as the live monitor (``benchmark.live.StreamMonitor``) does.
+    """
+    from scart_bench.detectors.base import TrailingStream
+
+    rng = np.random.default_rng(seed)
+    columns = list(detector.columns_)
+    history = int(getattr(detector, "history_rows_", 0) or 500)
+    done = spent = 0.0
+    if block_rows is None:
+        stream = detector.stream()
+        warm = rng.standard_normal((history, len(columns)))
+        if isinstance(stream, TrailingStream) and stream._prepared:  # fill the window without scoring it
+            last = None
+            for row in warm:
+                last = detector._prepare_row(row, last)
+                stream._rows.append(last)
+            stream._last = last
+        else:
+            for row in warm:
+                stream.update(row)
+        while spent < RATE_BUDGET_S or done < 3:
+            row = rng.standard_normal(len(columns))
+            t0 = time.perf_counter()
+            stream.update(row)
+            spent += time.perf_counter() - t0
+            done += 1
+        return done / spent
+    mon = BatchMonitor(detector, math.inf, 1, block_rows=block_rows)
+    t = np.arange(history, dtype=np.int64)
+    mon._score_block(rng.standard_normal((1, history, len(columns))), t)
+    while spent < RATE_BUDGET_S or done < 3 * block_rows:
+        rows = rng.standard_normal((1, block_rows, len(columns)))
+        t0 = time.perf_counter()
+        mon._score_block(rows, t[-1] + 1 + np.arange(block_rows))
+        spent += time.perf_counter() - t0
+        done += block_rows
+    return done / spent
+
+
+def require_link_rate(name: str, detector, block_rows: int | None = None, where: str = "the loop") -> float:
+    """The detector's streaming rate (:func:`streaming_rate`); RunError in one line when it is below the rate of
+    the link it must keep up with (its base topic's)."""
+    from scart_bench.errors import RunError
+
+    topic, need = link_rate_hz(detector)
+    rate = streaming_rate(detector, block_rows)
+    if rate < need:
+        how = "row by row" if block_rows is None else f"in blocks of {block_rows} rows"
+        raise RunError(
+            f"--detector {name}: scores {rate:.1f} rows/s {how}, below the link's {need:g} rows/s "
+            f"({topic} at {need:g} Hz); refused for {where}"
+        )
+    return rate
+
+
 # -- the experiment ---------------------------------------------------------------------------------
 @dataclass
 class DefendedDetector:

@@ -14,7 +14,15 @@ from scart_bench.generator.defense import RESPONSES
 def cmd_defend(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from scart_bench.benchmark.defense import defend, defense_table, from_run, outcomes, table_markdown
+    from scart_bench.benchmark.defense import (
+        BLOCK_ROWS,
+        defend,
+        defense_table,
+        from_run,
+        outcomes,
+        require_link_rate,
+        table_markdown,
+    )
     from scart_bench.generator.attacks import attack_seeds, grid_path
     from scart_bench.generator.defense import Response
     from scart_bench.generator.profiles import get_profile
@@ -33,6 +41,9 @@ def cmd_defend(args: argparse.Namespace) -> int:
         configs = configs[: args.flights]
     responses = [Response(r, alarms=args.alarms) for r in args.response]
     detectors = [from_run(args.run, name, plugins=args.plugin, log=log) for name in args.detector]
+    for det in detectors:  # before any flight is flown: a detector slower than the link is refused
+        rate = require_link_rate(det.name, det.detector, block_rows=BLOCK_ROWS)
+        log(f"defend: {det.name} scores {rate:.0f} rows/s in blocks of {BLOCK_ROWS} rows")
     seeds = attack_seeds(args.seed, len(configs))
     normal = [
         int(s) for s in np.random.SeedSequence(int(args.seed), spawn_key=(32,)).generate_state(len(configs))
