@@ -176,6 +176,125 @@ class BatchMonitor:
         return z
 
 
+# -- replay: the notices a batch's flown stream gives, without the detector in the loop -----------------
+class ScheduledAlarms:
+    """An :class:`~scart_bench.generator.defense.AlarmSource` that replays known notices: flight ``i`` gets its
+    ``alarms`` alarm rows at the first call after ``notice_us[i]`` (-1: never), as :class:`BatchMonitor` reports a
+    block's alarms at the first call after the block's last row."""
+
+    def __init__(self, notice_us: np.ndarray, alarms: int):
+        self.notice_us = np.asarray(notice_us, dtype=np.int64)
+        self.alarms = int(alarms)
+        self._sent = self.notice_us < 0
+
+    def observe(self, point: str, t_us: int, messages: dict) -> tuple[np.ndarray, int] | None:
+        due = ~self._sent & (t_us > self.notice_us)
+        if not due.any():
+            return None
+        self._sent |= due
+        return np.where(due, self.alarms, 0), int(self.notice_us[due].max())
+
+    def finish(self) -> None:
+        pass
+
+
+@dataclass
+class Notices:
+    """What the online monitor would have decided on a flown batch: per flight, the time of the block that raised
+    the anomaly notice (-1: none), the alarm rows up to it (or in the whole flight), and the scoring wall time."""
+
+    notice_us: np.ndarray
+    alarm_rows: np.ndarray
+    score_s: float
+    rows: int
+
+
+def stream_rows(batch, monitor: BatchMonitor) -> tuple[np.ndarray, np.ndarray]:
+    """The rows ``monitor`` builds from ``batch``'s navigator view in the loop: (row times (R,) us, rows (N, R, C)):
+    one row per base-topic message, every column the last delivered value at or before it (NaN before any)."""
+    from scart_bench.generator.params import STEP_US
+
+    steps = np.asarray(batch.navigator[monitor.base_topic][0], dtype=np.int64)
+    rows = np.full((len(batch), len(steps), len(monitor.columns)), np.nan)
+    for topic, (js, ks) in monitor._index.items():
+        if topic not in batch.navigator:
+            continue
+        t_steps, vals, ok = batch.navigator[topic]
+        m = np.searchsorted(t_steps, steps, side="right") - 1  # the topic's last message at or before each row
+        last_ok = np.maximum.accumulate(np.where(ok, np.arange(ok.shape[1]), -1), axis=1)  # (N, M)
+        idx = np.where(m[None, :] >= 0, last_ok[:, np.maximum(m, 0)], -1)  # (N, R)
+        got = np.take_along_axis(vals[:, :, ks], np.maximum(idx, 0)[:, :, None], axis=1)  # (N, R, len(ks))
+        got[idx < 0] = np.nan
+        rows[:, :, js] = got
+    return steps * STEP_US, rows
+
+
+def _arming(batch, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(armed_us, ended_us) as :class:`BatchMonitor` sees them in the loop (the navigator's setpoints)."""
+    from scart_bench.generator.params import STEP_US
+
+    armed_us, ended_us = np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+    for topic, fields in ARMING_FIELDS.items():
+        if topic not in batch.navigator:
+            continue
+        t_steps, vals, ok = batch.navigator[topic]
+        t = np.asarray(t_steps, dtype=np.int64) * STEP_US
+        for k, name in fields:
+            on = is_armed(name, vals[:, :, k]) & ok
+            off = ~is_armed(name, vals[:, :, k]) & ok
+            for i in range(n):
+                a = np.flatnonzero(on[i])
+                if a.size and armed_us[i] < 0:
+                    armed_us[i] = t[a[0]]
+                    e = np.flatnonzero(off[i, a[0] + 1 :])
+                    if e.size:
+                        ended_us[i] = t[a[0] + 1 + e[0]]
+    return armed_us, ended_us
+
+
+def replay_notices(
+    batch, detector: DefendedDetector, alarms: int, block_rows: int = BLOCK_ROWS, chunk_blocks: int = 40
+) -> Notices:
+    """The notices :class:`BatchMonitor` would raise in the loop of ``batch`` (flown without a response): the same
+    rows, row rule and blocks, scored per flight on its counted rows and the detector's trailing history before
+    them, ``chunk_blocks`` blocks at a time up to the notice (causal detectors: the same scores, to rounding).
+
+    A flight flown with :class:`ScheduledAlarms` and the response is the flight the monitor would have defended
+    (its stream is the same up to the response), without the detector in the loop."""
+    n = len(batch)
+    mon = detector.monitor(n, block_rows)
+    times, rows = stream_rows(batch, mon)
+    mon.armed_us, mon.ended_us = _arming(batch, n)
+    mon._arming_seen = any(t in batch.navigator for t in ARMING_FIELDS)
+    mon._first_us = int(times[0]) if len(times) else 0
+    counted = mon.counts(times)
+    notice = np.full(n, -1, dtype=np.int64)
+    alarm_rows = np.zeros(n, dtype=np.int64)
+    t0 = time.perf_counter()
+    b = mon.block_rows
+    full = (len(times) // b) * b  # the last, partial block is scored at the end of the batch: no response
+    history = max(int(getattr(mon.detector, "history_rows_", 0) or 500), 1)
+    for i in np.flatnonzero(counted[:, :full].any(axis=1)):
+        rows_i = np.flatnonzero(counted[i, :full])
+        first, last = rows_i[0] // b, rows_i[-1] // b + 1  # blocks with counted rows
+        total = 0
+        for k0 in range(first, last, chunk_blocks):  # in chunks: an alarmed flight stops at its notice
+            k1 = min(k0 + chunk_blocks, last)
+            lo = max(k0 * b - history, 0)  # the detector's trailing history before the chunk
+            frame = pd.DataFrame(rows[i, lo : k1 * b], columns=mon.columns)
+            scores = np.asarray(mon.detector.score(frame), dtype=np.float64)[k0 * b - lo :]
+            hits = (scores > mon.threshold) & counted[i, k0 * b : k1 * b]
+            per_block = total + np.cumsum(hits.reshape(-1, b).sum(axis=1))
+            k = np.flatnonzero(per_block >= alarms)
+            if k.size:
+                notice[i] = times[(k0 + k[0] + 1) * b - 1]
+                total = int(per_block[k[0]])
+                break
+            total = int(per_block[-1])
+        alarm_rows[i] = total
+    return Notices(notice, alarm_rows, time.perf_counter() - t0, int(counted[:, :full].sum()))
+
+
 # -- can it keep up with the link? -------------------------------------------------------------------
 #: Wall time spent measuring a detector's streaming rate (after its history is filled).
 RATE_BUDGET_S = 0.5
@@ -349,19 +468,32 @@ def defend(
             )
         for det in detectors:
             for resp in responses:
-                monitor = det.monitor(n, block_rows)
-                inner = AttackLayer(cfgs, sds, rates=_rates()) if cfgs is not None else None
-                hook = DefenseHook(monitor, resp, n, layer=inner)
                 t0 = time.perf_counter()
-                dfd = simulate(sds, flight_config, layer=hook)
-                wall["defended_s"] += time.perf_counter() - t0
-                wall["scoring_s"] += monitor.score_s
+                notices = replay_notices(und, det, resp.alarms, block_rows)
+                wall["scoring_s"] += time.perf_counter() - t0
+                hit = np.flatnonzero(notices.notice_us >= 0)
+                hook, dfd, at = None, und, {}
+                if hit.size:  # only the flights the detector alarmed on fly again, with the response
+                    inner = AttackLayer([cfgs[i] for i in hit], [sds[i] for i in hit], rates=_rates()) \
+                        if cfgs is not None else None
+                    hook = DefenseHook(ScheduledAlarms(notices.notice_us[hit], resp.alarms), resp, len(hit), inner)
+                    t0 = time.perf_counter()
+                    dfd = simulate([sds[i] for i in hit], flight_config, layer=hook)
+                    wall["defended_s"] += time.perf_counter() - t0
+                    at = {int(i): j for j, i in enumerate(hit)}
                 for i in range(n):
                     b = base[i]
-                    d_truth, d_xy = _truth_xy(dfd, i)
-                    d_imp = impact(d_truth, b["twin_truth"], dfd.status[i])
-                    end_us = (int(dfd.exit_step[i]) + 1) * STEP_US
-                    onset = _onset(inner, i, end_us)
+                    j = at.get(i)
+                    if j is None:  # never alarmed: the defended flight is the undefended one
+                        d_imp, d_status, d_off = b["und"], b["und_status"], b["und_off_m"]
+                        end_us = (int(und.exit_step[i]) + 1) * STEP_US
+                        notice_us = response_us = -1
+                    else:
+                        d_truth, d_xy = _truth_xy(dfd, j)
+                        d_imp = impact(d_truth, b["twin_truth"], dfd.status[j])
+                        d_status, d_off = dfd.status[j], float(np.hypot(*(d_xy[-1] - b["plan"])))
+                        end_us = (int(dfd.exit_step[j]) + 1) * STEP_US
+                        notice_us, response_us = int(hook.notice_us[j]), int(hook.response_us[j])
                     rows.append(
                         {
                             "detector": det.name,
@@ -371,16 +503,16 @@ def defend(
                             "seed": sds[i],
                             "scenario_id": "+".join(s.id for s in cfgs[i]) if cfgs is not None else "",
                             "undefended_status": b["und_status"],
-                            "defended_status": dfd.status[i],
+                            "defended_status": d_status,
                             "undefended_max_dev_m": b["und"]["impact_max_dev_m"],
                             "defended_max_dev_m": d_imp["impact_max_dev_m"],
                             "undefended_off_plan_m": b["und_off_m"],
-                            "defended_off_plan_m": float(np.hypot(*(d_xy[-1] - b["plan"]))),
-                            "onset_us": onset,
-                            "notice_us": int(hook.notice_us[i]),
-                            "response_us": int(hook.response_us[i]),
+                            "defended_off_plan_m": d_off,
+                            "onset_us": _onset(layer, i, end_us),
+                            "notice_us": notice_us,
+                            "response_us": response_us,
                             "twin_end_us": b["twin_end_us"],
-                            "alarm_rows": int(hook.alarm_rows[i]),
+                            "alarm_rows": int(notices.alarm_rows[i]),
                         }
                     )
         say(f"defend: {kind} flights {len(rows)} rows so far")

@@ -12,8 +12,10 @@ import pytest
 from scart_bench.benchmark.defense import (
     BatchMonitor,
     DefendedDetector,
+    ScheduledAlarms,
     defend,
     defense_table,
+    replay_notices,
     table_markdown,
 )
 from scart_bench.dataset.labels import combine
@@ -129,6 +131,14 @@ def test_reject_gps_then_return_brings_a_spoofed_flight_home(disagreement, undef
         events = [(e["event"], e["scenario_id"]) for e in log]
         assert ("alarm", "defense") in events and ("response", "defense") in events
         assert [e["timestamp_us"] for e in log] == sorted(e["timestamp_us"] for e in log)
+    # the replay (what defend flies): the notices the monitor raises, found on the undefended flights, then only
+    # the alarmed flights flown with the response: the same flights, byte for byte, without the detector inside
+    notices = replay_notices(undefended, DefendedDetector("d", det, threshold, burn_in_s=1.0), alarms=1)
+    np.testing.assert_array_equal(notices.notice_us, hook.notice_us)
+    again = DefenseHook(ScheduledAlarms(notices.notice_us, 1), Response("reject_gps_then_return"), n,
+                        layer=_layer(ATTACK_SEEDS))
+    _same(defended, simulate(ATTACK_SEEDS, CFG, layer=again))
+    np.testing.assert_array_equal(again.response_us, hook.response_us)
 
 
 @pytest.mark.parametrize("response", ["reject_gps_then_return", "hold"])
