@@ -396,6 +396,9 @@ class DefenseRun:
 
     flights: pd.DataFrame
     wall_s: dict[str, float] = field(default_factory=dict)
+    #: one example attacked flight's paths (detector, response, seed, path in normal/undefended/defended, x, y):
+    #: the first one the defense saved, else the first one it responded to
+    paths: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 def _truth_xy(batch, i: int) -> tuple[pd.DataFrame, np.ndarray]:
@@ -432,6 +435,7 @@ def defend(
 
     far_m = MISSION_TOLERANCE_M if far_m is None else float(far_m)
     rows: list[dict] = []
+    example: tuple[bool, pd.DataFrame] | None = None
     wall = {"undefended_s": 0.0, "defended_s": 0.0, "scoring_s": 0.0}
     jobs = [
         ("attacked", configs[k : k + batch_size], seeds[k : k + batch_size])
@@ -451,6 +455,7 @@ def defend(
             layer, und = None, twin
         wall["undefended_s"] += time.perf_counter() - t0
         base = []
+        notices_of: dict[tuple[str, int], Notices] = {}  # the notices depend on the detector and alarms only
         for i in range(n):
             twin_truth, twin_xy = _truth_xy(twin, i)
             und_truth, und_xy = (twin_truth, twin_xy) if und is twin else _truth_xy(und, i)
@@ -461,6 +466,8 @@ def defend(
                     "twin_truth": twin_truth,
                     "plan": plan,
                     "twin_end_us": (int(twin.exit_step[i]) + 1) * STEP_US,
+                    "twin_xy": twin_xy,
+                    "und_xy": und_xy,
                     "und": imp,
                     "und_status": und.status[i],
                     "und_off_m": float(np.hypot(*(und_xy[-1] - plan))),
@@ -469,7 +476,9 @@ def defend(
         for det in detectors:
             for resp in responses:
                 t0 = time.perf_counter()
-                notices = replay_notices(und, det, resp.alarms, block_rows)
+                if (det.name, resp.alarms) not in notices_of:
+                    notices_of[det.name, resp.alarms] = replay_notices(und, det, resp.alarms, block_rows)
+                notices = notices_of[det.name, resp.alarms]
                 wall["scoring_s"] += time.perf_counter() - t0
                 hit = np.flatnonzero(notices.notice_us >= 0)
                 hook, dfd, at = None, und, {}
@@ -485,7 +494,7 @@ def defend(
                     b = base[i]
                     j = at.get(i)
                     if j is None:  # never alarmed: the defended flight is the undefended one
-                        d_imp, d_status, d_off = b["und"], b["und_status"], b["und_off_m"]
+                        d_imp, d_status, d_off, d_xy = b["und"], b["und_status"], b["und_off_m"], b["und_xy"]
                         end_us = (int(und.exit_step[i]) + 1) * STEP_US
                         notice_us = response_us = -1
                     else:
@@ -515,11 +524,26 @@ def defend(
                             "alarm_rows": int(notices.alarm_rows[i]),
                         }
                     )
+                    saved = (
+                        b["und_status"] == "crashed" or b["und_off_m"] > far_m
+                    ) and d_status == "landed" and d_off <= far_m
+                    if kind == "attacked" and response_us >= 0 and (example is None or (saved and not example[0])):
+                        example = (saved, _example_paths(det.name, resp.action, sds[i], b, d_xy))
         say(f"defend: {kind} flights {len(rows)} rows so far")
     flights = pd.DataFrame(rows)
     if len(flights):
         flights["far_m"] = far_m
-    return DefenseRun(flights, wall)
+    return DefenseRun(flights, wall, example[1] if example is not None else pd.DataFrame())
+
+
+def _example_paths(detector: str, response: str, seed: int, base: dict, defended_xy: np.ndarray) -> pd.DataFrame:
+    """The normal twin's, undefended and defended true paths (north x, east y, m) of one flight, at 10 Hz."""
+    parts = []
+    for name, xy in (("normal", base["twin_xy"]), ("undefended", base["und_xy"]), ("defended", defended_xy)):
+        xy = xy[::5]
+        parts.append(pd.DataFrame({"detector": detector, "response": response, "seed": seed, "path": name,
+                                   "x": xy[:, 0], "y": xy[:, 1]}))
+    return pd.concat(parts, ignore_index=True)
 
 
 def _rates() -> dict[str, float]:

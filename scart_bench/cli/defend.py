@@ -69,8 +69,17 @@ def cmd_defend(args: argparse.Namespace) -> int:
     table = defense_table(run.flights)
     table.to_csv(out / "defense.csv", index=False)
     outcomes(run.flights).to_csv(out / "defense_flights.csv", index=False)
+    if len(run.paths):
+        run.paths.to_csv(out / "defense_paths.csv", index=False)
     text = table_markdown(table)
     times = ", ".join(f"{k} {v:.1f}" for k, v in run.wall_s.items())
+    flown = run.wall_s.get("undefended_s", 0.0)
+    if flown > 0:
+        extra = run.wall_s.get("scoring_s", 0.0) + run.wall_s.get("defended_s", 0.0)
+        per = extra / max(len(detectors) * len(responses), 1)
+        times += (f"; one detector x response's defended grid (its undefended flights, their scoring and the alarmed "
+                  f"flights flown again) in {(flown + per) / flown:.2f}x the undefended grid's time")
+
     (out / "defense.md").write_text(
         f"# Defense table\n\nRun {args.run}, grid {grid}; wall {wall:.1f} s ({times}).\n\n" + text
     )
