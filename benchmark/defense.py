@@ -17,9 +17,11 @@ missions saved, impact reduced, false aborts, time from onset to response, with 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -676,3 +678,23 @@ def table_markdown(table: pd.DataFrame) -> str:
         "attacked flights responded to after the onset."
     )
     return "\n".join(lines) + "\n"
+
+
+def write_defense(run: DefenseRun, out: Path, header: str) -> str:
+    """Write ``out``/defense.csv (the table), defense_flights.csv (per flight, with the verdicts), defense_paths.csv
+    (the example flight, when there is one) and defense.md (``header`` and the table); returns the table's Markdown.
+    Each file is written whole (a temporary file renamed)."""
+    from scart_bench.benchmark.store import atomic_write_text
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    table = defense_table(run.flights)
+    text = table_markdown(table)
+    atomic_write_text(out / "defense.csv", table.to_csv(index=False))
+    atomic_write_text(out / "defense_flights.csv", outcomes(run.flights).to_csv(index=False))
+    if len(run.paths):
+        atomic_write_text(out / "defense_paths.csv", run.paths.to_csv(index=False))
+    atomic_write_text(out / "defense.md", f"# Defense table\n\n{header}\n\n" + text)
+    for path in out.glob("defense*"):
+        os.chmod(path, 0o644)  # a table is meant to be shared (the temporary file was private)
+    return text

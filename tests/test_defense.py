@@ -329,3 +329,45 @@ def test_sitl_defense_options_go_together(args, capsys):
     assert main(["sitl", "--listen", "udp:127.0.0.1:0", *args]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and ("go together" in err or "--alarms 0" in err)
+
+
+# -- the table in the report: the leaderboard's section and the example flight's figure -------------------
+@pytest.fixture(scope="module")
+def defense_folder(disagreement, tmp_path_factory):
+    """defend() on the spoofed flights and as many normal ones, written as scart-bench defend writes it."""
+    from scart_bench.benchmark.defense import write_defense
+
+    det, threshold = disagreement
+    run = defend([DefendedDetector("gps_disagreement", det, threshold, burn_in_s=1.0)],
+                 [Response("reject_gps_then_return")], [[JUMP] for _ in ATTACK_SEEDS], ATTACK_SEEDS, NORMAL_SEEDS,
+                 flight_config=CFG)
+    out = tmp_path_factory.mktemp("defense") / "defense"
+    write_defense(run, out, "Run test, grid gps-jump-40; wall 1.0 s.")
+    return out
+
+
+def test_report_shows_the_defense_table_and_the_example_flight(defense_folder, tmp_path):
+    from run_fixtures import plugin, write_dataset
+
+    from scart_bench.cli.main import main
+
+    table = pd.read_csv(defense_folder / "defense.csv").iloc[0]
+    assert (table["missions_saved"], table["endangered"], table["false_aborts"], table["normal"]) == (2, 2, 0, 2)
+    paths = pd.read_csv(defense_folder / "defense_paths.csv")
+    end = {name: p[["x", "y"]].to_numpy()[-1] for name, p in paths.groupby("path")}
+    assert np.hypot(*end["defended"]) <= 5.0 and np.hypot(*(end["undefended"] - end["normal"])) >= 20.0
+
+    ds = write_dataset(tmp_path / "ds")
+    run = tmp_path / "run"
+    assert main(["run", "--profile", "quick", "--detectors", "zscore_test", "--plugin", plugin("ZScore"),
+                 "--dataset", str(ds), "--out", str(run), "--jobs", "1"]) == 0
+    out = tmp_path / "report"
+    assert main(["report", str(run), "--defense", str(defense_folder), "--out", str(out)]) == 0
+    md = (out / "leaderboard.md").read_text()
+    assert "## Defense in the loop" in md and "Run test, grid gps-jump-40" in md
+    assert "| gps_disagreement | reject_gps_then_return (x1) | 2/2 (" in md
+    html = (out / "leaderboard.html").read_text()
+    assert "<h2>Defense in the loop</h2>" in html and "<td>gps_disagreement</td>" in html
+    figure = next((out / "figures").glob("defense_*.png"))
+    assert f"]({figure.relative_to(out).as_posix()})" in md and "the attacked flight undefended and defended" in html
+    assert main(["report", str(run), "--defense", str(tmp_path), "--out", str(tmp_path / "r2")]) == 2

@@ -17,11 +17,9 @@ def cmd_defend(args: argparse.Namespace) -> int:
     from scart_bench.benchmark.defense import (
         BLOCK_ROWS,
         defend,
-        defense_table,
         from_run,
-        outcomes,
         require_link_rate,
-        table_markdown,
+        write_defense,
     )
     from scart_bench.generator.attacks import attack_seeds, grid_path
     from scart_bench.generator.defense import Response
@@ -64,14 +62,6 @@ def cmd_defend(args: argparse.Namespace) -> int:
         say=log,
     )
     wall = time.perf_counter() - t0
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    table = defense_table(run.flights)
-    table.to_csv(out / "defense.csv", index=False)
-    outcomes(run.flights).to_csv(out / "defense_flights.csv", index=False)
-    if len(run.paths):
-        run.paths.to_csv(out / "defense_paths.csv", index=False)
-    text = table_markdown(table)
     times = ", ".join(f"{k} {v:.1f}" for k, v in run.wall_s.items())
     flown = run.wall_s.get("undefended_s", 0.0)
     if flown > 0:
@@ -79,10 +69,8 @@ def cmd_defend(args: argparse.Namespace) -> int:
         per = extra / max(len(detectors) * len(responses), 1)
         times += (f"; one detector x response's defended grid (its undefended flights, their scoring and the alarmed "
                   f"flights flown again) in {(flown + per) / flown:.2f}x the undefended grid's time")
-
-    (out / "defense.md").write_text(
-        f"# Defense table\n\nRun {args.run}, grid {grid}; wall {wall:.1f} s ({times}).\n\n" + text
-    )
+    out = Path(args.out)
+    text = write_defense(run, out, f"Run {args.run}, grid {grid}; wall {wall:.1f} s ({times}).")
     print(text)
     log(
         f"defend: wrote {out / 'defense.csv'}, {out / 'defense.md'}, {out / 'defense_flights.csv'} in {wall:.1f} s"
