@@ -371,3 +371,38 @@ def test_report_shows_the_defense_table_and_the_example_flight(defense_folder, t
     figure = next((out / "figures").glob("defense_*.png"))
     assert f"]({figure.relative_to(out).as_posix()})" in md and "the attacked flight undefended and defended" in html
     assert main(["report", str(run), "--defense", str(tmp_path), "--out", str(tmp_path / "r2")]) == 2
+
+
+def test_proxy_sends_the_response_to_the_autopilot_on_the_notice(disagreement):
+    """The generator flies over MAVLink through the proxy (gps_spoof on the link); the monitor alarms 20 s after
+    arming (threshold below every score): the proxy sends RETURN_TO_LAUNCH and the vehicle lands at home."""
+    pytest.importorskip("pymavlink")
+    from scart_bench.benchmark.live import StreamMonitor
+    from scart_bench.generator.attacks import grid_path
+    from scart_bench.generator.defense import LiveDefense
+    from scart_bench.generator.mavlink.link import MavlinkLink
+    from scart_bench.generator.mavlink.proxy import MavlinkProxy
+    from scart_bench.generator.scart.scenario import load_scenarios
+
+    det, _ = disagreement
+    lines: list[str] = []
+    defense = LiveDefense(StreamMonitor(det, -1.0, name="always", log=lambda line: None, burn_in_s=20.0),
+                          Response("return"))
+    with MavlinkLink() as link:
+        proxy = MavlinkProxy(("127.0.0.1", 0), link.mission_computer_address, load_scenarios(grid_path("gps_spoof.toml")),
+                             seed=5, log=lines.append, defense=defense).start()
+        try:
+            link.connect(proxy.listen_address)
+            batch = simulate([5], layer=link)
+        finally:
+            proxy.stop()
+    xy = truth_table(batch, 0)[["x", "y"]].to_numpy()
+    t_resp = defense.response_us / 1e6
+    armed = defense.monitor.armed_us / 1e6
+    assert batch.status == ["landed"] and armed + 20.0 <= t_resp < armed + 21.0
+    assert np.hypot(*xy[int(t_resp * 50)]) > 10.0 and np.hypot(*xy[-1]) < 3.0  # out on the mission, then home
+    assert any("anomaly notice from always" in ln and "COMMAND_LONG 20 sent" in ln for ln in lines)
+    assert proxy.stats.errors == 0
+    with pytest.raises(Exception, match="cannot stop the autopilot fusing GPS"):
+        MavlinkProxy(("127.0.0.1", 0), ("127.0.0.1", 9), [], defense=LiveDefense(
+            defense.monitor, Response("reject_gps")))
