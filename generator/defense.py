@@ -140,6 +140,12 @@ class DefenseHook:
 
     # -- what the engines call ------------------------------------------------------------------
     @property
+    def sensor_every_step(self) -> bool:
+        """Whether the ``sensor`` point is needed at every step (the layer's sensor scenarios), or only at the
+        GPS samples (the defense alone: the compiled engine then stays in compiled code between them)."""
+        return self.layer is not None and "sensor" in self.layer.points
+
+    @property
     def physical_groups(self) -> list:
         return getattr(self.layer, "physical_groups", []) if self.layer is not None else []
 
