@@ -388,7 +388,7 @@ def from_run(
     (:func:`scart_bench.benchmark.live.monitor_from_run`)."""
     from scart_bench.benchmark.live import monitor_from_run
 
-    m = monitor_from_run(run, name, plugins=plugins, log=log)
+    m = monitor_from_run(run, name, plugins=plugins, log=log, command="defend")
     return DefendedDetector(name, m.detector, m.threshold, m.burn_in_s)
 
 

@@ -129,7 +129,7 @@ def _defense(args: argparse.Namespace):
     from scart_bench.benchmark.live import monitor_from_run
     from scart_bench.generator.defense import LiveDefense, Response
 
-    monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
+    monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log, command="sitl")
     rate = require_link_rate(args.detector, monitor.detector, where="the live loop")
     _log(f"sitl: {args.detector} scores {rate:.0f} rows/s row by row; on {args.alarms} alarm row(s) the flight "
          f"controller takes {args.response}")
