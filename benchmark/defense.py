@@ -17,9 +17,11 @@ missions saved, impact reduced, false aborts, time from onset to response, with 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -176,6 +178,195 @@ class BatchMonitor:
         return z
 
 
+# -- replay: the notices a batch's flown stream gives, without the detector in the loop -----------------
+class ScheduledAlarms:
+    """An :class:`~scart_bench.generator.defense.AlarmSource` that replays known notices: flight ``i`` gets its
+    ``alarms`` alarm rows at the first call after ``notice_us[i]`` (-1: never), as :class:`BatchMonitor` reports a
+    block's alarms at the first call after the block's last row."""
+
+    def __init__(self, notice_us: np.ndarray, alarms: int):
+        self.notice_us = np.asarray(notice_us, dtype=np.int64)
+        self.alarms = int(alarms)
+        self._sent = self.notice_us < 0
+
+    def observe(self, point: str, t_us: int, messages: dict) -> tuple[np.ndarray, int] | None:
+        due = ~self._sent & (t_us > self.notice_us)
+        if not due.any():
+            return None
+        self._sent |= due
+        return np.where(due, self.alarms, 0), int(self.notice_us[due].max())
+
+    def finish(self) -> None:
+        pass
+
+
+@dataclass
+class Notices:
+    """What the online monitor would have decided on a flown batch: per flight, the time of the block that raised
+    the anomaly notice (-1: none), the alarm rows up to it (or in the whole flight), and the scoring wall time."""
+
+    notice_us: np.ndarray
+    alarm_rows: np.ndarray
+    score_s: float
+    rows: int
+
+
+def stream_rows(batch, monitor: BatchMonitor) -> tuple[np.ndarray, np.ndarray]:
+    """The rows ``monitor`` builds from ``batch``'s navigator view in the loop: (row times (R,) us, rows (N, R, C)):
+    one row per base-topic message, every column the last delivered value at or before it (NaN before any)."""
+    from scart_bench.generator.params import STEP_US
+
+    steps = np.asarray(batch.navigator[monitor.base_topic][0], dtype=np.int64)
+    rows = np.full((len(batch), len(steps), len(monitor.columns)), np.nan)
+    for topic, (js, ks) in monitor._index.items():
+        if topic not in batch.navigator:
+            continue
+        t_steps, vals, ok = batch.navigator[topic]
+        m = np.searchsorted(t_steps, steps, side="right") - 1  # the topic's last message at or before each row
+        last_ok = np.maximum.accumulate(np.where(ok, np.arange(ok.shape[1]), -1), axis=1)  # (N, M)
+        idx = np.where(m[None, :] >= 0, last_ok[:, np.maximum(m, 0)], -1)  # (N, R)
+        got = np.take_along_axis(vals[:, :, ks], np.maximum(idx, 0)[:, :, None], axis=1)  # (N, R, len(ks))
+        got[idx < 0] = np.nan
+        rows[:, :, js] = got
+    return steps * STEP_US, rows
+
+
+def _arming(batch, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(armed_us, ended_us) as :class:`BatchMonitor` sees them in the loop (the navigator's setpoints)."""
+    from scart_bench.generator.params import STEP_US
+
+    armed_us, ended_us = np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+    for topic, fields in ARMING_FIELDS.items():
+        if topic not in batch.navigator:
+            continue
+        t_steps, vals, ok = batch.navigator[topic]
+        t = np.asarray(t_steps, dtype=np.int64) * STEP_US
+        for k, name in fields:
+            on = is_armed(name, vals[:, :, k]) & ok
+            off = ~is_armed(name, vals[:, :, k]) & ok
+            for i in range(n):
+                a = np.flatnonzero(on[i])
+                if a.size and armed_us[i] < 0:
+                    armed_us[i] = t[a[0]]
+                    e = np.flatnonzero(off[i, a[0] + 1 :])
+                    if e.size:
+                        ended_us[i] = t[a[0] + 1 + e[0]]
+    return armed_us, ended_us
+
+
+def replay_notices(
+    batch, detector: DefendedDetector, alarms: int, block_rows: int = BLOCK_ROWS, chunk_blocks: int = 40
+) -> Notices:
+    """The notices :class:`BatchMonitor` would raise in the loop of ``batch`` (flown without a response): the same
+    rows, row rule and blocks, scored per flight on its counted rows and the detector's trailing history before
+    them, ``chunk_blocks`` blocks at a time up to the notice (causal detectors: the same scores, to rounding).
+
+    A flight flown with :class:`ScheduledAlarms` and the response is the flight the monitor would have defended
+    (its stream is the same up to the response), without the detector in the loop."""
+    n = len(batch)
+    mon = detector.monitor(n, block_rows)
+    times, rows = stream_rows(batch, mon)
+    mon.armed_us, mon.ended_us = _arming(batch, n)
+    mon._arming_seen = any(t in batch.navigator for t in ARMING_FIELDS)
+    mon._first_us = int(times[0]) if len(times) else 0
+    counted = mon.counts(times)
+    notice = np.full(n, -1, dtype=np.int64)
+    alarm_rows = np.zeros(n, dtype=np.int64)
+    t0 = time.perf_counter()
+    b = mon.block_rows
+    full = (len(times) // b) * b  # the last, partial block is scored at the end of the batch: no response
+    history = max(int(getattr(mon.detector, "history_rows_", 0) or 500), 1)
+    for i in np.flatnonzero(counted[:, :full].any(axis=1)):
+        rows_i = np.flatnonzero(counted[i, :full])
+        first, last = rows_i[0] // b, rows_i[-1] // b + 1  # blocks with counted rows
+        total = 0
+        for k0 in range(first, last, chunk_blocks):  # in chunks: an alarmed flight stops at its notice
+            k1 = min(k0 + chunk_blocks, last)
+            lo = max(k0 * b - history, 0)  # the detector's trailing history before the chunk
+            frame = pd.DataFrame(rows[i, lo : k1 * b], columns=mon.columns)
+            scores = np.asarray(mon.detector.score(frame), dtype=np.float64)[k0 * b - lo :]
+            hits = (scores > mon.threshold) & counted[i, k0 * b : k1 * b]
+            per_block = total + np.cumsum(hits.reshape(-1, b).sum(axis=1))
+            k = np.flatnonzero(per_block >= alarms)
+            if k.size:
+                notice[i] = times[(k0 + k[0] + 1) * b - 1]
+                total = int(per_block[k[0]])
+                break
+            total = int(per_block[-1])
+        alarm_rows[i] = total
+    return Notices(notice, alarm_rows, time.perf_counter() - t0, int(counted[:, :full].sum()))
+
+
+# -- can it keep up with the link? -------------------------------------------------------------------
+#: Wall time spent measuring a detector's streaming rate (after its history is filled).
+RATE_BUDGET_S = 0.5
+
+
+def link_rate_hz(detector) -> tuple[str, float]:
+    """The base topic of the detector's rows and its link rate (rows the detector must score per second)."""
+    base = BatchMonitor(detector, math.inf, 1).base_topic
+    return base, float(TOPICS[base].rate_hz) if base in TOPICS else 50.0
+
+
+def streaming_rate(detector, block_rows: int | None = None, seed: int = 0) -> float:
+    """Rows per second one flight's online monitor scores with ``detector``, history full (rows of noise).
+
+    ``block_rows``: scored in blocks, as :class:`BatchMonitor` scores them in simulation mode; None: row by row
+    through the detector's own stream, as the live monitor (``benchmark.live.StreamMonitor``) does.
+    """
+    from scart_bench.detectors.base import TrailingStream
+
+    rng = np.random.default_rng(seed)
+    columns = list(detector.columns_)
+    history = int(getattr(detector, "history_rows_", 0) or 500)
+    done = spent = 0.0
+    if block_rows is None:
+        stream = detector.stream()
+        warm = rng.standard_normal((history, len(columns)))
+        if isinstance(stream, TrailingStream) and stream._prepared:  # fill the window without scoring it
+            last = None
+            for row in warm:
+                last = detector._prepare_row(row, last)
+                stream._rows.append(last)
+            stream._last = last
+        else:
+            for row in warm:
+                stream.update(row)
+        while spent < RATE_BUDGET_S or done < 3:
+            row = rng.standard_normal(len(columns))
+            t0 = time.perf_counter()
+            stream.update(row)
+            spent += time.perf_counter() - t0
+            done += 1
+        return done / spent
+    mon = BatchMonitor(detector, math.inf, 1, block_rows=block_rows)
+    t = np.arange(history, dtype=np.int64)
+    mon._score_block(rng.standard_normal((1, history, len(columns))), t)
+    while spent < RATE_BUDGET_S or done < 3 * block_rows:
+        rows = rng.standard_normal((1, block_rows, len(columns)))
+        t0 = time.perf_counter()
+        mon._score_block(rows, t[-1] + 1 + np.arange(block_rows))
+        spent += time.perf_counter() - t0
+        done += block_rows
+    return done / spent
+
+
+def require_link_rate(name: str, detector, block_rows: int | None = None, where: str = "the loop") -> float:
+    """The detector's streaming rate (:func:`streaming_rate`); RunError in one line when it is below the rate of
+    the link it must keep up with (its base topic's)."""
+    from scart_bench.errors import RunError
+
+    topic, need = link_rate_hz(detector)
+    rate = streaming_rate(detector, block_rows)
+    if rate < need:
+        how = "row by row" if block_rows is None else f"in blocks of {block_rows} rows"
+        raise RunError(
+            f"--detector {name}: scores {rate:.1f} rows/s {how}, below the link's {need:g} rows/s "
+            f"({topic} at {need:g} Hz); refused for {where}"
+        )
+    return rate
+
+
 # -- the experiment ---------------------------------------------------------------------------------
 @dataclass
 class DefendedDetector:
@@ -197,7 +388,7 @@ def from_run(
     (:func:`scart_bench.benchmark.live.monitor_from_run`)."""
     from scart_bench.benchmark.live import monitor_from_run
 
-    m = monitor_from_run(run, name, plugins=plugins, log=log)
+    m = monitor_from_run(run, name, plugins=plugins, log=log, command="defend")
     return DefendedDetector(name, m.detector, m.threshold, m.burn_in_s)
 
 
@@ -207,6 +398,9 @@ class DefenseRun:
 
     flights: pd.DataFrame
     wall_s: dict[str, float] = field(default_factory=dict)
+    #: one example attacked flight's paths (detector, response, seed, path in normal/undefended/defended, x, y):
+    #: the first one the defense saved, else the first one it responded to
+    paths: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 def _truth_xy(batch, i: int) -> tuple[pd.DataFrame, np.ndarray]:
@@ -243,6 +437,7 @@ def defend(
 
     far_m = MISSION_TOLERANCE_M if far_m is None else float(far_m)
     rows: list[dict] = []
+    example: tuple[bool, pd.DataFrame] | None = None
     wall = {"undefended_s": 0.0, "defended_s": 0.0, "scoring_s": 0.0}
     jobs = [
         ("attacked", configs[k : k + batch_size], seeds[k : k + batch_size])
@@ -262,6 +457,7 @@ def defend(
             layer, und = None, twin
         wall["undefended_s"] += time.perf_counter() - t0
         base = []
+        notices_of: dict[tuple[str, int], Notices] = {}  # the notices depend on the detector and alarms only
         for i in range(n):
             twin_truth, twin_xy = _truth_xy(twin, i)
             und_truth, und_xy = (twin_truth, twin_xy) if und is twin else _truth_xy(und, i)
@@ -272,6 +468,8 @@ def defend(
                     "twin_truth": twin_truth,
                     "plan": plan,
                     "twin_end_us": (int(twin.exit_step[i]) + 1) * STEP_US,
+                    "twin_xy": twin_xy,
+                    "und_xy": und_xy,
                     "und": imp,
                     "und_status": und.status[i],
                     "und_off_m": float(np.hypot(*(und_xy[-1] - plan))),
@@ -279,19 +477,34 @@ def defend(
             )
         for det in detectors:
             for resp in responses:
-                monitor = det.monitor(n, block_rows)
-                inner = AttackLayer(cfgs, sds, rates=_rates()) if cfgs is not None else None
-                hook = DefenseHook(monitor, resp, n, layer=inner)
                 t0 = time.perf_counter()
-                dfd = simulate(sds, flight_config, layer=hook)
-                wall["defended_s"] += time.perf_counter() - t0
-                wall["scoring_s"] += monitor.score_s
+                if (det.name, resp.alarms) not in notices_of:
+                    notices_of[det.name, resp.alarms] = replay_notices(und, det, resp.alarms, block_rows)
+                notices = notices_of[det.name, resp.alarms]
+                wall["scoring_s"] += time.perf_counter() - t0
+                hit = np.flatnonzero(notices.notice_us >= 0)
+                hook, dfd, at = None, und, {}
+                if hit.size:  # only the flights the detector alarmed on fly again, with the response
+                    inner = AttackLayer([cfgs[i] for i in hit], [sds[i] for i in hit], rates=_rates()) \
+                        if cfgs is not None else None
+                    hook = DefenseHook(ScheduledAlarms(notices.notice_us[hit], resp.alarms), resp, len(hit), inner)
+                    t0 = time.perf_counter()
+                    dfd = simulate([sds[i] for i in hit], flight_config, layer=hook)
+                    wall["defended_s"] += time.perf_counter() - t0
+                    at = {int(i): j for j, i in enumerate(hit)}
                 for i in range(n):
                     b = base[i]
-                    d_truth, d_xy = _truth_xy(dfd, i)
-                    d_imp = impact(d_truth, b["twin_truth"], dfd.status[i])
-                    end_us = (int(dfd.exit_step[i]) + 1) * STEP_US
-                    onset = _onset(inner, i, end_us)
+                    j = at.get(i)
+                    if j is None:  # never alarmed: the defended flight is the undefended one
+                        d_imp, d_status, d_off, d_xy = b["und"], b["und_status"], b["und_off_m"], b["und_xy"]
+                        end_us = (int(und.exit_step[i]) + 1) * STEP_US
+                        notice_us = response_us = -1
+                    else:
+                        d_truth, d_xy = _truth_xy(dfd, j)
+                        d_imp = impact(d_truth, b["twin_truth"], dfd.status[j])
+                        d_status, d_off = dfd.status[j], float(np.hypot(*(d_xy[-1] - b["plan"])))
+                        end_us = (int(dfd.exit_step[j]) + 1) * STEP_US
+                        notice_us, response_us = int(hook.notice_us[j]), int(hook.response_us[j])
                     rows.append(
                         {
                             "detector": det.name,
@@ -301,23 +514,38 @@ def defend(
                             "seed": sds[i],
                             "scenario_id": "+".join(s.id for s in cfgs[i]) if cfgs is not None else "",
                             "undefended_status": b["und_status"],
-                            "defended_status": dfd.status[i],
+                            "defended_status": d_status,
                             "undefended_max_dev_m": b["und"]["impact_max_dev_m"],
                             "defended_max_dev_m": d_imp["impact_max_dev_m"],
                             "undefended_off_plan_m": b["und_off_m"],
-                            "defended_off_plan_m": float(np.hypot(*(d_xy[-1] - b["plan"]))),
-                            "onset_us": onset,
-                            "notice_us": int(hook.notice_us[i]),
-                            "response_us": int(hook.response_us[i]),
+                            "defended_off_plan_m": d_off,
+                            "onset_us": _onset(layer, i, end_us),
+                            "notice_us": notice_us,
+                            "response_us": response_us,
                             "twin_end_us": b["twin_end_us"],
-                            "alarm_rows": int(hook.alarm_rows[i]),
+                            "alarm_rows": int(notices.alarm_rows[i]),
                         }
                     )
+                    saved = (
+                        b["und_status"] == "crashed" or b["und_off_m"] > far_m
+                    ) and d_status == "landed" and d_off <= far_m
+                    if kind == "attacked" and response_us >= 0 and (example is None or (saved and not example[0])):
+                        example = (saved, _example_paths(det.name, resp.action, sds[i], b, d_xy))
         say(f"defend: {kind} flights {len(rows)} rows so far")
     flights = pd.DataFrame(rows)
     if len(flights):
         flights["far_m"] = far_m
-    return DefenseRun(flights, wall)
+    return DefenseRun(flights, wall, example[1] if example is not None else pd.DataFrame())
+
+
+def _example_paths(detector: str, response: str, seed: int, base: dict, defended_xy: np.ndarray) -> pd.DataFrame:
+    """The normal twin's, undefended and defended true paths (north x, east y, m) of one flight, at 10 Hz."""
+    parts = []
+    for name, xy in (("normal", base["twin_xy"]), ("undefended", base["und_xy"]), ("defended", defended_xy)):
+        xy = xy[::5]
+        parts.append(pd.DataFrame({"detector": detector, "response": response, "seed": seed, "path": name,
+                                   "x": xy[:, 0], "y": xy[:, 1]}))
+    return pd.concat(parts, ignore_index=True)
 
 
 def _rates() -> dict[str, float]:
@@ -450,3 +678,23 @@ def table_markdown(table: pd.DataFrame) -> str:
         "attacked flights responded to after the onset."
     )
     return "\n".join(lines) + "\n"
+
+
+def write_defense(run: DefenseRun, out: Path, header: str) -> str:
+    """Write ``out``/defense.csv (the table), defense_flights.csv (per flight, with the verdicts), defense_paths.csv
+    (the example flight, when there is one) and defense.md (``header`` and the table); returns the table's Markdown.
+    Each file is written whole (a temporary file renamed)."""
+    from scart_bench.benchmark.store import atomic_write_text
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    table = defense_table(run.flights)
+    text = table_markdown(table)
+    atomic_write_text(out / "defense.csv", table.to_csv(index=False))
+    atomic_write_text(out / "defense_flights.csv", outcomes(run.flights).to_csv(index=False))
+    if len(run.paths):
+        atomic_write_text(out / "defense_paths.csv", run.paths.to_csv(index=False))
+    atomic_write_text(out / "defense.md", f"# Defense table\n\n{header}\n\n" + text)
+    for path in out.glob("defense*"):
+        os.chmod(path, 0o644)  # a table is meant to be shared (the temporary file was private)
+    return text

@@ -178,9 +178,10 @@ class StreamMonitor:
 
 
 def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = None,
-                     log: Callable[[str], None] | None = None) -> StreamMonitor:
+                     log: Callable[[str], None] | None = None, command: str = "proxy") -> StreamMonitor:
     """A StreamMonitor for detector ``name`` of benchmark run ``run``: refitted on the run's training
-    flights with the job's saved parameters, row threshold calibrated on its saved validation scores.
+    flights with the job's saved parameters, row threshold calibrated on its saved validation scores
+    (``command``: the command its log lines name).
 
     The run folder is read as data: the detector is resolved by name among the built-ins, installed
     plugins and the ``plugins`` given now (``--plugin``), never from a file the run folder names.
@@ -222,7 +223,7 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     except (TypeError, DetectorError) as exc:
         raise RunError(f"--run {run}: the saved parameters of {name} do not fit the detector installed now "
                        f"({exc})") from exc
-    log(f"proxy: fitting {name} on the {len(train)} training flights of run {run} ...")
+    log(f"{command}: fitting {name} on the {len(train)} training flights of run {run} ...")
     t0 = time.perf_counter()
     rule = (config.get("identity") or {}).get("features") or {}
     det.fit([ds.flight(fid) for fid in train], features=rule.get("include") or None, exclude=rule.get("exclude") or None)
@@ -237,6 +238,6 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     counted = {fid: counted_rows(truth[fid][0], armed.get(fid), protocol.burn_in_s)
                for fid in validation if fid in truth}
     _, row_threshold = protocol.thresholds({fid: np.asarray(scores[fid]) for fid in validation}, counted)
-    log(f"proxy: {name} fitted in {time.perf_counter() - t0:.1f} s; row threshold {row_threshold:.4g} "
+    log(f"{command}: {name} fitted in {time.perf_counter() - t0:.1f} s; row threshold {row_threshold:.4g} "
         f"({protocol.row_rule.describe()}); no alarm before {protocol.burn_in_s:g} s after arming")
     return StreamMonitor(det, row_threshold, name=name, log=log, burn_in_s=protocol.burn_in_s)

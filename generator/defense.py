@@ -140,6 +140,12 @@ class DefenseHook:
 
     # -- what the engines call ------------------------------------------------------------------
     @property
+    def sensor_every_step(self) -> bool:
+        """Whether the ``sensor`` point is needed at every step (the layer's sensor scenarios), or only at the
+        GPS samples (the defense alone: the compiled engine then stays in compiled code between them)."""
+        return self.layer is not None and "sensor" in self.layer.points
+
+    @property
     def physical_groups(self) -> list:
         return getattr(self.layer, "physical_groups", []) if self.layer is not None else []
 
@@ -249,3 +255,85 @@ class DefenseHook:
             if e.flight == flight and e.timestamp_us < end_us
         ]
         return sorted(rows, key=lambda r: r["timestamp_us"])
+
+
+class LiveDefense:
+    """The defense of one live flight (``scart-bench sitl``): a streaming monitor and the response.
+
+    ``monitor``: duck-typed as the live ``benchmark.live.StreamMonitor`` is: ``on_message(topic, t_us, values,
+    layer)`` takes each message the navigator receives and ``alarms`` lists the alarm rows so far. After
+    ``response.alarms`` alarm rows the anomaly notice is raised (:attr:`pending`); the server then calls
+    :meth:`respond` at its next navigator tick, switches the commander to :attr:`mode` and, for the reject
+    responses, passes each GPS sample through :meth:`sensor_gps` (the position replaced as in
+    :class:`DefenseHook`).
+    """
+
+    def __init__(self, monitor, response: Response):
+        self.monitor = monitor
+        self.response = response
+        self.notice_us = -1
+        self.response_us = -1
+        self.events: list[DefenseEvent] = []
+        self._rejecting = False
+        self._reject_until_s = -math.inf
+        self._sub_pos = np.zeros(2)
+        self._sub_us = 0
+
+    @property
+    def mode(self) -> str | None:
+        """The commander mode the response asks for ("hold", "return", "land"; None: reject_gps alone)."""
+        return _MODE_OF.get(self.response.action)
+
+    @property
+    def pending(self) -> bool:
+        """The anomaly notice is raised and the flight controller has not responded yet."""
+        return self.notice_us >= 0 and self.response_us < 0
+
+    @property
+    def rejecting(self) -> bool:
+        return self._rejecting
+
+    def observe(self, topic: str, t_us: int, values: np.ndarray, layer=None) -> None:
+        """One message as the navigator received it (after the attack)."""
+        self.monitor.on_message(topic, t_us, values, layer)
+        if self.notice_us < 0 and len(self.monitor.alarms) >= self.response.alarms:
+            self.notice_us = int(t_us)
+            self.events.append(
+                DefenseEvent(0, int(t_us), "alarm", f"anomaly notice after {len(self.monitor.alarms)} alarm row(s)")
+            )
+
+    def respond(self, t_us: int, position_ne: np.ndarray) -> str | None:
+        """Take the response now; ``position_ne``: the flight controller's own estimate (north, east m).
+        Returns the commander mode to switch to (None: none)."""
+        self.response_us = int(t_us)
+        if self.response.rejects_gps:
+            self._rejecting = True
+            self._sub_pos = np.asarray(position_ne, dtype=float)[:2].copy()
+            self._sub_us = int(t_us)
+            self._reject_until_s = t_us / 1e6 + self.response.reject_s
+        self.events.append(DefenseEvent(0, int(t_us), "response", self.response.action))
+        return self.mode
+
+    def sensor_gps(self, t_us: int, values: np.ndarray) -> np.ndarray:
+        """The GPS sample (1, sensor_gps fields) the estimator is fed: while rejected, the position is the
+        estimate at the response carried on by the receiver's velocity."""
+        if not self._rejecting:
+            return values
+        if t_us / 1e6 >= self._reject_until_s:
+            self._rejecting = False
+            self.events.append(DefenseEvent(0, int(t_us), "gps_restored", "GPS fused again"))
+            return values
+        vals = np.array(values, dtype=float, copy=True)
+        self._sub_pos += vals[0, 3:5] * (t_us - self._sub_us) / 1e6
+        self._sub_us = int(t_us)
+        lat, lon = ned_to_latlon(self._sub_pos[:1], self._sub_pos[1:2])
+        vals[0, 0], vals[0, 1] = lat[0], lon[0]
+        return vals
+
+    def event_log(self, end_us: int) -> list[dict]:
+        """The defense's events (alarm, response, gps_restored) as event-log rows."""
+        return [
+            {"timestamp_us": e.timestamp_us, "event": e.event, "scenario_id": "defense", "detail": e.detail}
+            for e in self.events
+            if e.timestamp_us < end_us
+        ]

@@ -126,8 +126,8 @@ def _transfer_html(runs: list[RunResults]) -> list[str]:
 
 
 def page(board: pd.DataFrame, runs: list[RunResults], figures: list[tuple[str, Path]], out: Path | None,
-         notes: list[str] = ()) -> str:
-    """The whole leaderboard page."""
+         notes: list[str] = (), sections: str = "") -> str:
+    """The whole leaderboard page; ``sections``: more HTML after the runs (e.g. the defense table)."""
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              f'<meta http-equiv="Content-Security-Policy" content="{esc(CSP)}">',
              '<meta name="viewport" content="width=device-width, initial-scale=1">',
@@ -137,6 +137,8 @@ def page(board: pd.DataFrame, runs: list[RunResults], figures: list[tuple[str, P
              leaderboard_table(board, runs),
              f"<h2>Runs ({len(runs)})</h2>", runs_table(runs, out)]
     parts += _transfer_html(runs)
+    if sections:
+        parts.append(sections)
     fails = failures(runs)
     if fails:
         parts.append("<h2>Failed or unfinished jobs</h2><ul>")

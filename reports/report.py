@@ -90,16 +90,25 @@ def draw_figures(board: pd.DataFrame, runs: list[RunResults], out: Path) -> tupl
     return figs + more, notes + why
 
 
-def write_report(run_paths: list[str | Path], out: str | Path, figures: bool = True) -> ReportFiles:
-    """Write leaderboard.md, leaderboard.csv, leaderboard.html and figures/ into ``out``."""
+def write_report(run_paths: list[str | Path], out: str | Path, figures: bool = True,
+                 defense: list[str | Path] = ()) -> ReportFiles:
+    """Write leaderboard.md, leaderboard.csv, leaderboard.html and figures/ into ``out``.
+
+    ``defense``: folders ``scart-bench defend`` wrote, shown beside the leaderboard with those found in the run
+    folders (reports.defense)."""
+    from scart_bench.reports import defense as defense_section
+
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ReportError(f"--out {out}: exists and is not a folder")
     runs = load_runs(list(run_paths))
+    defended = defense_section.find_defense(list(run_paths), list(defense))
     board = leaderboard_of(runs)
     out.mkdir(parents=True, exist_ok=True)
     figs, notes = draw_figures(board, runs, out / "figures") if figures else ([], [])
-    md = to_markdown(board, runs, out, notes)
+    defense_figs = defense_section.figures(defended, out / "figures") if figures else {}
+    md = to_markdown(board, runs, out, notes) + defense_section.markdown(defended, defense_figs, out)
+    figs += [(defense_section._caption(f), p) for f, p in defense_figs.items()]
     if figs:
         md += "\n## Figures\n\n" + "".join(f"![{md_text(cap)}]({p.relative_to(out).as_posix()})\n\n"
                                            for cap, p in figs)
@@ -109,7 +118,7 @@ def write_report(run_paths: list[str | Path], out: str | Path, figures: bool = T
     files = ReportFiles(out / "leaderboard.md", out / "leaderboard.csv", out / "leaderboard.html",
                         [p for _, p in figs], notes)
     for path, text in ((files.markdown, md), (files.csv, to_csv(board)),
-                       (files.html, html_page.page(board, runs, figs, out, notes))):
+                       (files.html, html_page.page(board, runs, figs, out, notes, defense_section.html(defended)))):
         atomic_write_text(path, text)
         os.chmod(path, 0o644)  # a report is meant to be shared (the temp file was private)
     return files

@@ -338,8 +338,10 @@ class _Hooks:
         # environment attacks and faults act on the physics: the layer is asked at every step
         self.physical = bool(getattr(layer, "physical_groups", None))
         self.X = np.zeros((n, L.X_WIDTH))
-        if "sensor" in points or self.physical:
+        if self.physical or ("sensor" in points and getattr(layer, "sensor_every_step", True)):
             need[:] = True
+        elif "sensor" in points:  # a layer that only takes GPS samples (e.g. a defense rejecting GPS)
+            need |= due[L.D_GPS]
         if "link" in points:
             need |= due[:L.N_TELEMETRY].any(axis=0)
         if "command" in points:

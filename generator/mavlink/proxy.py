@@ -130,7 +130,14 @@ class MavlinkProxy:
     """
 
     def __init__(self, listen: tuple[str, int], forward: tuple[str, int], scenarios: list[Scenario],
-                 seed: int = 0, record: bool = False, listeners: list | tuple = (), log: Callable[[str], None] | None = None):
+                 seed: int = 0, record: bool = False, listeners: list | tuple = (), log: Callable[[str], None] | None = None,
+                 defense=None):
+        if defense is not None and defense.response.rejects_gps:
+            raise ProxyError(f"response {defense.response.action!r}: the proxy cannot stop the autopilot fusing GPS "
+                             "over MAVLink; use hold, return or land (reject_gps runs in sitl and defend)")
+        #: a generator.defense.LiveDefense: its monitor sees what is forwarded; on its anomaly notice the proxy
+        #: sends the autopilot the response's COMMAND_LONG, as the mission computer would
+        self.defense = defense
         for sc in scenarios:
             if sc.injection_point not in LINK_POINTS:
                 raise ProxyError(f"scenario {sc.id!r} ({sc.source}): injection point {sc.injection_point!r} is not on "
@@ -159,7 +166,7 @@ class MavlinkProxy:
         self._flood_due = {True: 0.0, False: 0.0}  # flooding frames owed per direction
         self._flood_at = {True: None, False: None}  # the clock when they were last counted
         self._flood_seq = 0
-        topics = set(CODECS) if (record or self.listeners) else set(self.layer_topics)
+        topics = set(CODECS) if (record or self.listeners or defense is not None) else set(self.layer_topics)
         self._codecs = {c.msgid: c for c in BY_MSGID.values() if c.topic in topics}
         self._state_ids = STATE_MESSAGES if "setpoint" in topics else frozenset()
         self.stats = ProxyStats()
@@ -361,6 +368,21 @@ class MavlinkProxy:
         way = "telemetry" if telemetry else "command"
         return any(bool(g.active[0]) and d in ("both", way) for g, d in self._loss)
 
+    def _respond(self, t_us: int, header) -> None:
+        """The anomaly notice: the response's COMMAND_LONG to the autopilot (its system and component from the
+        telemetry's header), sent as from a ground station (system 255, component 190)."""
+        from scart_bench.generator.defense import response_command
+
+        self.defense.respond(t_us, np.zeros(2))
+        row = response_command(self.defense.response.action, header.srcSystem, header.srcComponent)
+        name = getattr(self.defense.monitor, "name", "detector")
+        self.log(f"proxy: t={t_us / 1e6:.2f} s: anomaly notice from {name} ({len(self.defense.monitor.alarms)} alarm "
+                 f"row(s)): {self.defense.response.action}, COMMAND_LONG {int(row[0])} sent to the autopilot")
+        if self.autopilot is None:
+            return
+        msg = KNOWN[COMMAND_LONG_ID](int(row[8]), int(row[9]), int(row[0]), 0, *(float(x) for x in row[1:8]))
+        self._send(self._up, self.packer.pack(msg, 255, 190, 0), self.autopilot)
+
     def _forge(self, row: np.ndarray, header, signed: bool) -> bytes:
         """The forged COMMAND_LONG of an inject_command row, as from the setpoint's sender (or nothing,
         on a signed stream: the autopilot would refuse an unsigned or wrongly signed frame)."""
@@ -422,8 +444,12 @@ class MavlinkProxy:
             if codec.alter(msg, new, values):
                 out = self.packer.repack(msg, version)
                 self.stats.altered += 1
-        if self.recording or self.listeners:
+        if self.recording or self.listeners or self.defense is not None:
             seen = np.asarray(codec.decode(msg, self.state_out), dtype=np.float64)
+            if self.defense is not None:
+                self.defense.observe(topic, t_us, seen, self.layer)
+                if self.defense.pending:
+                    self._respond(t_us, msg.get_header())
             if self.recording:
                 self.views.add("forwarded", topic, t_us, seen)
             for listener in self.listeners:

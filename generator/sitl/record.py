@@ -50,6 +50,8 @@ def sitl_parts(server, extra_config: dict, split: str = "test") -> dict:
         "recorded_at": datetime.fromtimestamp(server.started_wall, UTC).isoformat(timespec="seconds"),
     }
     events = server.layer.event_log(0, end_us) if server.layer is not None else []
+    if getattr(server, "defense", None) is not None:
+        events = sorted(events + server.defense.event_log(end_us), key=lambda e: e["timestamp_us"])
     return {"manifest": manifest, "config": config, "windows": [list(w) for w in windows], "events": events,
             "end_us": end_us}
 

@@ -121,8 +121,9 @@ class SitlServer(ClientRequests):
 
     def __init__(self, listen: tuple[str, int] = ("127.0.0.1", 0), scenarios: list[Scenario] | None = None,
                  seed: int = 0, remote: tuple[str, int] | None = None, record: bool = False,
-                 log: Callable[[str], None] | None = None, sock=None):
+                 log: Callable[[str], None] | None = None, sock=None, defense=None):
         self.scenarios = list(scenarios or [])
+        self.defense = defense  # a generator.defense.LiveDefense: a detector on the navigator's view, and a response
         check_scenarios(self.scenarios)
         self.sock = sock if sock is not None else bind_udp(listen)
         self.seed = int(seed)
@@ -225,9 +226,14 @@ class SitlServer(ClientRequests):
             phys = self.layer.on_physics(k, t_us)
             env = phys if isinstance(phys, Disturbances) else None
         hook = None
-        if "sensor" in self.points:
+        defense = self.defense
+        if "sensor" in self.points or (defense is not None and defense.rejecting):
             def hook(sensor_msgs):
-                return self.layer.on_messages("sensor", k, t_us, sensor_msgs)
+                out = self.layer.on_messages("sensor", k, t_us, sensor_msgs) if "sensor" in self.points else {}
+                if defense is not None and defense.rejecting and "sensor_gps" in sensor_msgs:
+                    vals, ok = out.get("sensor_gps", (sensor_msgs["sensor_gps"], np.ones(1, dtype=bool)))
+                    out = {**out, "sensor_gps": (defense.sensor_gps(t_us, vals), ok)}
+                return out
         msgs = plant.step(env, hook)
         if msgs:
             if "link" in self.points:
@@ -240,9 +246,13 @@ class SitlServer(ClientRequests):
                     continue
                 row = vals[0]
                 cmd.perceive(topic, row)
+                if defense is not None:
+                    defense.observe(topic, t_us, row, self.layer)
                 self._keep("navigator", topic, t_us, row)
                 frames.append(self._pack(CODECS[topic].new_message(row, t_us)))
         if is_due(NAV_RATE_HZ, k):
+            if defense is not None and defense.pending:
+                self._respond(t_us)
             sp = cmd.tick(k * DT)[None, :]
             self._keep("simulator", "setpoint", t_us, sp[0])
             ok = True
@@ -264,6 +274,20 @@ class SitlServer(ClientRequests):
             self.journal.flush(self)
         if frames:
             self._broadcast(b"".join(frames))
+
+    def _respond(self, t_us: int) -> None:
+        """The anomaly notice reached the flight controller: it takes the defense's response (a mode change under
+        the commander's usual rules, GPS rejected at the sensor point), says so and logs it."""
+        defense, cmd = self.defense, self.commander
+        mode = defense.respond(t_us, self.plant.position)
+        name = getattr(defense.monitor, "name", "detector")
+        why = ""
+        if mode is not None:
+            ok, why = cmd.set_mode({"hold": HOLD, "return": RTL, "land": LAND}[mode])
+            why = "" if ok else f" (refused: {why})"
+        self.log(f"sitl: t={self.time_s:.2f} s: anomaly notice from {name} "
+                 f"({len(defense.monitor.alarms)} alarm row(s)): {defense.response.action}{why}")
+        cmd.say(f"Anomaly notice: {defense.response.action}", severity=2)
 
     def _keep(self, view: str, topic: str, t_us: int, values: np.ndarray) -> None:
         if self.recording:

@@ -51,6 +51,13 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         raise UsageError(f"--scenario {args.scenario}: no such file")
     if (args.detector is None) != (args.run is None):
         raise UsageError("--detector and --run go together: the detector is the one fitted in that benchmark run")
+    if args.response is not None and args.detector is None:
+        raise UsageError("--response needs --detector and --run: the detector whose alarm the response answers")
+    if args.response is not None and args.response.startswith("reject_gps"):
+        raise UsageError(f"--response {args.response}: the proxy cannot stop the autopilot fusing GPS over MAVLink; "
+                         "use hold, return or land (reject_gps runs in sitl and defend)")
+    if args.alarms < 1:
+        raise UsageError(f"--alarms {args.alarms}: expected a whole number >= 1")
     if not (math.isfinite(args.checkpoint) and args.checkpoint > 0):
         raise UsageError(f"--checkpoint {args.checkpoint}: expected a positive, finite number of seconds")
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
@@ -64,11 +71,21 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         from scart_bench.benchmark.live import monitor_from_run
 
         monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log)
+    defense = None
+    if args.response is not None:
+        from scart_bench.benchmark.defense import require_link_rate
+        from scart_bench.generator.defense import LiveDefense, Response
+
+        rate = require_link_rate(args.detector, monitor.detector, where="the live loop")
+        _log(f"proxy: {args.detector} scores {rate:.0f} rows/s row by row; on {args.alarms} alarm row(s) the "
+             f"autopilot is sent {args.response}")
+        defense = LiveDefense(monitor, Response(args.response, alarms=args.alarms))
 
     if record is not None:
         recover_recordings(record, log=_log)  # flights a killed proxy --record left as checkpoints
     proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=record is not None,
-                            listeners=[monitor] if monitor is not None else [], log=_log).open()
+                            listeners=[monitor] if monitor is not None and defense is None else [], log=_log,
+                            defense=defense).open()
     fid = (args.flight_id or new_flight_id(record)) if record is not None else None
     extra = {"scenario_file": str(args.scenario)}
     checkpoint = (RecordingCheckpoint(proxy, record, fid, extra, period_s=args.checkpoint, log=_log)
@@ -106,6 +123,9 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         if monitor is not None:
             extra["detector"] = {"name": args.detector, "run": str(args.run), "threshold": monitor.threshold,
                                  "alarm_rows": len(monitor.alarms)}
+            if defense is not None:
+                extra["defense"] = {"response": args.response, "alarms": args.alarms,
+                                    "notice_us": defense.notice_us, "response_us": defense.response_us}
         path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), record, fmt=args.format)
         checkpoint.discard()  # written whole: the checkpoint goes (a failed write above keeps it)
         print(f"flight {fid} recorded in {record} ({path.name})")
@@ -140,5 +160,10 @@ def register(sub) -> None:
     p.add_argument("--plugin", action="append", metavar="SPEC",
                    help="load a plugin detector from module:Class or file.py:Class (a run folder's record of "
                         "plugin files is never imported)")
+    from scart_bench.generator.defense import RESPONSES
+
+    p.add_argument("--response", choices=RESPONSES,
+                   help="defense in the loop: on the detector's anomaly notice send the autopilot this (COMMAND_LONG)")
+    p.add_argument("--alarms", type=int, default=1, metavar="N", help="alarm rows before the response (default 1)")
     p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this many seconds (default: Ctrl-C)")
     p.set_defaults(func=cmd_proxy)

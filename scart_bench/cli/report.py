@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+from pathlib import Path
 
 from scart_bench.cli.common import UsageError, staged_folder
 
@@ -22,7 +23,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:  # runs and the report at URLs: local copies, the report uploaded
         runs = [stack.enter_context(staged_folder(r, write=False)) for r in args.runs]
         out = stack.enter_context(staged_folder(args.out))
-        files = write_report(runs, out, figures=not args.no_figures)
+        files = write_report(runs, out, figures=not args.no_figures, defense=args.defense)
         def shown(p) -> str:  # the URL's name for a file of the uploaded report
             return str(p).replace(str(out), str(args.out).rstrip("/"), 1) if is_url(args.out) else str(p)
 
@@ -41,4 +42,7 @@ def register(sub) -> None:
     r.add_argument("--out", required=True, metavar="DIR|URL", help="folder for the report files, or an fsspec URL "
                    "(written locally, then uploaded)")
     r.add_argument("--no-figures", action="store_true", help="only the tables, no figures")
+    r.add_argument("--defense", action="append", default=[], type=Path, metavar="DIR",
+                   help="a folder scart-bench defend wrote: its defense table and example flight in the report "
+                        "(one in a run folder, RUN/defense.csv or RUN/defense/, is found by itself)")
     r.set_defaults(func=cmd_report)

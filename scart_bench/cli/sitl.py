@@ -44,6 +44,11 @@ def _check_options(args: argparse.Namespace) -> None:
         raise UsageError(f"--duration {args.duration}: expected a positive number of seconds")
     if args.speed <= 0:
         raise UsageError(f"--speed {args.speed}: expected a positive factor (1.0 = real time)")
+    if len({args.detector is None, args.run is None, args.response is None}) > 1:
+        raise UsageError("--detector, --run and --response go together: the detector fitted in that benchmark run "
+                         "and what the flight controller does on its alarm")
+    if args.alarms < 1:
+        raise UsageError(f"--alarms {args.alarms}: expected a whole number >= 1")
 
 
 def _run(args: argparse.Namespace, listen, remote, sock) -> int:
@@ -60,12 +65,18 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
-    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock)
+    defense = _defense(args) if args.detector else None
+    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock,
+                      defense=defense)
     fid = None
+    extra = {"scenario_file": args.scenario}
+    if defense is not None:
+        extra["defense"] = {"detector": args.detector, "run": str(args.run), "threshold": defense.monitor.threshold,
+                            "response": args.response, "alarms": args.alarms}
     if record is not None:
         recover(record, lambda rec: save_recording(rec, record, fmt=args.format), _log)
         fid = args.flight_id or new_flight_id(record, prefix="sitl")
-        sitl.journal = Journal(record, fid, {"scenario_file": args.scenario}, args.split, _log)
+        sitl.journal = Journal(record, fid, extra, args.split, _log)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -86,6 +97,9 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
             signal.signal(s, h)
         sitl.close()
     wall = time.monotonic() - t0
+    if defense is not None:
+        defense.monitor.flush()
+        _log(f"sitl: {defense.monitor.summary()}")
     _log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
     for s, e in sitl.windows():
         _log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
@@ -97,7 +111,7 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
         return 0
     sitl.journal.flush(sitl)
     try:
-        path = save_recording(sitl.record(fid, {"scenario_file": args.scenario}, split=args.split), record,
+        path = save_recording(sitl.record(fid, extra, split=args.split), record,
                               fmt=args.format)
     except OSError:
         _log(f"sitl: the flight could not be written into {record}; its journal {sitl.journal.folder} keeps it and "
@@ -108,7 +122,23 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     return 0
 
 
+def _defense(args: argparse.Namespace):
+    """The run's detector (refitted, its threshold calibrated) watching the navigator's view, with the response;
+    refused in one line when it cannot score rows as fast as the link brings them."""
+    from scart_bench.benchmark.defense import require_link_rate
+    from scart_bench.benchmark.live import monitor_from_run
+    from scart_bench.generator.defense import LiveDefense, Response
+
+    monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=_log, command="sitl")
+    rate = require_link_rate(args.detector, monitor.detector, where="the live loop")
+    _log(f"sitl: {args.detector} scores {rate:.0f} rows/s row by row; on {args.alarms} alarm row(s) the flight "
+         f"controller takes {args.response}")
+    return LiveDefense(monitor, Response(args.response, alarms=args.alarms))
+
+
 def register(sub) -> None:
+    from scart_bench.generator.defense import RESPONSES
+
     p = sub.add_parser("sitl", help="a simulated PX4-like vehicle any MAVLink tool can fly (SCART layer on its link)",
                        description="One simulated quadrotor (the generator's physics, sensors, estimator and "
                        "controller) behind a MAVLink 2 endpoint that speaks like PX4: heartbeat and telemetry, "
@@ -132,4 +162,11 @@ def register(sub) -> None:
     p.add_argument("--flight-id", help="flight id of the recording (default sitl-<UTC time>)")
     p.add_argument("--split", choices=("train", "validation", "test"), default="test",
                    help="split of a recorded normal flight (attacked flights are always test)")
+    p.add_argument("--detector", metavar="NAME", help="defense in the loop: this detector of --run scores what the "
+                   "navigator receives; on its alarm the flight controller takes --response (docs/defense.md)")
+    p.add_argument("--run", metavar="RUN", help="the benchmark run folder the detector comes from")
+    p.add_argument("--response", choices=RESPONSES, help="what the flight controller does on the anomaly notice")
+    p.add_argument("--alarms", type=int, default=1, metavar="N", help="alarm rows before the response (default 1)")
+    p.add_argument("--plugin", action="append", metavar="SPEC",
+                   help="load a plugin detector from module:Class or file.py:Class")
     p.set_defaults(func=cmd_sitl)
