@@ -70,7 +70,7 @@ _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 #: The per-flight stages: compiled without reference counting. Their array arguments are views the
 #: caller holds; counted, every call took and released a reference to each of them (about a hundred
 #: atomic operations per flight-step, on counters that all threads share).
-_HOT = {**_JIT, "_nrt": False}
+_HOT = {**_JIT, "_nrt": False, "forceinline": True}
 
 # The workqueue layer's idle threads sleep; OpenMP's spin, which on a shared or small machine takes
 # the CPU from the thread doing the work (a one-flight batch ran 4x slower). A layer chosen with
