@@ -15,6 +15,7 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from scart_bench.dataset.schema import (
@@ -30,6 +31,7 @@ from scart_bench.dataset.schema import (
 from scart_bench.generator.engine import kernel as K
 from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.flight_batch import alive, instance_gps, instance_imu, instance_value
+from scart_bench.generator.engine.pcg_noise import fill_rows, pcg_states
 from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
@@ -180,6 +182,9 @@ class _NoiseDrawer:
         from concurrent.futures import ThreadPoolExecutor
 
         self.rngs = rngs
+        # each flight's PCG64 stepped in compiled code (the same values as numpy, ~3x faster); the
+        # Generators themselves are not advanced, nothing reads them after the initial conditions
+        self.states = pcg_states(rngs)
         self.threads = max(1, threads)
         self.pool = ThreadPoolExecutor(max_workers=self.threads)
         self.pending = None
@@ -193,8 +198,12 @@ class _NoiseDrawer:
         out = self.buffers[self.turn][:len(rows)]
         self.turn = 1 - self.turn
         cuts = np.linspace(0, len(rows), self.threads + 1).astype(int)
-        futures = [self.pool.submit(fill_block, self.rngs, rows[a:b], out[a:b, :steps])
-                   for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+        if self.states is not None:
+            futures = [self.pool.submit(fill_rows, self.states, rows[a:b], out[a:b, :steps])
+                       for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+        else:
+            futures = [self.pool.submit(fill_block, self.rngs, rows[a:b], out[a:b, :steps])
+                       for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
         self.pending = (rows, out, futures)
 
     def take(self) -> tuple[np.ndarray, np.ndarray]:
@@ -252,7 +261,8 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
         hooks.commander = Commander(cfg.control, n, np.zeros((n, 2)), cfg.mission.land_speed)
         hooks.mission = init.waypoints
     active = np.arange(n, dtype=np.int64)
-    drawer = _NoiseDrawer(init.rngs, min(BLOCK_STEPS, max_steps))
+    # as many noise-drawing threads as the kernel has worker threads (numba.set_num_threads)
+    drawer = _NoiseDrawer(init.rngs, min(BLOCK_STEPS, max_steps), threads=numba.get_num_threads())
     s0 = 0
     try:
         drawer.request(active, min(BLOCK_STEPS, max_steps))

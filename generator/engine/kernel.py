@@ -67,6 +67,10 @@ NAV_DT = 1.0 / 50.0
 PH_IDLE, PH_TAKEOFF, PH_MISSION, PH_LAND = 0.0, 1.0, 2.0, 3.0
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+#: The per-flight stages: compiled without reference counting. Their array arguments are views the
+#: caller holds; counted, every call took and released a reference to each of them (about a hundred
+#: atomic operations per flight-step, on counters that all threads share).
+_HOT = {**_JIT, "_nrt": False, "forceinline": True}
 
 # The workqueue layer's idle threads sleep; OpenMP's spin, which on a shared or small machine takes
 # the CPU from the thread doing the work (a one-flight batch ran 4x slower). A layer chosen with
@@ -76,7 +80,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
 
 
 # -- small algebra ----------------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_HOT)
 def _rot(s, o):
     """Rotation matrix (row-major 9-tuple) of the quaternion at s[o:o+4]."""
     w, x, y, z = s[o], s[o + 1], s[o + 2], s[o + 3]
@@ -85,7 +89,7 @@ def _rot(s, o):
             2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _quat_integrate(s, o, w0, w1, w2, dt):
     """Rotate the quaternion at s[o:o+4] by the body rate (w0, w1, w2) over dt (in place)."""
     angle = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2) * dt
@@ -101,7 +105,7 @@ def _quat_integrate(s, o, w0, w1, w2, dt):
     s[o], s[o + 1], s[o + 2], s[o + 3] = qw / n, qx / n, qy / n, qz / n
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _euler(s, o):
     w, x, y, z = s[o], s[o + 1], s[o + 2], s[o + 3]
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
@@ -110,17 +114,17 @@ def _euler(s, o):
     return roll, pitch, yaw
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _clip(x, lo, hi):
     return min(max(x, lo), hi)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _wrap_pi(a):
     return -((-a + PI) % TWO_PI - PI)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _latlon(p, x, y):
     """Local north/east (m) -> latitude/longitude (deg), as scart_bench.generator.geo.ned_to_latlon."""
     x = x / EARTH_RADIUS
@@ -135,12 +139,12 @@ def _latlon(p, x, y):
     return lat * RAD2DEG, lon * RAD2DEG
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _altitude_at(pressure):
     return (1.0 - (pressure / SLP) ** INV_BARO_EXP) / 2.25577e-5
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _kf_predict(s, o, p):
     """P = F P F^T + Q for the 3x3 covariance at s[o:o+9]."""
     f = K_F
@@ -164,7 +168,7 @@ def _kf_predict(s, o, p):
 
 
 # -- stages (one flight) ----------------------------------------------------------------------------
-@njit(**_JIT)
+@njit(**_HOT)
 def _rate_control(s, p):
     """Body-rate PI -> rotor speed commands (rad/s) through the mixer."""
     dt = p[K_DT]
@@ -194,13 +198,13 @@ def _rate_control(s, p):
     return c0, c1, c2, c3
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _mix(th, t0, t1, t2, p, k, mt, armed):
     v = _clip(th * p[k] + t0 * p[k + 1] + t1 * p[k + 2] + t2 * p[k + 3], 0.02 * mt, mt)
     return math.sqrt(v / p[K_KF]) if armed > 0.5 else 0.0
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _motor(s, p, r, cmd, dt):
     w = s[L.ROTOR + r]
     tau = p[K_TAU_UP] if cmd > w else p[K_TAU_DOWN]
@@ -209,7 +213,7 @@ def _motor(s, p, r, cmd, dt):
     return w
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _vehicle(s, p, cmd, wx, wy, wz, x, env):
     """Advance the rigid body one step; returns the rotation matrix used (of the old attitude).
 
@@ -280,7 +284,7 @@ def _vehicle(s, p, cmd, wx, wy, wz, x, env):
     return R
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _physics(s, tbuf, p, step, w, k, x, env):
     """Wind, rate control and the vehicle's step (with ``env``: the disturbances in ``x``)."""
     bs = p[K_GUST_B] * s[L.WIND_SIGMA]
@@ -306,14 +310,14 @@ def _physics(s, tbuf, p, step, w, k, x, env):
         tbuf[slot, 3 + a] = s[L.VEL + a]
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _sense(s, tbuf, p, step, w, k, due, x, env):
     """Wind, rate control, vehicle dynamics and the sensor samples due at this step."""
     _physics(s, tbuf, p, step, w, k, x, env)
     _sensors(s, tbuf, p, step, w, k, due, x, env)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _sensors(s, tbuf, p, step, w, k, due, x, env):
     """The sensor samples due at this step, of the true state after the step (attitude: R_TRUE)."""
     rt = L.R_TRUE
@@ -371,7 +375,7 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
             s[L.GPS_EPV] = 99.99
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _gps_environment(s, x, sats, growth):
     """RF spoofing offsets and jamming: accuracy, and below 4 satellites no fix (the last fix held)."""
     for a in range(3):
@@ -393,7 +397,7 @@ def _gps_environment(s, x, sats, growth):
         s[L.GPS_EPV] = 99.99
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _propagate(s, a, an, on_ground, dt):
     """Inertial propagation of one axis with the NED acceleration ``an`` (before its bias)."""
     x = L.EST_X + 3 * a
@@ -405,7 +409,7 @@ def _propagate(s, a, an, on_ground, dt):
     s[x + 1] += an * dt
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _predict(s, hist, p, step):
     """Attitude filter and the inertial propagation of the position/velocity filter."""
     dt = p[K_DT]
@@ -444,7 +448,7 @@ def _predict(s, hist, p, step):
     s[L.SINCE_POS_FUSION_S] += dt
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _fuse_mag(s, p):
     roll, pitch, yaw = _euler(s, L.EST_QUAT)
     cr, sr = math.cos(roll), math.sin(roll)
@@ -459,14 +463,14 @@ def _fuse_mag(s, p):
     _quat_integrate(s, L.EST_QUAT, R[6] * k, R[7] * k, R[8] * k, 0.01)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _commit(s, o, K0, K1, K2, row):
     """P = sym(P - K P[row, :]) for a scalar measurement of state ``row``."""
     h = o + 3 * row
     _commit2(s, o, K0, 0.0, K1, 0.0, K2, 0.0, s[h], s[h + 1], s[h + 2], 0.0, 0.0, 0.0)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _commit2(s, o, k00, k01, k10, k11, k20, k21, h00, h01, h02, h10, h11, h12):
     """P = sym(P - K (H P)) with K (3, 2) and H P (2, 3) given (a zero column/row for scalars)."""
     p00 = s[o] - (k00 * h00 + k01 * h10)
@@ -489,7 +493,7 @@ def _commit2(s, o, k00, k01, k10, k11, k20, k21, h00, h01, h02, h10, h11, h12):
     s[o + 8] = 0.5 * (p22 + p22)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _fuse_baro(s, p, ok):
     baro_alt = _altitude_at(s[L.PRESSURE])
     if math.isnan(s[L.BARO_HOME]) and ok:
@@ -510,7 +514,7 @@ def _fuse_baro(s, p, ok):
         _commit(s, o, K0, K1, K2, 0)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _fuse_gps(s, hist, p, step, usable):
     old = (step + 1) % int(p[K_DELAY])
     gate2 = p[K_GATE2]
@@ -580,7 +584,7 @@ def _fuse_gps(s, hist, p, step, usable):
         _commit(s, ov, K0, K1, K2, 1)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _estimate(s, hist, p, step, due, mag_ok, baro_ok, gps_ok):
     _predict(s, hist, p, step)
     x = L.EST_X
@@ -603,13 +607,13 @@ def _estimate(s, hist, p, step, due, mag_ok, baro_ok, gps_ok):
     s[o + 5] -= s[x + 7] - v2
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _out(s, a, c):
     """The output predictor's position (c = 0) or velocity (c = 1) on axis ``a`` (Estimator.output)."""
     return s[L.EST_X + 3 * a + c] + s[L.OUT_ERR + 2 * a + c]
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _compose(s, p, topic, out, m):
     """One telemetry message of the flight into ``out`` (field order of scart_bench.dataset.schema)."""
     if topic == L.D_ATT:
@@ -660,7 +664,7 @@ def _compose(s, p, topic, out, m):
             out[m, a] = s[L.BATTERY + a]
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _receive(s, topic, vals, m):
     """The navigator takes in a (delivered) telemetry message."""
     if topic == L.D_LPN:
@@ -671,7 +675,7 @@ def _receive(s, topic, vals, m):
         s[L.NAV_YAW] = vals[m, 2]
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _navigate(s, wps, p, t, out, m):
     """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed)."""
     k_last = wps.shape[0] - 1
@@ -741,7 +745,7 @@ def _navigate(s, wps, p, t, out, m):
     out[m, 5] = armed
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _vel_axis(s, p, a, dv, armed, dt):
     """Slewed setpoint, error, derivative and PID acceleration of one axis."""
     s[L.CTRL_VEL_SP + a] = s[L.CTRL_VEL_SP + a] + dv if armed else 0.0
@@ -754,7 +758,7 @@ def _vel_axis(s, p, a, dv, armed, dt):
     return err, acc
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _velocity_control(s, p):
     """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust (50 Hz)."""
     dt = NAV_DT
@@ -807,7 +811,7 @@ def _velocity_control(s, p):
     s[L.THRUST_SP] = _clip(thrust, p[K_THRUST_LO], p[K_THRUST_HI])
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _land_detector(s, p):
     evidence = (s[L.ARMED] > 0.5 and s[L.SETPOINT_IN + 2] > 0.1 and abs(_out(s, 2, 1)) < 0.25
                 and s[L.THRUST_SP] < 0.7 * p[K_HOVER])
@@ -818,7 +822,7 @@ def _land_detector(s, p):
         s[L.VEL_INT], s[L.VEL_INT + 1], s[L.VEL_INT + 2] = 0.0, 0.0, 0.0
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _attitude_control(s, p):
     e0 = 0.5 * (_ata(s, 2, 1) - _ata(s, 1, 2))
     e1 = 0.5 * (_ata(s, 0, 2) - _ata(s, 2, 0))
@@ -828,14 +832,14 @@ def _attitude_control(s, p):
     s[L.RATE_SP + 2] = _clip(-p[K_ATT_P + 2] * e2, -p[K_RATE_MAX + 2], p[K_RATE_MAX + 2])
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _ata(s, r, c):
     """(Rd^T R)[r, c] of the attitude setpoint Rd and the estimated attitude R."""
     d, e = L.ATT_SP, L.R_CTRL
     return s[d + r] * s[e + c] + s[d + 3 + r] * s[e + 3 + c] + s[d + 6 + r] * s[e + 6 + c]
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _control(s, p, step, due, sp, m_sp, sp_ok, w, k, rec_truth, m_truth, x, env):
     """Setpoint in, controllers, battery, truth, end of flight (after the navigator)."""
     if due[L.D_SETPOINT, step]:
@@ -891,7 +895,7 @@ def _control(s, p, step, due, sp, m_sp, sp_ok, w, k, rec_truth, m_truth, x, env)
         s[L.DONE] = 1.0
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _telemetry(s, p, step, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, receive):
     """Compose the telemetry due at this step into the recordings; the navigator takes it in."""
     if due[L.D_ATT, step]:
@@ -917,7 +921,7 @@ def _telemetry(s, p, step, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, receive):
             _receive(s, L.D_LPN, r3, mi[L.D_LPN, step])
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _record_uorb(s, p, step, due, mi, u0, u1, u2, u3):
     """The flight controller's streams due at this step, after the estimator (generator.telemetry.schedule.
     UORB_STREAMS): the IMU sample it received, its attitude, its output position and velocity, the mixer."""
@@ -944,7 +948,7 @@ def _record_uorb(s, p, step, due, mi, u0, u1, u2, u3):
         u3[m, 5] = armed
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def _step(s, tbuf, hist, wps, p, step, w, k, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, rec_sp, rec_truth, x,
           u0, u1, u2, u3):
     """One whole step of one flight with no attack layer (noise: w[k])."""
@@ -1010,7 +1014,7 @@ def stage_sense(S, tbuf, p, rows, step, noise, due):
         _sense(S[i], tbuf[i], p, step, noise, j, due, x, False)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_physics(S, tbuf, p, rows, step, noise, X):
     """Wind, rate control and dynamics under the physical disturbances X (N, X_WIDTH)."""
     for j in range(rows.shape[0]):
@@ -1018,7 +1022,7 @@ def stage_physics(S, tbuf, p, rows, step, noise, X):
         _physics(S[i], tbuf[i], p, step, noise, j, X[i], True)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_sensors(S, tbuf, p, rows, step, noise, due, X):
     """The sensor samples due, under the physical disturbances X (magnetic field, GPS signals)."""
     for j in range(rows.shape[0]):
@@ -1026,7 +1030,7 @@ def stage_sensors(S, tbuf, p, rows, step, noise, due, X):
         _sensors(S[i], tbuf[i], p, step, noise, j, due, X[i], True)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_estimate(S, hist, p, rows, step, due, mag_ok, baro_ok, gps_ok):
     """The estimator's step; ``*_ok`` (N,): the sample reached it (undelivered samples are not fused)."""
     for j in range(rows.shape[0]):
@@ -1034,7 +1038,7 @@ def stage_estimate(S, hist, p, rows, step, due, mag_ok, baro_ok, gps_ok):
         _estimate(S[i], hist[i], p, step, due, mag_ok[i], baro_ok[i], gps_ok[i])
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_record_uorb(S, p, rows, step, due, mi, u0, u1, u2, u3):
     """Record the uORB streams due at this step (for ``rows``), after the estimator's stage."""
     for j in range(rows.shape[0]):
@@ -1042,7 +1046,7 @@ def stage_record_uorb(S, p, rows, step, due, mi, u0, u1, u2, u3):
         _record_uorb(S[i], p, step, due, mi, u0[:, i], u1[:, i], u2[:, i], u3[:, i])
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_telemetry(S, p, rows, step, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, receive):
     """Compose the telemetry due (for ``rows``); with ``receive`` the navigator takes it in unchanged."""
     for j in range(rows.shape[0]):
@@ -1051,7 +1055,7 @@ def stage_telemetry(S, p, rows, step, due, mi, r0, r1, r2, r3, r4, r5, r6, r7, r
                    receive)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_navigate(S, wps, p, rows, step, out):
     """The navigator's setpoint for ``rows`` into ``out`` (N, 6)."""
     for j in range(rows.shape[0]):
@@ -1059,7 +1063,7 @@ def stage_navigate(S, wps, p, rows, step, out):
         _navigate(S[i], wps[i], p, step * p[K_DT], out, i)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def stage_control(S, p, rows, step, sp, sp_ok, noise, due, mi, rec_truth, X, env):
     """Controllers and the rest of the step; ``sp`` (N, 6) / ``sp_ok`` (N,): the setpoint delivered;
     with ``env`` the battery sags by X's (N, X_WIDTH) battery column."""
@@ -1068,7 +1072,7 @@ def stage_control(S, p, rows, step, sp, sp_ok, noise, due, mi, rec_truth, X, env
         _control(S[i], p, step, due, sp, i, sp_ok[i], noise, j, rec_truth[:, i], mi[L.D_TRUTH, step], X[i], env)
 
 
-@njit(**_JIT)
+@njit(**_HOT)
 def receive_rows(S, rows, topic, vals, ok):
     """The navigator takes in a (possibly altered) telemetry message where it was delivered."""
     for j in range(rows.shape[0]):
