@@ -153,7 +153,7 @@ def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[st
         writer.add_written(side.rows())
 
 
-class _RowWriter:
+class RowWriter:
     """Writes flights in the calling process and keeps their manifest rows (the csv-mode process)."""
 
     def __init__(self, out: Path, fmt: str, layout: str):
@@ -178,7 +178,7 @@ def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, so
 
     exit_with_parent(parent)
     try:
-        w = _RowWriter(out, fmt, layout)
+        w = RowWriter(out, fmt, layout)
         csv_flights(w, load_configurations(grid_path(grid)), sources, config_dict, batch_size,
                     lambda msg: conn.send(("say", msg)), stds)
         conn.send(("rows", w.rows))

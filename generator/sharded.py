@@ -1,7 +1,7 @@
 """Generation sharded over a dask cluster: the same dataset, byte for byte, flown by many workers.
 
 The unit of work (a shard) is one batch of flights as a local generation flies it
-(``Profile.batch_size`` flights, see :func:`generator.generate.plan_generation`), so every flight is
+(``Profile.batch_size`` flights, see :func:`generator.plan.plan_generation`), so every flight is
 computed from the same inputs in the same batch as locally. Two phases, as locally:
 
 1. the normal flights, one shard per batch; the shards return their validation and csv-source
@@ -29,14 +29,14 @@ from scart_bench.dataset import DatasetWriter
 from scart_bench.errors import ClusterError
 from scart_bench.generator.attack_effect import field_stds
 from scart_bench.generator.attacks import (
-    _RowWriter,
+    RowWriter,
     batch_count,
     csv_applicable,
     csv_flights,
     grid_path,
     simulation_flights,
 )
-from scart_bench.generator.generate import GenerationPlan, Sources, fly_normal_batch
+from scart_bench.generator.plan import GenerationPlan, Sources, fly_normal_batch
 from scart_bench.generator.scart.grid import load_configurations
 
 
@@ -83,7 +83,7 @@ def fly_shard(plan: GenerationPlan, shard: Shard, fmt: str, layout: str, target:
 
     folder = Path(tempfile.mkdtemp(prefix="scart-shard-", dir=worker_temp_root()))
     try:
-        writer = _RowWriter(folder, fmt, layout)
+        writer = RowWriter(folder, fmt, layout)
         (folder / "flights").mkdir()
         sources: Sources = {}
         say = _quiet

@@ -253,7 +253,7 @@ def generated_flights(n: int, seed: int = 0, gps_accuracy: str | None = None, ti
     import dataclasses
 
     from scart_bench.generator.engine.simulate import FlightConfig, simulate
-    from scart_bench.generator.generate import normal_seeds
+    from scart_bench.generator.plan import normal_seeds
     from scart_bench.generator.telemetry.tables import flight_views, uorb_stream_tables
     from scart_bench.generator.telemetry.uorb import uorb_view
 

@@ -2,7 +2,8 @@
 
 The rooms, from the top: the command line (``scart_bench.cli``) -> the reports -> the benchmark (the run
 and its evaluation) -> the detectors and the generator (side by side, neither imports the other) ->
-the dataset format (``scart_bench.dataset``) -> the shared base (``scart_bench.errors``, ``names``). A
+the shared services (``scart_bench.storage``: URLs; ``scart_bench.cluster``: Dask) -> the dataset format
+(``scart_bench.dataset``) -> the shared base (``scart_bench.errors``, ``names``). A
 room imports only rooms below it, so no package imports one that imports it (a loop between
 packages fails here even when no two modules form a circle).
 """
@@ -21,15 +22,20 @@ FOLDERS = {"benchmark": ROOT / "benchmark", "detectors": ROOT / "detectors", "ge
 
 #: room -> the rooms it may import (besides itself)
 BASE = {"base"}
+#: the shared services beside the dataset format: datasets and run folders at URLs (``scart_bench.storage``,
+#: which uses the dataset's folder lock) and the connection to a Dask cluster (``scart_bench.cluster``)
+SERVICES = {"storage", "cluster"}
 ALLOWED = {
     "base": set(),
     "dataset": BASE,
-    "generator": {"dataset"} | BASE,
+    "cluster": BASE,
+    "storage": {"dataset"} | BASE,
+    "generator": {"dataset"} | SERVICES | BASE,
     "detectors": {"dataset"} | BASE,
     "testing": {"generator", "detectors", "dataset"} | BASE,  # the conformance kit for plugin authors
-    "benchmark": {"generator", "detectors", "dataset"} | BASE,
-    "reports": {"benchmark", "generator", "detectors", "dataset"} | BASE,
-    "cli": {"reports", "benchmark", "generator", "detectors", "dataset"} | BASE,
+    "benchmark": {"generator", "detectors", "dataset"} | SERVICES | BASE,
+    "reports": {"benchmark", "generator", "detectors", "dataset"} | SERVICES | BASE,
+    "cli": {"reports", "benchmark", "generator", "detectors", "dataset"} | SERVICES | BASE,
     "main": {"cli"},
 }
 

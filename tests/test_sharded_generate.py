@@ -58,7 +58,7 @@ def test_failed_shard_commits_nothing(tmp_path, monkeypatch, capsys):
     """A shard that fails on its worker: one line naming the shard, exit 2, no dataset at --out."""
     from distributed import LocalCluster
 
-    import scart_bench.generator.generate as gen
+    import scart_bench.generator.plan as gen
 
     def broken(*a, **k):
         raise OSError(28, "No space left on device")
