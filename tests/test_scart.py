@@ -23,6 +23,9 @@ from scart_bench.names import check_id
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "ulog"
 RFLYMAD = SHARED / "rflymad_TestCase_1_1000000000.ulg"
 PX4_SAMPLE = SHARED / "px4_sample_log_small.ulg"
+#: the real PX4 logs of ../shared (a checkout without them skips these tests, as test_importers does)
+needs_ulogs = pytest.mark.skipif(not (RFLYMAD.exists() and PX4_SAMPLE.exists()),
+                                 reason=f"reference ULogs not found in {SHARED}")
 X, Y = TRUTH_FIELDS.index("x"), TRUTH_FIELDS.index("y")
 
 
@@ -365,6 +368,7 @@ std = 20.0
 """
 
 
+@needs_ulogs
 @pytest.mark.parametrize("log, start, topics", [
     (RFLYMAD, 15.0, None),
     (PX4_SAMPLE, 2.0, "vehicle_gps_position,sensor_combined,vehicle_local_position,vehicle_attitude"),
@@ -439,6 +443,7 @@ def test_bad_scenario_files_name_file_key_and_allowed_values(tmp_path, capsys, n
     assert not out.exists()
 
 
+@needs_ulogs
 def test_attack_with_a_grid_gives_one_copy_per_configuration(tmp_path):
     grid = tmp_path / "grid.toml"
     grid.write_text("""
