@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.benchmark.scoring import TIMING_COLUMNS
 from scart_bench.dataset import DatasetWriter, FlightRecord
 from scart_bench.detectors.base import Detector
 
@@ -37,6 +38,12 @@ ATTACKS = (
     ("csv-002", "csv", "bias", "local_position_ned.z", 0.01),  # too small to see
 )
 SPLITS = ("train",) * 4 + ("validation",) * 3 + ("test",) * 3
+
+
+def quality(run: Path) -> pd.DataFrame:
+    """metrics.csv without the timing columns (those differ between any two runs)."""
+    m = pd.read_csv(run / "metrics.csv")
+    return m.drop(columns=[c for c in (*TIMING_COLUMNS, "rows") if c in m.columns]).set_index("detector")
 
 
 def plugin(cls_name: str) -> str:

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from run_fixtures import ATTACKS, plugin, write_dataset
+from run_fixtures import ATTACKS, plugin, quality, write_dataset
 from sklearn.metrics import roc_auc_score
 
-from scart_bench.benchmark.scoring import DEFAULT_METRICS, TIMING_COLUMNS
+from scart_bench.benchmark.scoring import DEFAULT_METRICS
 from scart_bench.benchmark.store import RunStore, read_npz
 from scart_bench.cli.main import main
 
@@ -38,12 +38,6 @@ def reference_run(dataset, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("runs") / "reference"
     assert main(["run", *OK_PAIR, "--dataset", str(dataset), "--out", str(out), "--jobs", "2"]) == 0
     return out
-
-
-def quality(run: Path) -> pd.DataFrame:
-    """metrics.csv without the timing columns (those differ between any two runs)."""
-    m = pd.read_csv(run / "metrics.csv")
-    return m.drop(columns=[c for c in (*TIMING_COLUMNS, "rows") if c in m.columns]).set_index("detector")
 
 
 def snapshot(folder: Path) -> dict[str, tuple[str, int]]:

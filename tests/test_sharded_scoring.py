@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from run_fixtures import plugin, write_dataset
+from run_fixtures import plugin, quality, write_dataset
 
-from scart_bench.benchmark.scoring import TIMING_COLUMNS
 from scart_bench.benchmark.sharding import split_flights
 from scart_bench.benchmark.store import read_npz
 from scart_bench.cli.main import main
@@ -30,11 +29,6 @@ def unsharded(dataset, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("runs") / "one"
     assert main(["run", *DETS, "--dataset", str(dataset), "--out", str(out), "--jobs", "2"]) == 0
     return out
-
-
-def quality(run: Path) -> pd.DataFrame:
-    m = pd.read_csv(run / "metrics.csv")
-    return m.drop(columns=[c for c in (*TIMING_COLUMNS, "rows") if c in m.columns]).set_index("detector")
 
 
 def same_scores(a: Path, b: Path, det: str) -> bool:
