@@ -35,6 +35,7 @@ from pathlib import Path
 from scart_bench.benchmark.jobs import JobResult, run_job
 from scart_bench.cluster import CONNECT_TIMEOUT_S
 from scart_bench.errors import RunError
+from scart_bench.progress import duration, progress_every_s
 
 #: Seconds a worker may take to start Python and import the benchmark before its job begins; the
 #: job's own ``--timeout`` is counted from then, so a loaded machine does not time out fast jobs.
@@ -353,7 +354,7 @@ class Progress:
         name = spec.detector + (f" [shard {spec.shard[0] + 1}/{spec.shard[1]}]" if spec.shard else "")
         rate = f", {rows / secs:,.0f} rows/s" if secs > 0 else ""
         left = secs / done * (total - done) if done else float("nan")
-        eta = f", about {_duration(left)} left" if done and total > done else ""
+        eta = f", about {duration(left)} left" if done and total > done else ""
         self.note(f"{name}: {done}/{total} flights scored{rate}{eta}")
 
     def done(self, name: str, res) -> None:
@@ -371,10 +372,6 @@ class Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
-
-
-def _duration(seconds: float) -> str:
-    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
 
 
 def _watch_parent() -> None:
@@ -406,14 +403,6 @@ def _progress_writer(path: Path, every_s: float = 0.5):
         os.replace(tmp, path)
 
     return report
-
-
-def progress_every_s() -> float:
-    """Seconds between progress lines of a running job (``$SCART_BENCH_PROGRESS_S``, default 30)."""
-    try:
-        return max(0.05, float(os.environ.get("SCART_BENCH_PROGRESS_S", "30")))
-    except ValueError:
-        return 30.0
 
 
 def _worker_main(argv: list[str]) -> int:

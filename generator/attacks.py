@@ -56,11 +56,13 @@ def config_id(config: list[Scenario]) -> str:
 
 def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], seed: int, cfg: FlightConfig,
                        config_dict: dict, batch_size: int, say: Callable[[str], None],
-                       stds: dict[str, float] | None = None, batches: Iterable[int] | None = None) -> None:
+                       stds: dict[str, float] | None = None, batches: Iterable[int] | None = None,
+                       advance: Callable[[str, int], None] | None = None) -> None:
     """Fly every configuration (the scenarios of one flight) in the closed loop and write the flights.
 
     ``batches``: only these batch numbers (a shard of a distributed generation,
     :mod:`generator.sharded`); the flights of a batch are the same whichever batches are flown.
+    ``advance`` is told ``("simulation", flights)`` after each batch.
 
     Each attacked flight's normal twin (its seed flown without the layer) is flown too; its truth
     goes into the attacked flight's simulator view (``twin_truth``) and the attack's impact into
@@ -82,6 +84,8 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
             record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
             record.simulator[TWIN_TOPIC] = twin_truth
             writer.write(record)
+        if advance is not None:
+            advance("simulation", len(idx))
 
 
 def batch_count(n_flights: int, batch_size: int) -> int:
@@ -102,10 +106,12 @@ def csv_applicable(config: list[Scenario]) -> bool:
 
 def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: list[tuple[str, dict, int]],
                 config_dict: dict, batch_size: int, say: Callable[[str], None],
-                stds: dict[str, float] | None = None, batches: Iterable[int] | None = None) -> None:
+                stds: dict[str, float] | None = None, batches: Iterable[int] | None = None,
+                advance: Callable[[str, int], None] | None = None) -> None:
     """Replay every link configuration on a recorded normal flight (``sources``: id, topic tables,
     seed); configurations that cannot apply to a recording get no copy. ``batches``: only these
-    batch numbers (see :func:`simulation_flights`); ``sources`` must then still be the full list."""
+    batch numbers (see :func:`simulation_flights`); ``sources`` must then still be the full list.
+    ``advance`` is told ``("csv", flights)`` after each batch."""
     skipped = [config_id(c) for c in configs if not csv_applicable(c)]
     if skipped and batches is None:
         say(f"csv mode: no copy of {len(skipped)} configuration(s) with no link scenario (sensor, command, "
@@ -127,11 +133,13 @@ def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: l
         for result, i, (sid, topics, sseed) in zip(results, idx, src):
             writer.write(csv_record(f"csv-{config_id(configs[i])}", topics, result, configs[i], sseed, sid,
                                     {**config_dict, "source_flight": sid}, stds))
+        if advance is not None:
+            advance("csv", len(idx))
 
 
 def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[str, dict, int]], seed: int,
                    cfg: FlightConfig, config_dict: dict, say: Callable[[str], None],
-                   stds: dict[str, float] | None = None) -> None:
+                   stds: dict[str, float] | None = None, advance: Callable[[str, int], None] | None = None) -> None:
     """Both modes for every configuration of the profile's grid (or sweep, or scenario file);
     ``normal_sources``: the csv_source flights; ``stds``: validation std per ``topic.field``.
 
@@ -140,15 +148,15 @@ def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[st
     sources, so the files are the same as one after the other); its manifest rows follow the
     simulation flights', as before."""
     configs = load_configurations(grid_path(profile.scenario_grid))
-    side = _CsvProcess.start(writer, profile, normal_sources, config_dict, say, stds)
+    side = _CsvProcess.start(writer, profile, normal_sources, config_dict, say, stds, advance)
     try:
-        simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say, stds)
+        simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say, stds, advance=advance)
     except BaseException:
         if side is not None:
             side.stop()
         raise
     if side is None:
-        csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds)
+        csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds, advance=advance)
     else:
         writer.add_written(side.rows())
 
@@ -180,7 +188,8 @@ def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, so
     try:
         w = RowWriter(out, fmt, layout)
         csv_flights(w, load_configurations(grid_path(grid)), sources, config_dict, batch_size,
-                    lambda msg: conn.send(("say", msg)), stds)
+                    lambda msg: conn.send(("say", msg)), stds,
+                    advance=lambda part, n: conn.send(("progress", (part, n))))
         conn.send(("rows", w.rows))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         try:
@@ -194,19 +203,20 @@ def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, so
 
 
 class _CsvProcess:
-    """csv mode in a process of its own; relays its progress messages to ``say``."""
+    """csv mode in a process of its own; relays its progress messages to ``say`` and its counts
+    to ``advance``."""
 
-    def __init__(self, proc, conn, say: Callable[[str], None]):
+    def __init__(self, proc, conn, say: Callable[[str], None], advance: Callable[[str, int], None] | None = None):
         import threading
 
-        self.proc, self.conn, self.say = proc, conn, say
+        self.proc, self.conn, self.say, self.advance = proc, conn, say, advance
         self.result: tuple[str, object] | None = None
         self.thread = threading.Thread(target=self._relay, daemon=True, name="csv-mode-relay")
         self.thread.start()
 
     @classmethod
     def start(cls, writer: DatasetWriter, profile, sources, config_dict: dict, say: Callable[[str], None],
-              stds) -> _CsvProcess | None:
+              stds, advance: Callable[[str, int], None] | None = None) -> _CsvProcess | None:
         if getattr(writer, "_pool", None) is None:  # no worker process: stay in this one
             return None
         import multiprocessing
@@ -219,7 +229,7 @@ class _CsvProcess:
                                  str(profile.scenario_grid), sources, config_dict, profile.batch_size, stds))
         proc.start()
         send.close()
-        return cls(proc, recv, say)
+        return cls(proc, recv, say, advance)
 
     def _relay(self) -> None:
         try:
@@ -227,6 +237,9 @@ class _CsvProcess:
                 kind, payload = self.conn.recv()
                 if kind == "say":
                     self.say(payload)
+                elif kind == "progress":
+                    if self.advance is not None:
+                        self.advance(*payload)
                 else:
                     self.result = (kind, payload)
                     return

@@ -16,6 +16,7 @@ from scart_bench.generator.attack_effect import field_stds
 from scart_bench.generator.attacks import attack_flights, batch_count
 from scart_bench.generator.engine.simulate import FlightConfig
 from scart_bench.generator.plan import GenerationPlan, Sources, fly_normal_batch, plan_generation
+from scart_bench.progress import Progress
 from scart_bench.storage import is_url, local_path
 
 
@@ -24,7 +25,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
                      config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
                      scenarios: str | Path | None = None, layout: str | None = None,
                      uorb: bool | None = None, batch_size: int | None = None, executor: str = "local",
-                     scheduler: str | None = None, jobs: int = 1) -> Path | str:
+                     scheduler: str | None = None, jobs: int = 1, progress: Progress | None = None) -> Path | str:
     """Generate a complete dataset; returns its folder (or URL). The manifest is written last.
 
     ``out``: a folder, or an fsspec URL (``s3://bucket/prefix``; :mod:`scart_bench.storage`).
@@ -40,13 +41,21 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     ``executor="dask"``: the batches are flown and written as shards on a dask cluster
     (``scheduler``: its address, or None for a LocalCluster of ``jobs`` workers) and the manifest
     is committed here; the dataset is byte-identical to a local one (:mod:`generator.sharded`).
+
+    ``progress``: counts the flights written per kind (normal, simulation, csv) against the plan's
+    totals, whichever executor flies them (:mod:`scart_bench.progress`).
     """
     plan = plan_generation(profile, seed, n_normal, with_attacks, config, scenarios, uorb, batch_size)
     layout = check_layout(fmt, layout)
     if executor not in ("local", "dask"):
         raise DatasetError(f"executor {executor!r}: expected local or dask")
+    advance = None
+    if progress is not None:
+        for kind, total in plan.totals().items():
+            progress.expect(kind, total)
+        advance = progress.add
     if is_url(out):
-        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log)
+        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log, advance)
         return out
     out = local_path(out)
     check_output_dir(out, overwrite=overwrite)
@@ -56,14 +65,14 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
         if executor == "dask":
             from scart_bench.generator.sharded import generate_sharded
 
-            generate_sharded(plan, partial, fmt, layout, scheduler=scheduler, jobs=jobs, log=log)
+            generate_sharded(plan, partial, fmt, layout, scheduler=scheduler, jobs=jobs, log=log, advance=advance)
         else:
-            _write_all(partial, plan, fmt, log, layout)
+            _write_all(partial, plan, fmt, log, layout, advance)
     return out
 
 
 def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, overwrite: bool, executor: str,
-                     scheduler: str | None, jobs: int, log) -> None:
+                     scheduler: str | None, jobs: int, log, advance=None) -> None:
     """A dataset at an object-store URL (scart_bench.storage): written here and uploaded with its
     manifest last; with dask, the workers upload their flights and this process the manifest.
     An old dataset there is removed, manifest first, just before the new one is uploaded."""
@@ -85,13 +94,14 @@ def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, over
 
             clear(url)
             try:
-                generate_sharded(plan, local, fmt, layout, scheduler=scheduler, jobs=jobs, log=log, target=url)
+                generate_sharded(plan, local, fmt, layout, scheduler=scheduler, jobs=jobs, log=log, target=url,
+                                 advance=advance)
                 publish_dataset(local, url, flights_uploaded=True)
             except BaseException:
                 clear(url)  # what the workers uploaded: no manifest was written
                 raise
             return
-        _write_all(local, plan, fmt, log, layout)
+        _write_all(local, plan, fmt, log, layout, advance)
         clear(url)
         try:
             publish_dataset(local, url)
@@ -100,24 +110,25 @@ def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, over
             raise
 
 
-def _write_all(partial: Path, plan: GenerationPlan, fmt: str, log, layout: str | None = None) -> None:
+def _write_all(partial: Path, plan: GenerationPlan, fmt: str, log, layout: str | None = None,
+               advance: Callable[[str, int], None] | None = None) -> None:
     # one worker process writes flights while this one simulates the next batch
     writer = DatasetWriter(partial, fmt=fmt, workers=1, layout=layout, info=plan.info())
     try:
-        _fly_and_write(writer, plan, log)
+        _fly_and_write(writer, plan, log, advance)
     except BaseException:
         writer.abort()
         raise
     writer.close()
 
 
-def _fly_and_write(writer: DatasetWriter, plan: GenerationPlan, log) -> None:
+def _fly_and_write(writer: DatasetWriter, plan: GenerationPlan, log, advance=None) -> None:
     say = log or (lambda msg: None)
     sources: Sources = {"csv_source": [], "validation": []}
     for b in range(batch_count(plan.count, plan.profile.batch_size)):
-        for k, v in fly_normal_batch(writer, plan, b, say).items():
+        for k, v in fly_normal_batch(writer, plan, b, say, advance).items():
             sources[k].extend(v)
     if plan.attacks:
         stds = field_stds([topics for _, topics, _ in sources["validation"]])
         attack_flights(writer, plan.profile, sources["csv_source"], plan.seed, plan.config, plan.config_dict, say,
-                       stds)
+                       stds, advance)

@@ -14,7 +14,7 @@ import numpy as np
 from scart_bench.dataset import (
     DatasetError,
 )
-from scart_bench.generator.attacks import strip_labels
+from scart_bench.generator.attacks import csv_applicable, grid_path, strip_labels
 from scart_bench.generator.engine.flight_batch import defaults_summary
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.profiles import Profile, get_profile
@@ -67,6 +67,18 @@ class GenerationPlan:
     def attacks(self) -> bool:
         return self.with_attacks and self.profile.scenario_grid is not None
 
+    def totals(self) -> dict[str, int]:
+        """Flights the generation writes per kind: normal, and with attacks simulation (one per
+        configuration) and csv (one per configuration with a link scenario, when a csv source is
+        reserved); what its progress counts towards."""
+        out = {"normal": self.count}
+        if self.attacks:
+            configs = load_configurations(grid_path(self.profile.scenario_grid))
+            out["simulation"] = len(configs)
+            if "csv_source" in self.split_of:
+                out["csv"] = sum(csv_applicable(c) for c in configs)
+        return out
+
     def info(self) -> dict:
         """dataset.json's content (before format and layout)."""
         return {"profile": self.profile.name, "seed": self.seed, "n_normal": self.count, "versions": versions(),
@@ -112,9 +124,11 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
 Sources = dict[str, list[tuple[str, dict, int]]]
 
 
-def fly_normal_batch(writer, plan: GenerationPlan, batch: int, say: Callable[[str], None]) -> Sources:
+def fly_normal_batch(writer, plan: GenerationPlan, batch: int, say: Callable[[str], None],
+                     advance: Callable[[str, int], None] | None = None) -> Sources:
     """Fly and write the ``batch``-th batch of normal flights; returns its validation and csv_source
-    flights (id, link topics without labels, seed): the attacked flights' references."""
+    flights (id, link topics without labels, seed): the attacked flights' references. ``advance``
+    is told ``("normal", flights)`` once the batch is written (:class:`scart_bench.progress.Progress`)."""
     size, count = plan.profile.batch_size, plan.count
     start = batch * size
     chunk = plan.seeds[start:start + size]
@@ -127,4 +141,6 @@ def fly_normal_batch(writer, plan: GenerationPlan, batch: int, say: Callable[[st
         writer.write(record)
         if plan.split_of[i] in sources:
             sources[plan.split_of[i]].append((record.flight_id, strip_labels(record.navigator), plan.seeds[i]))
+    if advance is not None:
+        advance("normal", len(chunk))
     return sources

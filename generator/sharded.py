@@ -116,10 +116,12 @@ def _quiet(msg: str) -> None:
 
 
 def generate_sharded(plan: GenerationPlan, out: Path, fmt: str, layout: str, scheduler: str | None = None,
-                     jobs: int = 1, log: Callable[[str], None] | None = None, target: str | None = None) -> None:
+                     jobs: int = 1, log: Callable[[str], None] | None = None, target: str | None = None,
+                     advance: Callable[[str, int], None] | None = None) -> None:
     """Fly ``plan`` on a dask cluster and write the dataset into the (new, empty) folder ``out``:
     flight files, ``dataset.json`` and, last, the manifest. ``target``: the dataset's object-store
-    URL, where workers upload their flights themselves (``out`` then receives no flight files)."""
+    URL, where workers upload their flights themselves (``out`` then receives no flight files).
+    ``advance`` is told ``(kind, flights)`` as each shard comes back."""
     from scart_bench.cluster import connect
 
     say = log or _quiet
@@ -129,7 +131,7 @@ def generate_sharded(plan: GenerationPlan, out: Path, fmt: str, layout: str, sch
         with connect(scheduler, jobs) as cluster:
             say(f"dask: {len(normal)} normal and {len(attacked)} attacked shard(s) of up to "
                 f"{plan.profile.batch_size} flights on {len(cluster.client.scheduler_info()['workers'])} worker(s)")
-            done = _run(cluster.client, normal, lambda s: (plan, s, fmt, writer.layout, target), out, say)
+            done = _run(cluster.client, normal, lambda s: (plan, s, fmt, writer.layout, target), out, say, advance)
             refs: Sources = {"csv_source": [], "validation": []}
             for res in done:
                 for k, v in res.sources.items():
@@ -140,7 +142,7 @@ def generate_sharded(plan: GenerationPlan, out: Path, fmt: str, layout: str, sch
                     if any(s.kind == "csv" for s in attacked) else None
                 done += _run(cluster.client, attacked,
                              lambda s: (plan, s, fmt, writer.layout, target, sources if s.kind == "csv" else None,
-                                        stds), out, say)
+                                        stds), out, say, advance)
         for res in done:
             writer.add_written(res.rows)
     except BaseException:
@@ -150,7 +152,7 @@ def generate_sharded(plan: GenerationPlan, out: Path, fmt: str, layout: str, sch
 
 
 def _run(client, shards: list[Shard], args: Callable[[Shard], tuple], out: Path,
-         say: Callable[[str], None]) -> list[ShardResult]:
+         say: Callable[[str], None], advance: Callable[[str, int], None] | None = None) -> list[ShardResult]:
     """Run ``shards`` on the cluster; write returned files into ``out``; results in shard order."""
     from distributed import as_completed
 
@@ -173,6 +175,8 @@ def _run(client, shards: list[Shard], args: Callable[[Shard], tuple], out: Path,
             res.files = {}
             results[futures[fut]] = res
             say(f"[{n}/{len(shards)}] shard {shard}: {len(res.rows)} flight(s) written")
+            if advance is not None:
+                advance(shard.kind, len(res.rows))
     finally:
         for fut in futures:
             fut.cancel()

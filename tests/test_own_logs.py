@@ -76,6 +76,7 @@ def test_own_logs_to_a_leaderboard_row_per_detector(tmp_path, capsys):
     for args in steps:
         topics = TOPICS if "px4" not in args[0] else "vehicle_gps_position,vehicle_local_position,sensor_combined"
         assert main(["import", *args, "--out", str(ds), "--topics", topics]) == 0, capsys.readouterr().err
+    assert "import: read 2/2, written 2/2 logs in " in capsys.readouterr().err  # the last import: two logs
     manifest = open_dataset(ds).manifest
     assert manifest["flight_id"].is_unique and len(manifest) == 8
     assert set(manifest["split"]) == {"train", "validation", "test", "csv_source"}
@@ -84,6 +85,7 @@ def test_own_logs_to_a_leaderboard_row_per_detector(tmp_path, capsys):
     assert abs(durations["log-rflymad_export-1s-end"] - durations["log-rflymad_testcase_1_1000000000-1s-end"]) < 1.5
 
     assert main(["attack", "--dataset", str(ds), "--scenario", str(SCENARIOS / "sensor_gps_jump.toml")]) == 0
+    assert "attack: read 1/1, replayed 1/1 flights in " in capsys.readouterr().err  # one test flight, one copy
     attacked = "csv-log-rflymad_testcase_1_1000000000-1s-end-sensor-gps-jump"
     row = open_dataset(ds).manifest.set_index("flight_id").loc[attacked]
     assert row["mode"] == "csv" and row["split"] == "test"

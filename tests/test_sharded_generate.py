@@ -46,6 +46,8 @@ def test_sharded_generation_is_byte_identical_to_local(tmp_path, cluster, capsys
                  "--scheduler", cluster.scheduler_address]) == 0
     err = capsys.readouterr().err
     assert "2 normal and 2 attacked shard(s)" in err and "[2/2] shard" in err
+    # both executors count every flight written, csv mode's (another process, or shards) included
+    assert err.count("generate: normal 4/4, simulation 1/1, csv 1/1 flights in ") == 2
     local, sharded = _digest(tmp_path / "local"), _digest(tmp_path / "dask")
     assert any(k.startswith("flights/sim-") for k in local) and any(k.startswith("flights/csv-") for k in local)
     assert sharded == local

@@ -36,6 +36,7 @@ from scart_bench.generator.logs.phases import PHASE_TOPIC, phase_topic
 from scart_bench.generator.modes import csv_mode, csv_record, with_labels
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.scart.spec import ScenarioError
+from scart_bench.progress import Progress, quiet
 
 logger = logging.getLogger(__name__)
 
@@ -235,12 +236,13 @@ def non_finite_cells(tables: dict[str, pd.DataFrame]) -> dict[str, int]:
 def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", topics: list[str] | None = None,
                 start_s: float | None = None, end_s: float | None = None, seed: int = 0, fmt: str = "parquet",
                 allow_corrupt: bool = False, say: Callable[[str], None] | None = None,
-                layout: str | None = None) -> list[str]:
+                layout: str | None = None, progress: Progress | None = None) -> list[str]:
     """Add logs to dataset ``out`` (created if missing) as normal flights; returns their ids.
 
     Each log (trimmed to ``[start_s, end_s)`` if given) becomes one flight whose navigator and
     simulator views are the log's topic tables. Every log is read and checked before anything is
     written; the flights are then appended atomically (the manifest is replaced last).
+    ``progress`` counts the logs ``read`` and ``written``.
     """
     if split not in (*IMPORT_SPLITS, "auto"):
         raise DatasetError(f"--split {split!r}: expected one of {', '.join(IMPORT_SPLITS)} or auto")
@@ -258,9 +260,13 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
     splits = auto_splits(ids, seed) if split == "auto" else [split] * len(ids)
     loaded = []
     say = say or (lambda msg: None)
+    progress = progress or quiet()
+    progress.expect("read", len(paths))
+    progress.expect("written", len(paths))
     for p in paths:  # read everything first: a bad log fails before anything is written
         tables = load_flight_file(p, topics, allow_corrupt=allow_corrupt, start_s=start_s, end_s=end_s)
         loaded.append(tables)
+        progress.add("read")
         counts = non_finite_cells(tables)
         if counts:
             shown = ", ".join(f"{c} {n}" for c, n in list(counts.items())[:8]) + (" ..." if len(counts) > 8 else "")
@@ -275,6 +281,7 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
             yield flight_record(fid, with_labels(tables), with_labels(tables),
                                 {"mode": "normal", "split": sp, "seed": seed, "source_flight": str(p)},
                                 json.loads(json.dumps(config, default=str)))
+            progress.add("written")  # the writer has taken the flight
 
     append_flights(out, records(), fmt=fmt, info={"profile": "own-logs", "seed": seed}, layout=layout)
     return ids
@@ -285,7 +292,8 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
 
 
 def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tuple[str, ...] = ("test",),
-                   seed: int = 0, say: Callable[[str], None] | None = None) -> list[str]:
+                   seed: int = 0, say: Callable[[str], None] | None = None,
+                   progress: Progress | None = None) -> list[str]:
     """Add labelled attacked copies of the dataset's normal flights of split ``sources`` to it.
 
     Every configuration of the scenario (or grid) file that applies to a source flight is replayed on
@@ -294,7 +302,8 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
     others give no copy, and one line through ``say`` counts them by reason (a quantity the log
     lacks, a trigger that never held, an action that needs the closed loop). When no configuration
     applies to any flight, the first refusal is raised in full before anything is written; when
-    none starts, DatasetError. Returns the ids added.
+    none starts, DatasetError. Returns the ids added. ``progress`` counts the source flights
+    ``read`` and the copies ``replayed`` (written, or found never to start).
     """
     ds = open_dataset(dataset)
     bad = [s for s in sources if s not in ("test", "csv_source", "validation", "train")]
@@ -312,6 +321,8 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
     reasons: Counter = Counter()
     if n_closed:
         reasons["act in the closed loop (simulation mode only)"] = n_closed * len(rows)
+    progress = progress or quiet()
+    progress.expect("read", len(rows))
     flights = []
     for fid in rows["flight_id"].astype(str):
         tables = load_flight_file(ds.flight_dir(fid))
@@ -319,6 +330,8 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
         fit, why = applicable(jobs, listen, f"flight {fid}")
         reasons.update(why)
         flights.append((fid, tables, listen, fit))
+        progress.add("read")
+    progress.expect("replayed", sum(len(fit) for *_, fit in flights))
     if not any(fit for *_, fit in flights):
         _validate(jobs, flights[0][2], f"flight {flights[0][0]}")  # the first refusal, in full
     say = say or (lambda msg: None)
@@ -328,6 +341,7 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
         for fid, tables, listen, fit in flights:
             results = csv_mode([listen] * len(fit), fit, [seed] * len(fit))
             for job, result in zip(fit, results):
+                progress.add("replayed")
                 cid = f"csv-{fid}-{_config_id(job)}"
                 if not result[1]:
                     reasons["trigger never held (no attack window)"] += 1

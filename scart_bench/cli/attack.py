@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import shutil
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, staged_dataset, topic_list
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, staged_dataset, topic_list
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
@@ -16,8 +16,11 @@ def cmd_attack(args: argparse.Namespace) -> int:
             raise UsageError("--dataset adds copies to that dataset: --input, --out, --topics and --overwrite "
                              "belong to the single-log form")
         sources = tuple(s.strip() for s in args.sources.split(",") if s.strip())
-        with staged_dataset(args.dataset) as dataset:  # at a URL: a local copy, uploaded once done
-            ids = attack_dataset(dataset, args.scenario, sources=sources, seed=args.seed, say=log)
+        from scart_bench.progress import Progress
+
+        with staged_dataset(args.dataset) as dataset, Progress("attack", "flights") as progress:  # URL: a local copy
+            ids = attack_dataset(dataset, args.scenario, sources=sources, seed=args.seed, say=progress.note,
+                                 progress=progress)
         print(f"{len(ids)} attacked cop{'y' if len(ids) == 1 else 'ies'} added to {args.dataset}")
         return 0
     if not args.input or not args.out:

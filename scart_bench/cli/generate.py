@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 import shutil
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, log
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed
 from scart_bench.generator.profiles import PROFILES
 
 
@@ -43,16 +43,18 @@ def cmd_generate(args: argparse.Namespace) -> int:
         raise UsageError("--scheduler needs --executor dask")
     if args.jobs < 1:
         raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    from scart_bench.progress import Progress
     from scart_bench.storage import is_url, local_path
 
     out = args.out if is_url(args.out) else local_path(args.out)
     existed = is_url(out) or out.exists()
     try:
-        generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
-                         overwrite=args.overwrite, with_attacks=not args.normal_only, log=log,
-                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
-                         uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
-                         scheduler=args.scheduler, jobs=args.jobs)
+        with Progress("generate", "flights") as progress:
+            generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
+                             overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
+                             scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
+                             uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
+                             scheduler=args.scheduler, jobs=args.jobs, progress=progress)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind

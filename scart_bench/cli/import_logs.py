@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, log, staged_dataset, topic_list
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, staged_dataset, topic_list
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -13,10 +13,12 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     if (args.start is not None and args.start < 0) or (args.end is not None and args.end <= (args.start or 0.0)):
         raise UsageError(f"--start {args.start} / --end {args.end}: expected 0 <= start < end (seconds)")
-    with staged_dataset(args.out) as out:  # a dataset at a URL: added to in a local copy, then uploaded
+    from scart_bench.progress import Progress
+
+    with staged_dataset(args.out) as out, Progress("import", "logs") as progress:  # at a URL: a local copy, uploaded
         ids = import_logs(args.logs, out, split=args.split, topics=topic_list(args.topics), start_s=args.start,
                           end_s=args.end, seed=args.seed, fmt=args.format, allow_corrupt=args.allow_corrupt,
-                          say=log, layout=args.layout)
+                          say=progress.note, layout=args.layout, progress=progress)
     print(f"{len(ids)} flight{'' if len(ids) == 1 else 's'} added to {args.out}: {', '.join(ids)}")
     return 0
 
