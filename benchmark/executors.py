@@ -328,8 +328,9 @@ def make_executor(kind: str, scheduler: str | None = None, jobs: int = 1):
     raise RunError(f"--executor {kind!r}: expected local or dask")
 
 
-class Progress:
-    """A tqdm bar over jobs on a terminal; plain lines when stderr is not a TTY."""
+class JobProgress:
+    """A run's progress: a tqdm bar over jobs on a terminal (plain lines when stderr is not a TTY), and
+    the running jobs' own lines (flights scored, rows per second, time left)."""
 
     def __init__(self, total: int, enabled: bool = True):
         self.total, self.count, self.enabled = total, 0, enabled

@@ -263,7 +263,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
     Bad input (unknown detector, missing dataset, foreign run folder, unreachable scheduler)
     raises RunError (a ValueError) before anything in the run folder is touched.
     """
-    from scart_bench.benchmark.executors import Progress, make_executor
+    from scart_bench.benchmark.executors import JobProgress, make_executor
     from scart_bench.dataset import open_dataset
 
     store = RunStore(cfg.out_path)
@@ -315,7 +315,7 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
             store.write_flights(transfer.flights)
             store.write_table("columns.csv", transfer.dropped_table())
         skipped = [c.name for c in chosen if cfg.resume and _finished(store, c.name, keys[c.name])]
-        progress = Progress(len(chosen) - len(skipped), enabled=cfg.progress)
+        progress = JobProgress(len(chosen) - len(skipped), enabled=cfg.progress)
         if skipped:
             progress.note(f"resume: {len(skipped)} finished job(s) kept: {', '.join(skipped)}")
         key = cache_key(identity["dataset_fingerprint"] if transfer is None else plan_fingerprint(identity))
