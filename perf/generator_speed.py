@@ -3,7 +3,7 @@
     python -m perf.generator_speed [--batches 1,100,1000] [--threads 1,2] [--seed 0] [--engine auto]
                                    [--scenarios quick.toml] [--crazyflow PYTHON] [--repeat 1]
 
-For each batch size and thread count (numba's worker threads, and as many noise-drawing threads),
+For each batch size and thread count (numba's worker threads, which also draw the flights' noise),
 flies that many default-mission flights in one batch and prints wall time, simulated seconds, the
 aggregate real-time factor, flight-steps per wall second, CPU seconds (all threads), flight-steps
 per CPU second (the per-core figure: what one core gives; on a shared machine it is much steadier

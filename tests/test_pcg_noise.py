@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.generator.engine.pcg_noise import fill_rows, pcg_states
+from scart_bench.generator.engine.pcg_noise import fill_rows, fill_rows_parallel, pcg_states
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block
 
 
@@ -36,3 +36,36 @@ def test_compiled_noise_equals_numpy_standard_normal_block_after_block():
 def test_a_generator_other_than_pcg64_is_left_to_numpy():
     assert pcg_states([np.random.Generator(np.random.MT19937(1))]) is None
     assert pcg_states(_generators(2)).shape == (2, 4)
+
+
+def test_the_parallel_draw_gives_each_flight_the_same_values_as_the_serial_one():
+    n = 12
+    serial, parallel = pcg_states(_generators(n)), pcg_states(_generators(n))
+    rows = np.arange(1, n, dtype=np.int64)
+    for steps in (300, 77):
+        a = np.empty((len(rows), steps, NOISE_DIM))
+        b = np.empty_like(a)
+        fill_rows(serial, rows, a)
+        fill_rows_parallel(parallel, rows, b)
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(serial, parallel)  # each generator advanced by as much
+
+
+def test_flights_do_not_depend_on_the_kernel_thread_count():
+    """Each flight's noise is drawn by the thread that flies it: 1 or 2 threads, the same flight."""
+    import numba
+
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
+    from scart_bench.generator.params import MissionParams
+
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=6.0))
+    before = numba.get_num_threads()
+    try:
+        runs = []
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            runs.append(simulate(list(range(9)), cfg))
+    finally:
+        numba.set_num_threads(before)
+    for topic, (_, values, _) in runs[0].simulator.items():
+        np.testing.assert_array_equal(values, runs[1].simulator[topic][1], err_msg=topic)

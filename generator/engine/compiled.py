@@ -15,7 +15,6 @@ from __future__ import annotations
 import threading
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from scart_bench.dataset.schema import (
@@ -31,7 +30,7 @@ from scart_bench.dataset.schema import (
 from scart_bench.generator.engine import kernel as K
 from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.flight_batch import alive, instance_gps, instance_imu, instance_value
-from scart_bench.generator.engine.pcg_noise import fill_rows, pcg_states
+from scart_bench.generator.engine.pcg_noise import fill_rows, fill_rows_parallel, pcg_states
 from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
@@ -171,51 +170,42 @@ def schedules(max_steps: int, uorb: bool = False) -> tuple[np.ndarray, np.ndarra
 
 
 class _NoiseDrawer:
-    """Draws the next block of per-flight noise in background threads while the current block flies.
+    """Each block's per-flight noise, drawn just before the block flies, on the kernel's own threads.
 
-    Each flight's normals come from its own generator in order, so the values a flight gets do not
-    depend on the block size, the batch or the thread (numpy releases the GIL while filling; the
-    flights are split between the threads, a generator is only ever used by one).
+    Without the layer's hooks, the kernel draws each flight's block itself, in the thread that flies
+    it, right before flying it, so the values are still in cache (``fused``). With hooks, which read
+    the block's noise between stretches, the whole block is drawn first, in one parallel region
+    (``draw``). Either way each flight's normals come from its own generator in order, so the values a
+    flight gets do not depend on the block size, the batch or the threads. (Drawing in background
+    threads while the block flew put two more threads on the cores the kernel's threads use: on 2
+    cores two kernel threads kept only 1.7 of them busy, and the one-thread line took 1.2.)
     """
 
-    def __init__(self, rngs: list[np.random.Generator], steps: int, threads: int = 2):
-        from concurrent.futures import ThreadPoolExecutor
-
+    def __init__(self, rngs: list[np.random.Generator], steps: int):
         self.rngs = rngs
         # each flight's PCG64 stepped in compiled code (the same values as numpy, ~3x faster); the
         # Generators themselves are not advanced, nothing reads them after the initial conditions
         self.states = pcg_states(rngs)
-        self.threads = max(1, threads)
-        self.pool = ThreadPoolExecutor(max_workers=self.threads)
-        self.pending = None
-        # two buffers, filled in turn: fresh arrays every block cost as much in page faults and
-        # zeroing (120 MB a block at 1,000 flights) as drawing the normals
-        self.buffers = [np.empty((len(rngs), steps, NOISE_DIM)) for _ in range(2)]
-        self.turn = 0
+        # one buffer for every block: fresh arrays every block cost as much in page faults and
+        # zeroing (60 MB a block at 1,000 flights) as drawing the normals
+        self.buffer = np.empty((len(rngs), steps, NOISE_DIM))
 
-    def request(self, rows: np.ndarray, steps: int) -> None:
-        rows = rows.copy()
-        out = self.buffers[self.turn][:len(rows)]
-        self.turn = 1 - self.turn
-        cuts = np.linspace(0, len(rows), self.threads + 1).astype(int)
-        if self.states is not None:
-            futures = [self.pool.submit(fill_rows, self.states, rows[a:b], out[a:b, :steps])
-                       for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+    def fused(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(noise buffer for ``rows``, states): for the kernel to draw each flight's block itself,
+        in the thread that flies it (``run_steps``' draw); None when the generators are not PCG64."""
+        return self.buffer[:len(rows)], self.states
+
+    def draw(self, rows: np.ndarray, steps: int) -> np.ndarray:
+        """(len(rows), steps or more, dim): flight ``rows[j]``'s next ``steps`` normals in row j."""
+        out = self.buffer[:len(rows)]
+        if self.states is None:
+            fill_block(self.rngs, rows, out[:, :steps])
+        elif len(rows) * steps < PARALLEL_MIN_STEPS:
+            fill_rows(self.states, rows, out[:, :steps])
         else:
-            futures = [self.pool.submit(fill_block, self.rngs, rows[a:b], out[a:b, :steps])
-                       for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
-        self.pending = (rows, out, futures)
-
-    def take(self) -> tuple[np.ndarray, np.ndarray]:
-        """(rows drawn for, noise (rows, steps or more, dim)): the block requested last."""
-        rows, out, futures = self.pending
-        self.pending = None
-        for f in futures:
-            f.result()
-        return rows, out
-
-    def close(self) -> None:
-        self.pool.shutdown(wait=True)
+            with _PARALLEL:
+                fill_rows_parallel(self.states, rows, out[:, :steps])
+        return out
 
 
 class _Recordings:
@@ -261,33 +251,33 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
         hooks.commander = Commander(cfg.control, n, np.zeros((n, 2)), cfg.mission.land_speed)
         hooks.mission = init.waypoints
     active = np.arange(n, dtype=np.int64)
-    # as many noise-drawing threads as the kernel has worker threads (numba.set_num_threads)
-    drawer = _NoiseDrawer(init.rngs, min(BLOCK_STEPS, max_steps), threads=numba.get_num_threads())
+    drawer = _NoiseDrawer(init.rngs, min(BLOCK_STEPS, max_steps))
+    no_draw = np.zeros((0, 4), dtype=np.uint64)
     s0 = 0
-    try:
-        drawer.request(active, min(BLOCK_STEPS, max_steps))
-        while active.size and s0 < max_steps:
-            s1 = min(s0 + BLOCK_STEPS, max_steps)
-            noise_rows, noise = drawer.take()
-            nrow = np.searchsorted(noise_rows, active)  # active is a subset of the rows drawn for
-            if s1 < max_steps:
-                drawer.request(active, min(BLOCK_STEPS, max_steps - s1))  # drawn while this block flies
+    while active.size and s0 < max_steps:
+        s1 = min(s0 + BLOCK_STEPS, max_steps)
+        nrow = np.arange(len(active))  # active flight j's noise is noise[j]
+        if hooks is None and drawer.states is not None:
+            # one stretch for the whole block: each flight draws its noise in the thread that flies it
+            noise, states = drawer.fused(active)
+            _fly(len(active) * (s1 - s0), st.row, st.truth_buffer, st.history, st.waypoints, p, active, s0, s1,
+                 noise, nrow, 0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, states, s1 - s0)
+        else:  # the layer's hooks read the block's noise between stretches: draw it all first
+            noise = drawer.draw(active, s1 - s0)
             k = s0
             for h in (hooks.steps(s0, s1) if hooks else ()):
                 if h > k:
                     _fly(len(active) * (h - k), st.row, st.truth_buffer, st.history, st.waypoints, p, active, k, h,
-                         noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb)
+                         noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, no_draw, 0)
                 hooks.step(p, h, active, noise[nrow, h - s0])
                 k = h + 1
             if k < s1:
                 _fly(len(active) * (s1 - k), st.row, st.truth_buffer, st.history, st.waypoints, p, active, k, s1,
-                     noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb)
-            active = active[~st.done[active]]
-            if progress is not None:
-                progress(s1 - 1, st.done.copy())
-            s0 = s1
-    finally:
-        drawer.close()
+                     noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, no_draw, 0)
+        active = active[~st.done[active]]
+        if progress is not None:
+            progress(s1 - 1, st.done.copy())
+        s0 = s1
     exit_step = st["exit_step"].astype(np.int64)
     exit_step[exit_step < 0] = max_steps - 1
     n_steps = int(exit_step.max()) + 1

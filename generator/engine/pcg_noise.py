@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import njit, prange, types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
@@ -93,18 +93,31 @@ def _normal(shi, slo, ihi, ilo):
                 return x, shi, slo
 
 
+@njit(nogil=True, forceinline=True, cache=True)
+def fill_one(states, i, o):
+    """``o`` (steps, dim) <- flight ``i``'s next normals, in order."""
+    st = states[i]
+    shi, slo, ihi, ilo = st[0], st[1], st[2], st[3]
+    for k in range(o.shape[0]):
+        for d in range(o.shape[1]):
+            o[k, d], shi, slo = _normal(shi, slo, ihi, ilo)
+    st[0] = shi
+    st[1] = slo
+
+
 @njit(nogil=True, cache=True)
 def fill_rows(states, rows, out):
     """``out[j]`` (steps, dim) <- flight ``rows[j]``'s next normals, in order (``states``: (N, 4) uint64)."""
     for j in range(rows.shape[0]):
-        st = states[rows[j]]
-        shi, slo, ihi, ilo = st[0], st[1], st[2], st[3]
-        o = out[j]
-        for k in range(o.shape[0]):
-            for d in range(o.shape[1]):
-                o[k, d], shi, slo = _normal(shi, slo, ihi, ilo)
-        st[0] = shi
-        st[1] = slo
+        fill_one(states, rows[j], out[j])
+
+
+@njit(nogil=True, parallel=True, cache=True)
+def fill_rows_parallel(states, rows, out):
+    """fill_rows over the kernel's worker threads: each flight's generator is stepped by one thread,
+    in order, so the values do not depend on the threads (the same bytes as fill_rows)."""
+    for j in prange(rows.shape[0]):
+        fill_one(states, rows[j], out[j])
 
 
 def pcg_states(rngs: list[np.random.Generator]) -> np.ndarray | None:
