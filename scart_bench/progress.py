@@ -104,21 +104,22 @@ class Progress:
             else:
                 print(line, file=self._stream(), flush=True)
 
-    def close(self) -> None:
-        """Close the bars; the summary line (all parts, elapsed time) in either case."""
+    def close(self, summary: bool = True) -> None:
+        """Close the bars and, with ``summary``, say all parts' counts and the elapsed time once more."""
         with self._lock:
             for bar in self._bars.values():
                 bar.close()
             self._bars.clear()
-            if self.enabled and self._t0 is not None and self.totals:
+            if summary and self.enabled and self._t0 is not None and self.totals:
                 elapsed = time.monotonic() - self._t0
                 self._say(f"{self._counts()} in {duration(elapsed)}")
 
     def __enter__(self) -> Progress:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        # work that failed ends with its error alone: no summary that could read as done
+        self.close(summary=exc_type is None)
 
     # -- the line ----------------------------------------------------------------------------
     def line(self) -> str:

@@ -63,3 +63,15 @@ def test_a_quiet_progress_counts_and_says_nothing(capsys):
     p.close()
     assert p.done == {"normal": 2}
     assert capsys.readouterr() == ("", "")
+
+
+def test_work_that_fails_ends_with_its_error_alone():
+    out = io.StringIO()
+    try:
+        with Progress("import", "logs", every_s=3600, stream=out, bars=False) as p:
+            p.expect("read", 3)
+            p.add("read")
+            raise ValueError("bad log")
+    except ValueError:
+        pass
+    assert out.getvalue() == ""
