@@ -367,10 +367,9 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
            if run_walls else "") + f"; the command's last invocation took {wall_s / 60:.1f} min (runs and "
         "retrained configurations it found finished are reused, not timed again).",
         "",
-        *([f"Not yet the paper profile: its 2048 configurations per mode and 100 held-out normal flights per "
-           f"seed give intervals of a few points where the {profile} profile's are ten; the same command with "
-           "`--profile paper` makes that page (one paper run took 18.5 min on 2 cores before protocol v2, "
-           "whose paper profile holds 772 normal flights instead of 160; not yet measured since).", ""]
+        *([f"Not the paper profile: its 2048 configurations per mode and 100 held-out normal flights per "
+           f"seed give intervals of a few points where the {profile} profile's are ten. The same command with "
+           "`--profile paper --out docs/results.md` makes its page: [results.md](results.md).", ""]
           if profile != "paper" else []),
         "Protocol v2 (docs/protocol.md): thresholds calibrated on validation normal flights for a 5 % false-alarm "
         "rate per flight, 8 s burn-in after arming, TP = an alarm inside the attack window. Cells: mean ± "
