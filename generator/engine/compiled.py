@@ -187,12 +187,12 @@ class _NoiseDrawer:
         # Generators themselves are not advanced, nothing reads them after the initial conditions
         self.states = pcg_states(rngs)
         # one buffer for every block: fresh arrays every block cost as much in page faults and
-        # zeroing (60 MB a block at 1,000 flights) as drawing the normals
+        # zeroing (120 MB a block at 1,000 flights) as drawing the normals
         self.buffer = np.empty((len(rngs), steps, NOISE_DIM))
 
     def fused(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(noise buffer for ``rows``, states): for the kernel to draw each flight's block itself,
-        in the thread that flies it (``run_steps``' draw); None when the generators are not PCG64."""
+        """(noise buffer for ``rows``, PCG64 states): for the kernel to draw each flight's block
+        itself, in the thread that flies it (``run_steps``' ``draw``); only when ``states`` is not None."""
         return self.buffer[:len(rows)], self.states
 
     def draw(self, rows: np.ndarray, steps: int) -> np.ndarray:
