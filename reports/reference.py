@@ -211,6 +211,25 @@ def _pooled(runs: list[RunResults], dimension: str) -> pd.DataFrame:
     return g
 
 
+def _families(runs: list[RunResults]) -> pd.DataFrame:
+    """_pooled by attack family: a configuration of one action counts under its action; one that
+    combines k actions (the paper grid's 2- and 3-scenario flights) under "k actions combined"
+    (38 combinations would make a table nobody reads)."""
+    fam = _pooled(runs, "action")
+    if not len(fam):
+        return fam
+    k = fam["value"].astype(str).str.count(r"\+") + 1
+    fam = fam.assign(value=fam["value"].where(k == 1, k.astype(str) + " actions combined"))
+    g = fam.groupby(["detector", "value", "mode"], as_index=False)[["n", "detected"]].sum()
+    g["tp_rate"] = g["detected"] / g["n"].where(g["n"] > 0)
+    return g
+
+
+def _family_order(values) -> list[str]:
+    """Single actions alphabetically, then the combinations by size."""
+    return sorted(set(values), key=lambda v: (v.endswith("combined"), v))
+
+
 def figures(runs: list[RunResults], folder: Path) -> list[Path]:
     """TP by detectability bin, and TP by attack family and mode (PNG)."""
     import matplotlib
@@ -238,9 +257,9 @@ def figures(runs: list[RunResults], folder: Path) -> list[Path]:
         out.append(folder / "tp_by_detectability.png")
         fig.savefig(out[-1], dpi=110)
         plt.close(fig)
-    fam = _pooled(runs, "action")
+    fam = _families(runs)
     if len(fam):
-        families = sorted(fam["value"].unique())
+        families = _family_order(fam["value"])
         fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
         for ax, mode in zip(axes, ("simulation", "csv")):
             m = fam[fam["mode"] == mode].pivot(index="detector", columns="value", values="tp_rate")
@@ -357,14 +376,14 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
     lines = [
         "# Reference results",
         "",
-        f"The {profile} profile, seeds {', '.join(map(str, seeds))}: {counts}. Regenerate this page (runs are "
-        "resumed, finished ones reused) with",
+        f"The {profile} profile, {'seeds' if len(seeds) > 1 else 'seed'} {', '.join(map(str, seeds))}: {counts}. "
+        "Regenerate this page (runs are resumed, finished ones reused) with",
         "",
         f"```\n{command}\n```",
         "",
         f"Made on {datetime.now(UTC):%Y-%m-%d} on {platform.machine()} with {_cpus()} CPUs"
-        + (f"; the {len(run_walls)} benchmark runs (dataset generation included) took {sum(run_walls) / 60:.1f} min"
-           if run_walls else "") + f"; the command's last invocation took {wall_s / 60:.1f} min (runs and "
+        + (f"; the {len(run_walls)} benchmark run{'s' if len(run_walls) > 1 else ''} (dataset generation "
+           f"included) took {sum(run_walls) / 60:.1f} min" if run_walls else "") + f"; the command's last invocation took {wall_s / 60:.1f} min (runs and "
         "retrained configurations it found finished are reused, not timed again).",
         "",
         *([f"Not the paper profile: its 2048 configurations per mode and 100 held-out normal flights per "
@@ -372,9 +391,13 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
            "`--profile paper --out docs/results.md` makes its page: [results.md](results.md).", ""]
           if profile != "paper" else []),
         "Protocol v2 (docs/protocol.md): thresholds calibrated on validation normal flights for a 5 % false-alarm "
-        "rate per flight, 8 s burn-in after arming, TP = an alarm inside the attack window. Cells: mean ± "
-        "standard deviation over the seeds [95 % interval of the flights pooled over the seeds]. *Rank held*: the "
-        "share of paired bootstrap resamples of the test flights in which the detector keeps its rank.",
+        "rate per flight, 8 s burn-in after arming, TP = an alarm inside the attack window. "
+        + ("Cells: mean ± standard deviation over the seeds [95 % interval of the flights pooled over the seeds]. "
+           if len(seeds) > 1 else
+           "Cells: the rate [its 95 % interval]. One seed: the seed-to-seed spread is on the quick profile's "
+           "three-seed page ([results-quick.md](results-quick.md)). ")
+        + "*Rank held*: the share of paired bootstrap resamples of the test flights in which the detector keeps "
+        "its rank.",
         "",
         "## The paper's table and ours",
         "",
@@ -421,11 +444,12 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
                          f"{_pct(a['tp_csv'])} -> {_pct(b['tp_csv'])} | {_pct(a['far_no_attack'])} -> "
                          f"{_pct(b['far_no_attack'])} |")
     lines += _trained_lines(board, trained or {})
-    fam = _pooled(runs, "action")
+    fam = _families(runs)
     if len(fam):
         lines += ["", "## Per attack family", "", "TP in window, flights pooled over the seeds (simulation / csv; "
-                  "n flights per mode in the header).", ""]
-        families = sorted(fam["value"].unique())
+                  "n flights per mode in the header; a flight that combines several actions counts under "
+                  "\"k actions combined\").", ""]
+        families = _family_order(fam["value"])
         nper = fam[fam["detector"] == fam["detector"].iloc[0]].set_index(["value", "mode"])["n"]
         head = [f"{f} ({int(nper.get((f, 'simulation'), 0))}/{int(nper.get((f, 'csv'), 0))})" for f in families]
         lines += ["| Detector | " + " | ".join(head) + " |", "|---" * (len(families) + 1) + "|"]
@@ -469,7 +493,8 @@ def main(argv: list[str] | None = None) -> int:
         if all(f is not None for f in folders):
             trained[name] = load_runs(folders)
     command = (f"python -m scart_bench.reports.reference --profile {args.profile} --seeds {args.seeds} "
-               f"--jobs {args.jobs} --runs {args.runs} --out {args.out}")
+               f"--jobs {args.jobs} --runs {args.runs}{' --no-retrained' if args.no_retrained else ''} "
+               f"--out {args.out}")
     for f in write_page(args.out, args.profile, seeds, runs, variants, time.perf_counter() - t0, command,
                         trained):
         print(f)
