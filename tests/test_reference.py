@@ -69,3 +69,16 @@ def test_a_retrained_configuration_runs_on_each_seeds_dataset_and_is_compared(tm
     page = files[0].read_text()
     assert "**Statistical with a 25-row window** (`window = 25`; 1 seeds" in page
     assert "| statistical (statistical-window-25) |" in page and "Its means within the default's pooled 95 % intervals" in page
+
+
+def test_flights_combining_actions_are_counted_by_how_many_they_combine(monkeypatch):
+    """The paper grid's 2- and 3-scenario configurations go under 'k actions combined', with their
+    flights' detections summed, so the family table stays one column per action."""
+    pooled = pd.DataFrame({"detector": ["d"] * 4, "mode": ["simulation"] * 4,
+                           "value": ["bias", "bias+drift", "drift+sinusoid", "bias+drift+sinusoid"],
+                           "n": [10, 4, 6, 5], "detected": [5, 1, 5, 5]})
+    monkeypatch.setattr(reference, "_pooled", lambda runs, dimension: pooled)
+    fam = reference._families([]).set_index("value")
+    assert fam.loc["2 actions combined", "n"] == 10 and fam.loc["2 actions combined", "tp_rate"] == 0.6
+    assert fam.loc["3 actions combined", "tp_rate"] == 1.0 and fam.loc["bias", "tp_rate"] == 0.5
+    assert reference._family_order(fam.index) == ["bias", "2 actions combined", "3 actions combined"]
