@@ -31,7 +31,6 @@ from scart_bench.generator.attack_effect import field_stds
 from scart_bench.generator.attacks import (
     RowWriter,
     batch_count,
-    csv_applicable,
     csv_flights,
     grid_path,
     simulation_flights,
@@ -63,15 +62,9 @@ class ShardResult:
 
 def plan_shards(plan: GenerationPlan) -> tuple[list[Shard], list[Shard]]:
     """The shards of both phases (normal flights; attacked flights in simulation, then csv mode)."""
-    size = plan.profile.batch_size
-    normal = [Shard("normal", b) for b in range(batch_count(plan.count, size))]
-    attacked: list[Shard] = []
-    if plan.attacks:
-        configs = load_configurations(grid_path(plan.profile.scenario_grid))
-        attacked += [Shard("simulation", b) for b in range(batch_count(len(configs), size))]
-        if plan.split_of.count("csv_source"):
-            n_csv = sum(csv_applicable(c) for c in configs)
-            attacked += [Shard("csv", b) for b in range(batch_count(n_csv, size))]
+    size, totals = plan.profile.batch_size, plan.totals()
+    normal = [Shard("normal", b) for b in range(batch_count(totals["normal"], size))]
+    attacked = [Shard(kind, b) for kind in ("simulation", "csv") for b in range(batch_count(totals.get(kind, 0), size))]
     return normal, attacked
 
 

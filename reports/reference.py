@@ -205,7 +205,11 @@ def _pooled(runs: list[RunResults], dimension: str) -> pd.DataFrame:
     if not parts:
         return pd.DataFrame(columns=["detector", "value", "mode", "n", "detected", "tp_rate"])
     b = pd.concat(parts)
-    b = b[b["dimension"] == dimension]
+    return _summed(b[b["dimension"] == dimension])
+
+
+def _summed(b: pd.DataFrame) -> pd.DataFrame:
+    """Flights and detections summed per detector, value and mode, and their TP rate."""
     g = b.groupby(["detector", "value", "mode"], as_index=False)[["n", "detected"]].sum()
     g["tp_rate"] = g["detected"] / g["n"].where(g["n"] > 0)
     return g
@@ -219,10 +223,7 @@ def _families(runs: list[RunResults]) -> pd.DataFrame:
     if not len(fam):
         return fam
     k = fam["value"].astype(str).str.count(r"\+") + 1
-    fam = fam.assign(value=fam["value"].where(k == 1, k.astype(str) + " actions combined"))
-    g = fam.groupby(["detector", "value", "mode"], as_index=False)[["n", "detected"]].sum()
-    g["tp_rate"] = g["detected"] / g["n"].where(g["n"] > 0)
-    return g
+    return _summed(fam.assign(value=fam["value"].where(k == 1, k.astype(str) + " actions combined")))
 
 
 def _family_order(values) -> list[str]:

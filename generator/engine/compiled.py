@@ -256,24 +256,23 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
     s0 = 0
     while active.size and s0 < max_steps:
         s1 = min(s0 + BLOCK_STEPS, max_steps)
-        nrow = np.arange(len(active))  # active flight j's noise is noise[j]
         if hooks is None and drawer.states is not None:
             # one stretch for the whole block: each flight draws its noise in the thread that flies it
             noise, states = drawer.fused(active)
             _fly(len(active) * (s1 - s0), st.row, st.truth_buffer, st.history, st.waypoints, p, active, s0, s1,
-                 noise, nrow, 0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, states, s1 - s0)
+                 noise, 0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, states, s1 - s0)
         else:  # the layer's hooks read the block's noise between stretches: draw it all first
             noise = drawer.draw(active, s1 - s0)
             k = s0
             for h in (hooks.steps(s0, s1) if hooks else ()):
                 if h > k:
                     _fly(len(active) * (h - k), st.row, st.truth_buffer, st.history, st.waypoints, p, active, k, h,
-                         noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, no_draw, 0)
-                hooks.step(p, h, active, noise[nrow, h - s0])
+                         noise, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, no_draw, 0)
+                hooks.step(p, h, active, noise[:, h - s0].copy())
                 k = h + 1
             if k < s1:
                 _fly(len(active) * (s1 - k), st.row, st.truth_buffer, st.history, st.waypoints, p, active, k, s1,
-                     noise, nrow, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, no_draw, 0)
+                     noise, k - s0, due, index, *tele, rec_sp, rec_truth, *rec.uorb, no_draw, 0)
         active = active[~st.done[active]]
         if progress is not None:
             progress(s1 - 1, st.done.copy())

@@ -982,31 +982,31 @@ def _fly(S, tbuf, hist, wps, p, i, nz, s0, s1, k0, due, mi, r0, r1, r2, r3, r4, 
 
 
 @njit(parallel=True, **_JIT)
-def run_steps(S, tbuf, hist, wps, p, rows, s0, s1, noise, nrow, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
+def run_steps(S, tbuf, hist, wps, p, rows, s0, s1, noise, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
               rec_sp, rec_truth, u0, u1, u2, u3, states, draw):
     """Fly flights ``rows`` through steps [s0, s1), in parallel; a flight that finishes stops.
 
-    noise: (flights, block, dim); step ``s`` of flight ``rows[j]`` uses noise[nrow[j], k0 + s - s0].
+    noise: (flights, block, dim); step ``s`` of flight ``rows[j]`` uses noise[j, k0 + s - s0].
     u0..u3: the uORB streams' recordings (no rows when the flights are flown without the uORB view).
     draw > 0: first draw each flight's next ``draw`` steps of noise into its rows of ``noise`` from
     its PCG64 state in ``states`` (pcg_noise), in the thread that flies it, while they are in cache.
     """
     for j in prange(rows.shape[0]):
         if draw > 0:
-            fill_one(states, rows[j], noise[nrow[j], :draw])
-        _fly(S, tbuf, hist, wps, p, rows[j], noise[nrow[j]], s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
+            fill_one(states, rows[j], noise[j, :draw])
+        _fly(S, tbuf, hist, wps, p, rows[j], noise[j], s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
              rec_sp, rec_truth, u0, u1, u2, u3)
 
 
 @njit(**_JIT)
-def run_steps_serial(S, tbuf, hist, wps, p, rows, s0, s1, noise, nrow, k0, due, mi, r0, r1, r2, r3, r4, r5, r6,
+def run_steps_serial(S, tbuf, hist, wps, p, rows, s0, s1, noise, k0, due, mi, r0, r1, r2, r3, r4, r5, r6,
                      r7, rec_sp, rec_truth, u0, u1, u2, u3, states, draw):
     """run_steps in the calling thread: for a few steps between the layer's hooks, where starting
     the worker threads would cost more than the steps."""
     for j in range(rows.shape[0]):
         if draw > 0:
-            fill_one(states, rows[j], noise[nrow[j], :draw])
-        _fly(S, tbuf, hist, wps, p, rows[j], noise[nrow[j]], s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
+            fill_one(states, rows[j], noise[j, :draw])
+        _fly(S, tbuf, hist, wps, p, rows[j], noise[j], s0, s1, k0, due, mi, r0, r1, r2, r3, r4, r5, r6, r7,
              rec_sp, rec_truth, u0, u1, u2, u3)
 
 
