@@ -72,7 +72,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
 
 
 def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, overwrite: bool, executor: str,
-                     scheduler: str | None, jobs: int, log, advance=None) -> None:
+                     scheduler: str | None, jobs: int, log, advance: Callable[[str, int], None] | None = None) -> None:
     """A dataset at an object-store URL (scart_bench.storage): written here and uploaded with its
     manifest last; with dask, the workers upload their flights and this process the manifest.
     An old dataset there is removed, manifest first, just before the new one is uploaded."""
@@ -122,7 +122,8 @@ def _write_all(partial: Path, plan: GenerationPlan, fmt: str, log, layout: str |
     writer.close()
 
 
-def _fly_and_write(writer: DatasetWriter, plan: GenerationPlan, log, advance=None) -> None:
+def _fly_and_write(writer: DatasetWriter, plan: GenerationPlan, log,
+                   advance: Callable[[str, int], None] | None = None) -> None:
     say = log or (lambda msg: None)
     sources: Sources = {"csv_source": [], "validation": []}
     for b in range(batch_count(plan.count, plan.profile.batch_size)):
