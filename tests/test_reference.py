@@ -56,8 +56,9 @@ def test_a_retrained_configuration_runs_on_each_seeds_dataset_and_is_compared(tm
     run = tmp_path / "runs" / "test-seed0"
     run_benchmark(RunConfig(detectors=["statistical"], dataset=dataset, out=run, progress=False))
     monkeypatch.setattr(reference, "TRAINED", {
-        "statistical-window-25": ("Statistical with a 25-row window", "statistical", {"window": 25}, None),
-        "needs-a-module": ("a configuration whose module is missing", "statistical", {}, "no_such_module_here"),
+        "statistical-window-25": reference.Retrained("Statistical with a 25-row window", "statistical", {"window": 25}),
+        "needs-a-module": reference.Retrained("a configuration whose module is missing", "statistical",
+                                              needs="no_such_module_here"),
     })
     out = reference.retrained(run, "statistical-window-25", jobs=1)
     config = json.loads((out / "config.json").read_text())
@@ -82,3 +83,44 @@ def test_flights_combining_actions_are_counted_by_how_many_they_combine(monkeypa
     assert fam.loc["2 actions combined", "n"] == 10 and fam.loc["2 actions combined", "tp_rate"] == 0.6
     assert fam.loc["3 actions combined", "tp_rate"] == 1.0 and fam.loc["bias", "tp_rate"] == 0.5
     assert reference._family_order(fam.index) == ["bias", "2 actions combined", "3 actions combined"]
+
+
+def test_a_retrained_configuration_can_change_the_alarm_rule(tmp_path, monkeypatch):
+    """Telemanom's own dynamic threshold is a retrained configuration with a protocol change: the
+    variant run carries the changed rule, the rest of the protocol is the run's."""
+    from run_fixtures import write_dataset
+
+    from scart_bench.benchmark.config import RunConfig
+    from scart_bench.benchmark.runner import run_benchmark
+
+    run = tmp_path / "runs" / "test-seed0"
+    run_benchmark(RunConfig(detectors=["statistical"], dataset=write_dataset(tmp_path / "ds"), out=run, progress=False))
+    assert reference.TRAINED["telemanom-own-threshold"].protocol == {"alarm_rule": "own"}
+    monkeypatch.setattr(reference, "TRAINED", {
+        "statistical-own": reference.Retrained("Statistical, own alarms", "statistical", protocol={"alarm_rule": "own"})})
+    out = reference.retrained(run, "statistical-own", jobs=1)
+    before, after = (json.loads((p / "config.json").read_text())["protocol"] for p in (run, out))
+    assert before["alarm_rule"] == "calibrated" and after["alarm_rule"] == "own"
+    assert {k: v for k, v in after.items() if "alarm" not in k} == {k: v for k, v in before.items() if "alarm" not in k}
+    page = reference.write_page(tmp_path / "results.md", "quick", [0], load_runs([run]), {}, 1.0, "cmd",
+                                {"statistical-own": load_runs([out])})[0].read_text()
+    assert "**Statistical, own alarms** (`alarm_rule = 'own'`; 1 seeds" in page
+
+
+def test_the_other_profiles_runs_in_the_runs_folder_give_the_grid_comparison(tmp_path, monkeypatch):
+    """A paper-profile page shows the quick profile's runs found beside it, per detector, with each
+    profile's flight counts; runs missing a paper detector are not taken for finished."""
+    monkeypatch.setattr(reference, "PAPER", {"statistical": reference.PAPER["statistical"]})
+    root = tmp_path / "runs"
+    for name in ("paper-seed0", "quick-seed0", "quick-seed1", "quick-seed2"):
+        shutil.copytree(FIXTURE, root / name)
+    (root / "quick-seed2" / "metrics.csv").write_text("detector,status\nrdp,OK\n")  # not finished
+    (root / "quick-seed10.alpha").mkdir()  # not a run of the profile
+    found = reference.other_profiles(root, "paper")
+    assert list(found) == ["quick"] and [p.name for p in found["quick"]] == ["quick-seed0", "quick-seed1"]
+    others = {k: load_runs(v) for k, v in found.items()}
+    page = reference.write_page(tmp_path / "results.md", "paper", [0], load_runs([root / "paper-seed0"]), {}, 1.0,
+                                "cmd", None, others)[0].read_text()
+    table = page[page.index("**Grid composition"):]
+    assert "| Detector | quick (" in table and "2 seeds) | paper (" in table and "1 seed) |" in table
+    assert "| statistical | " in table
