@@ -407,6 +407,21 @@ def why(runs: list[RunResults], rule: pd.DataFrame, others: dict[str, list[RunRe
                      "variation; a grid of strong attacks alone would give its 100 %.")
     lines.append("- The counting window: without the 8 s burn-in after arming (protocol v1's counting), the "
                  "start-up sets every threshold and TP falls (table below); the paper states no such rule.")
+    fam = _families(runs)
+    if len(fam):
+        fam = fam[fam["detector"].isin(list(PAPER)) & ~fam["value"].str.endswith("combined")]
+        tp = fam.pivot_table(index=["detector", "value"], columns="mode", values="tp_rate")
+        if {"simulation", "csv"} <= set(tp.columns):
+            gap = (100 * (tp["simulation"] - tp["csv"])).groupby(level="value").mean().sort_values(ascending=False)
+            top = [f"{f} {g:+.1f}" for f, g in gap.head(3).items()]
+            lines.append(f"- csv mode {'below' if gap.median() > 0 else 'level with or above'} simulation mode: in "
+                         "simulation mode the controller acts on the attacked "
+                         "values, so the flight itself moves and other fields show it; in csv mode only the attacked "
+                         "field changes. The gap (TP simulation - TP csv, mean over the detectors) is largest for "
+                         + ", ".join(top) + " points, and "
+                         f"{gap.median():+.1f} for the median family. The paper's csv mode coming out 27-44 points "
+                         "above needs csv flights that differ in some other way; its text does not say how they "
+                         "were made.")
     for other, other_runs in (others or {}).items():
         b = _rates(other_runs, ("tp_simulation", "tp_csv"))
         common = [d for d in rule.index if d in b.index]

@@ -42,6 +42,7 @@ def test_the_page_puts_the_paper_beside_the_runs_with_factors_and_figures(tmp_pa
     assert "--profile quick --seeds 0" in page  # the command that regenerates it
     assert all(f.is_file() and f.stat().st_size > 1000 for f in files[1:]) and len(files) == 3
     assert "![tp_by_family](results/tp_by_family.png)" in page
+    assert "The gap (TP simulation - TP csv, mean over the detectors) is largest for" in page  # csv vs simulation
 
 
 def test_a_retrained_configuration_runs_on_each_seeds_dataset_and_is_compared(tmp_path, monkeypatch):
