@@ -90,6 +90,11 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+def _finished(run: Path) -> bool:
+    """The run folder has metrics for every paper detector."""
+    return (run / "metrics.csv").is_file() and set(pd.read_csv(run / "metrics.csv")["detector"]) >= set(PAPER)
+
+
 def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_root: Path) -> list[Path]:
     """Run (or resume) the benchmark of the paper's detectors once per seed; the run folders."""
     from scart_bench.benchmark.config import RunConfig
@@ -98,7 +103,7 @@ def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_r
     paths = []
     for seed in seeds:
         out = runs_root / f"{profile}-seed{seed}"
-        if (out / "metrics.csv").is_file() and set(pd.read_csv(out / "metrics.csv")["detector"]) >= set(PAPER):
+        if _finished(out):
             _log(f"reference: {out} is complete, reused")
         else:
             t0 = time.perf_counter()
@@ -202,8 +207,7 @@ def other_profiles(runs_root: Path, profile: str) -> dict[str, list[Path]]:
         if other == profile:
             continue
         paths = sorted((p for p in runs_root.glob(f"{other}-seed*")
-                        if p.name.removeprefix(f"{other}-seed").isdigit() and (p / "metrics.csv").is_file()
-                        and set(pd.read_csv(p / "metrics.csv")["detector"]) >= set(PAPER)),
+                        if p.name.removeprefix(f"{other}-seed").isdigit() and _finished(p)),
                        key=lambda p: int(p.name.removeprefix(f"{other}-seed")))
         if paths:
             found[other] = paths
