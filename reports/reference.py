@@ -274,7 +274,9 @@ def _pooled(runs: list[RunResults], dimension: str) -> pd.DataFrame:
     if not parts:
         return pd.DataFrame(columns=["detector", "value", "mode", "n", "detected", "tp_rate"])
     b = pd.concat(parts)
-    return _summed(b[b["dimension"] == dimension])
+    b = b[b["dimension"] == dimension]
+    # a value written as "n/a" (e.g. the detectability of an attack that changed no value) reads back as NaN
+    return _summed(b.assign(value=b["value"].astype(object).where(b["value"].notna(), "n/a").astype(str)))
 
 
 def _summed(b: pd.DataFrame) -> pd.DataFrame:
@@ -455,6 +457,27 @@ def _attainability(runs: list[RunResults]) -> list[str]:
             "100 validation flights (standard and paper profiles) reach 1 % (rank 100 of 100).", ""]
 
 
+def _detectability_lines(runs: list[RunResults]) -> list[str]:
+    """TP per detector and detectability bin (both modes), flights pooled over the seeds."""
+    det = _pooled(runs, "detectability_bin")
+    if not len(det):
+        return []
+    det = det[det["mode"] == "all"]
+    order = [b for b in (*DETECTABILITY_ORDER, "n/a") if b in set(det["value"])]
+    nper = det[det["detector"] == det["detector"].iloc[0]].set_index("value")["n"]
+    lines = ["", "## Per detectability bin", "", "TP in window, both modes, flights pooled over the seeds, by how far "
+             "the attack moves the attacked field in standard deviations of that field on validation flights "
+             "(n attacked flights in the header; n/a: the attack changed no value the detectors see against a "
+             "clean reference, e.g. it only dropped messages, or acted before the flight controller in simulation "
+             "mode, where the two views agree by construction):", "",
+             "| Detector | " + " | ".join(f"{b} ({int(nper.get(b, 0))})" for b in order) + " |",
+             "|---" * (len(order) + 1) + "|"]
+    for name in PAPER:
+        d = det[det["detector"] == name].set_index("value")["tp_rate"]
+        lines.append(f"| {name} | " + " | ".join(_pct(d.get(b, np.nan)) for b in order) + " |")
+    return lines
+
+
 def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults],
                variants: dict[str, list[RunResults]], wall_s: float, command: str,
                trained: dict[str, list[RunResults]] | None = None,
@@ -560,6 +583,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
             d = fam[fam["detector"] == det].set_index(["value", "mode"])["tp_rate"]
             cells = [f"{_pct(d.get((f, 'simulation'), np.nan))} / {_pct(d.get((f, 'csv'), np.nan))}" for f in families]
             lines.append(f"| {det} | " + " | ".join(cells) + " |")
+    lines += _detectability_lines(runs)
     if figs:
         lines += ["", "## Figures", ""] + [f"![{p.stem}]({p.parent.name}/{p.name})" for p in figs]
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -125,3 +125,18 @@ def test_the_other_profiles_runs_in_the_runs_folder_give_the_grid_comparison(tmp
     table = page[page.index("**Grid composition"):]
     assert "| Detector | quick (" in table and "2 seeds) | paper (" in table and "1 seed) |" in table
     assert "| statistical | " in table
+
+
+def test_attacks_that_changed_no_value_keep_their_detectability_column(tmp_path):
+    """breakdown.csv's "n/a" bin reads back as NaN: the page still counts those flights, in their own
+    column, and the per-bin table gives each detector's TP per bin."""
+    run = tmp_path / "runs" / "quick-seed0"
+    shutil.copytree(FIXTURE, run)
+    b = pd.read_csv(run / "breakdown.csv", keep_default_na=False)
+    na = b[b["dimension"] == "detectability_bin"].assign(value="n/a", n=3, detected=1)
+    pd.concat([b, na]).to_csv(run / "breakdown.csv", index=False)
+    page = reference.write_page(tmp_path / "results.md", "quick", [0], load_runs([run]), {}, 1.0,
+                                "cmd")[0].read_text()
+    table = page[page.index("## Per detectability bin"):]
+    assert "| Detector | 3-10 sd (2) | n/a (3) |" in table and "| statistical | " in table
+    assert "| statistical | 50.0 | 33.3 |" in table  # 1 of 2 flights at 3-10 sd, 1 of 3 with no value changed
