@@ -69,6 +69,7 @@ class Retrained:
     params: dict = dataclasses.field(default_factory=dict)
     needs: str | None = None  # the module it needs; left out (with a line) when it is not installed
     protocol: dict = dataclasses.field(default_factory=dict)
+    short: str = ""  # a few words for the pages that only name it
 
     def label(self) -> str:
         return "; ".join(f"{k} = {v!r}" for k, v in {**self.params, **self.protocol}.items())
@@ -78,11 +79,11 @@ class Retrained:
 TRAINED: dict[str, Retrained] = {
     "telemanom-tensorflow": Retrained(
         "Telemanom on Keras 3 / TensorFlow (the paper's stack), the same model and training as our torch default",
-        "telemanom", {"backend": "tensorflow"}, needs="tensorflow"),
+        "telemanom", {"backend": "tensorflow"}, needs="tensorflow", short="Telemanom on TensorFlow"),
     "telemanom-own-threshold": Retrained(
         "Telemanom with its own nonparametric dynamic threshold (Hundman et al. 2018; the paper's Telemanom "
         "alarms this way) instead of the calibrated one, the same model and training as our default",
-        "telemanom", protocol={"alarm_rule": "own"}),
+        "telemanom", protocol={"alarm_rule": "own"}, short="Telemanom with its own dynamic threshold"),
 }
 
 
@@ -571,6 +572,10 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
                          f"{_pct(b['far_no_attack'])} |")
     lines += _profile_lines(profile, runs, others or {})
     lines += _trained_lines(board, trained or {})
+    if not trained and profile != "quick":
+        lines += ["", "Retrained configurations (" + "; ".join(c.short or c.what for c in TRAINED.values())
+                  + ") train a detector again on every seed's dataset; they are on the quick profile's page "
+                  "([results-quick.md](results-quick.md)), made with the same command without `--no-retrained`."]
     fam = _families(runs)
     if len(fam):
         lines += ["", "## Per attack family", "", "TP in window, flights pooled over the seeds (simulation / csv; "

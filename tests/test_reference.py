@@ -42,6 +42,7 @@ def test_the_page_puts_the_paper_beside_the_runs_with_factors_and_figures(tmp_pa
     assert "--profile quick --seeds 0" in page  # the command that regenerates it
     assert all(f.is_file() and f.stat().st_size > 1000 for f in files[1:]) and len(files) == 3
     assert "![tp_by_family](results/tp_by_family.png)" in page
+    assert "Retrained configurations (Telemanom on TensorFlow; Telemanom with its own dynamic threshold)" not in page
     assert "The gap (TP simulation - TP csv, mean over the detectors) is largest for" in page  # csv vs simulation
 
 
@@ -125,6 +126,7 @@ def test_the_other_profiles_runs_in_the_runs_folder_give_the_grid_comparison(tmp
     table = page[page.index("**Grid composition"):]
     assert "| Detector | quick (" in table and "2 seeds) | paper (" in table and "1 seed) |" in table
     assert "| statistical | " in table
+    assert "they are on the quick profile's page ([results-quick.md](results-quick.md))" in page  # not retrained here
 
 
 def test_attacks_that_changed_no_value_keep_their_detectability_column(tmp_path):
