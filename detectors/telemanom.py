@@ -39,6 +39,7 @@ with this rewrite; everything around the forecaster (windows, errors, threshold)
 from __future__ import annotations
 
 import copy
+import hashlib
 import io
 import math
 from collections.abc import Sequence
@@ -540,6 +541,7 @@ class Telemanom(Detector):
         self.model_states_ = states
         self.epochs_run_ = epochs_run
         self.__dict__.pop("_nets_cache", None)
+        self.__dict__.pop("_smoothed_cache", None)
         # the normal error level of every channel, from the training flights
         errs = np.concatenate([self._smoothed(x) for x in X_list], axis=0)
         scale = np.quantile(errs, ERROR_SCALE_QUANTILE, axis=0)
@@ -745,6 +747,7 @@ class Telemanom(Detector):
     def __getstate__(self):
         state = dict(super().__getstate__())  # a copy: the live object keeps its cache
         state.pop("_nets_cache", None)  # rebuilt from model_states_ on first use
+        state.pop("_smoothed_cache", None)
         return state
 
     def _predict(self, X: np.ndarray) -> np.ndarray:
@@ -785,10 +788,20 @@ class Telemanom(Detector):
         return TelemanomStream(self)
 
     def _smoothed(self, X: np.ndarray) -> np.ndarray:
+        """Smoothed forecast errors (rows, targets). The last flight's are kept (keyed by its bytes), so
+        ``alarms`` after ``score`` on the same flight, as a run with the own alarm rule calls them, does
+        not forecast the flight a second time."""
         if X.shape[0] == 0:
             return np.zeros((0, len(self.target_idx_)))
+        key = (X.shape, X.dtype.str, hashlib.blake2b(np.ascontiguousarray(X).tobytes(), digest_size=16).digest())
+        cached = self.__dict__.get("_smoothed_cache")
+        if cached is not None and cached[0] == key:
+            return cached[1]
         err = np.abs(self._predict(X) - X[:, self.target_idx_])
-        return ewma(err, self.span_)
+        e_s = ewma(err, self.span_)
+        e_s.flags.writeable = False
+        self.__dict__["_smoothed_cache"] = (key, e_s)
+        return e_s
 
 
 class TelemanomStream(DetectorStream):

@@ -7,8 +7,8 @@ extrapolated to every channel and every scored flight.
                                          [--scored N] [--param NAME=VALUE ...]
 
 ``--scored``: how many flights the run scores (default: the dataset's validation and test flights;
-the quick profile's run scores 222). With the own alarm rule every scored flight is forecast twice
-(once for its scores, once for its alarms), which the extrapolation counts.
+the quick profile's run scores 222). Each is forecast once: its alarms under the own rule reuse the
+forecast of its scores.
 """
 
 from __future__ import annotations
@@ -52,7 +52,6 @@ def main(argv: list[str] | None = None) -> int:
             params[name] = ast.literal_eval(value)
         except (ValueError, SyntaxError):
             params[name] = value
-    own = run["protocol"].alarm_rule == "own"
     ds = Dataset(args.dataset)
     split = ds.manifest["split"]
     train = [ds.flight(f) for f in ds.manifest.loc[split == "train", "flight_id"]]
@@ -76,12 +75,10 @@ def main(argv: list[str] | None = None) -> int:
               f"score {1e3 * score_s:.0f} ms for {len(test)} rows, on {det._torch_device()}", flush=True)
     if not fits:
         p.error("--channels: name at least one channel")
-    passes = 2 if own else 1
     fit_all = n_channels * float(np.mean(fits))
-    score_all = n_channels * scored * passes * float(np.mean(scores))
+    score_all = n_channels * scored * float(np.mean(scores))
     print(f"the whole run, extrapolated: {n_channels} channels x {np.mean(fits):.1f} s of fit = {fit_all / 60:.1f} min; "
-          f"{scored} scored flights x {n_channels} channels x {passes} pass{'es' if passes > 1 else ''} x "
-          f"{1e3 * np.mean(scores):.0f} ms = {score_all / 60:.1f} min; about {(fit_all + score_all) / 60:.0f} min "
+          f"{scored} scored flights x {n_channels} channels x {1e3 * np.mean(scores):.0f} ms = {score_all / 60:.1f} min; about {(fit_all + score_all) / 60:.0f} min "
           "in all", flush=True)
     return 0
 

@@ -186,6 +186,26 @@ def test_pickle_round_trip(fitted):
     np.testing.assert_array_equal(clone.alarms(flight), fitted.alarms(flight))
 
 
+def test_alarms_after_score_forecast_the_flight_once(fitted, monkeypatch):
+    """A run with the own alarm rule scores a flight, then asks for its alarms: the second call
+    reuses the forecast; another flight, or a changed copy of the same one, is forecast anew."""
+    flight, other = make_flight(108, attack=ATTACK), make_flight(109)
+    fresh = pickle.loads(pickle.dumps(fitted))
+    expected_scores, expected_alarms = fresh.score(flight), fresh.alarms(flight)
+    calls = []
+    real = Telemanom._predict
+    monkeypatch.setattr(Telemanom, "_predict", lambda self, X: calls.append(len(X)) or real(self, X))
+    det = pickle.loads(pickle.dumps(fitted))
+    np.testing.assert_array_equal(det.score(flight), expected_scores)
+    np.testing.assert_array_equal(det.alarms(flight), expected_alarms)
+    assert len(calls) == 1
+    det.alarms(other)
+    changed, row = flight.copy(), len(flight) - 100
+    changed.loc[row, "local_position_ned.x"] += 5.0
+    changed_scores = det.score(changed)
+    assert len(calls) == 3 and changed_scores[row:].max() > expected_scores[row:].max()
+
+
 def test_per_channel_and_targets():
     targets = ["global_position_int.lat", "local_position_ned.x"]  # not in column order
     det = Telemanom(per_channel=True, target_columns=targets, aggregate="mean", **FAST)
