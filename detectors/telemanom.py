@@ -474,7 +474,7 @@ class Telemanom(Detector):
     def smoothed_errors(self, flight) -> np.ndarray:
         """Per target channel, the EWMA-smoothed absolute one-step-ahead error (rows, targets)."""
         X = self._transform(flight)
-        return self._smoothed(X)
+        return self._smoothed(X).copy()  # the cached array is read-only
 
     def alarms(self, flight) -> np.ndarray:
         """Boolean alarm per row: the dynamic threshold on each target channel, OR-ed.
