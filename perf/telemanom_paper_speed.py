@@ -52,13 +52,19 @@ def main(argv: list[str] | None = None) -> int:
             params[name] = ast.literal_eval(value)
         except (ValueError, SyntaxError):
             params[name] = value
+    channels = [c for c in args.channels.split(",") if c]
+    if not channels:
+        p.error("--channels: name at least one channel")
     ds = Dataset(args.dataset)
     split = ds.manifest["split"]
+    if not (split == "train").any() or not (split == "test").any():
+        p.error(f"{args.dataset}/manifest: split: expected training and test flights, found "
+                f"{sorted(set(split.astype(str)))}")
     train = [ds.flight(f) for f in ds.manifest.loc[split == "train", "flight_id"]]
     test = ds.flight(ds.manifest.loc[split == "test", "flight_id"].iloc[0])
     scored = args.scored if args.scored is not None else int(split.isin(("validation", "test")).sum())
     fits, scores, n_channels = [], [], 0
-    for channel in [c for c in args.channels.split(",") if c]:
+    for channel in channels:
         det = Telemanom(**params, target_columns=[channel])
         t0 = time.perf_counter()
         det.fit(train)
@@ -73,13 +79,11 @@ def main(argv: list[str] | None = None) -> int:
         scores.append(score_s)
         print(f"{channel}: fit {fit_s:.1f} s ({det.epochs_run_[0]} epochs, {len(train)} training flights), "
               f"score {1e3 * score_s:.0f} ms for {len(test)} rows, on {det._torch_device()}", flush=True)
-    if not fits:
-        p.error("--channels: name at least one channel")
     fit_all = n_channels * float(np.mean(fits))
     score_all = n_channels * scored * float(np.mean(scores))
-    print(f"the whole run, extrapolated: {n_channels} channels x {np.mean(fits):.1f} s of fit = {fit_all / 60:.1f} min; "
-          f"{scored} scored flights x {n_channels} channels x {1e3 * np.mean(scores):.0f} ms = {score_all / 60:.1f} min; about {(fit_all + score_all) / 60:.0f} min "
-          "in all", flush=True)
+    print(f"the whole run, extrapolated: {n_channels} channels x {np.mean(fits):.1f} s of fit = "
+          f"{fit_all / 60:.1f} min; {scored} scored flights x {n_channels} channels x {1e3 * np.mean(scores):.0f} ms = "
+          f"{score_all / 60:.1f} min; about {(fit_all + score_all) / 60:.0f} min in all", flush=True)
     return 0
 
 
