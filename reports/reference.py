@@ -215,12 +215,15 @@ def other_profiles(runs_root: Path, profile: str) -> dict[str, list[Path]]:
     return found
 
 
-def _profile_lines(profile: str, runs: list[RunResults], others: dict[str, list[RunResults]]) -> list[str]:
-    """The grid factor: the same detectors and protocol on each profile's grid and flight counts."""
+def _profile_lines(profile: str, runs: list[RunResults], rule: pd.DataFrame,
+                   others: dict[str, list[RunResults]]) -> list[str]:
+    """The grid factor: the same detectors and protocol on each profile's grid and flight counts
+    (``rule``: this page's rates per detector, mean over its seeds, in the order of its table)."""
     if not others:
         return []
-    boards = {profile: (_board(runs), runs), **{k: (_board(v), v) for k, v in others.items()}}
-    order = [k for k in ("quick", "standard", "paper") if k in boards]
+    keys = ("tp_simulation", "tp_csv", "tn_no_attack")
+    rates = {profile: (rule, runs), **{k: (_rates(v, keys), v) for k, v in others.items()}}
+    order = [k for k in ("quick", "standard", "paper") if k in rates]
 
     def counts(rs: list[RunResults]) -> str:
         m = rs[0].metrics.iloc[0]
@@ -231,14 +234,11 @@ def _profile_lines(profile: str, runs: list[RunResults], others: dict[str, list[
                  "kind; the detectors, their parameters and the protocol are the same). TP simulation / TP csv / "
                  "TN, mean over the seeds; per profile its attacked flights per mode (simulation/csv) and "
                  "held-out normal flights per seed:", "",
-             "| Detector | " + " | ".join(f"{k} ({counts(boards[k][1])})" for k in order) + " |",
+             "| Detector | " + " | ".join(f"{k} ({counts(rates[k][1])})" for k in order) + " |",
              "|---" * (len(order) + 1) + "|"]
-    for det in boards[profile][0].index:
-        cells = []
-        for k in order:
-            b = boards[k][0]
-            cells.append(" / ".join(_pct(b.loc[det].get(f"{key}_mean", np.nan)) if det in b.index else "–"
-                                    for key in ("tp_simulation", "tp_csv", "tn_no_attack")))
+    for det in rule.index:
+        cells = [" / ".join(_pct(rates[k][0].at[det, key]) if det in rates[k][0].index else "–" for key in keys)
+                 for k in order]
         lines.append(f"| {det} | " + " | ".join(cells) + " |")
     return lines
 
@@ -303,8 +303,9 @@ def _family_order(values) -> list[str]:
     return sorted(set(values), key=lambda v: (v.endswith("combined"), v))
 
 
-def figures(runs: list[RunResults], folder: Path) -> list[Path]:
-    """TP by detectability bin, and TP by attack family and mode (PNG)."""
+def figures(det: pd.DataFrame, fam: pd.DataFrame, folder: Path) -> list[Path]:
+    """TP by detectability bin (``_pooled(runs, "detectability_bin")``), and TP by attack family and mode
+    (``_families(runs)``), as PNG files in ``folder``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -312,7 +313,6 @@ def figures(runs: list[RunResults], folder: Path) -> list[Path]:
 
     folder.mkdir(parents=True, exist_ok=True)
     out = []
-    det = _pooled(runs, "detectability_bin")
     if len(det):
         det = det[det["mode"] == "all"]
         order = [b for b in DETECTABILITY_ORDER if b in set(det["value"])]
@@ -330,7 +330,6 @@ def figures(runs: list[RunResults], folder: Path) -> list[Path]:
         out.append(folder / "tp_by_detectability.png")
         fig.savefig(out[-1], dpi=110)
         plt.close(fig)
-    fam = _families(runs)
     if len(fam):
         families = _family_order(fam["value"])
         fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
@@ -387,9 +386,11 @@ def verdict(board: pd.DataFrame, rule: pd.DataFrame) -> list[str]:
     return lines
 
 
-def why(runs: list[RunResults], rule: pd.DataFrame, others: dict[str, list[RunResults]] | None = None) -> list[str]:
-    """Where the gap to the paper comes from, in numbers: the detection rule, the attacks' strength, the
-    counting window and (with other profiles' runs) the grid."""
+def why(runs: list[RunResults], rule: pd.DataFrame, det: pd.DataFrame, fam: pd.DataFrame,
+        others: dict[str, list[RunResults]] | None = None) -> list[str]:
+    """Where the gap to the paper comes from, in numbers: the detection rule, the attacks' strength
+    (``det``: the pooled detectability bins), the counting window, csv vs simulation mode per family
+    (``fam``: ``_families``) and (with other profiles' runs) the grid."""
     lines = ["Where the differences come from (from the experiments below):", ""]
     deep = [d for d in DEEPOD if d in rule.index]
     if deep:
@@ -397,7 +398,6 @@ def why(runs: list[RunResults], rule: pd.DataFrame, others: dict[str, list[RunRe
         lift = 100 * ((r["flagged_simulation"] + r["flagged_csv"]) - (r["tp_simulation"] + r["tp_csv"])).mean() / 2
         lines.append(f"- The detection rule: counting a flight flagged anywhere, as the paper's numbers allow, adds "
                      f"{lift:.1f} points on average to the DeepOD models' TP (both modes).")
-    det = _pooled(runs, "detectability_bin")
     if len(det):
         det = det[(det["mode"] == "all") & det["detector"].isin(list(PAPER))]
         by_bin = det.groupby("value")[["n", "detected"]].sum()
@@ -420,7 +420,6 @@ def why(runs: list[RunResults], rule: pd.DataFrame, others: dict[str, list[RunRe
                      "variation; a grid of strong attacks alone would give its 100 % (table and figure below).")
     lines.append("- The counting window: without the 8 s burn-in after arming (protocol v1's counting), the "
                  "start-up sets every threshold and TP falls (table below); the paper states no such rule.")
-    fam = _families(runs)
     if len(fam):
         fam = fam[fam["detector"].isin(list(PAPER)) & ~fam["value"].str.endswith("combined")]
         tp = fam.pivot_table(index=["detector", "value"], columns="mode", values="tp_rate")
@@ -464,9 +463,8 @@ def _attainability(runs: list[RunResults]) -> list[str]:
             "100 validation flights (standard and paper profiles) reach 1 % (rank 100 of 100).", ""]
 
 
-def _detectability_lines(runs: list[RunResults]) -> list[str]:
+def _detectability_lines(det: pd.DataFrame) -> list[str]:
     """TP per detector and detectability bin (both modes), flights pooled over the seeds."""
-    det = _pooled(runs, "detectability_bin")
     if not len(det):
         return []
     det = det[det["mode"] == "all"]
@@ -494,7 +492,8 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
     rule_keys = ("tp_simulation", "tp_csv", "tp_end_simulation", "tp_end_csv", "flagged_simulation", "flagged_csv",
                  "far_no_attack", "tn_no_attack")
     rule = _rates(runs, rule_keys)
-    figs = figures(runs, out.parent / out.stem)
+    bins, fam = _pooled(runs, "detectability_bin"), _families(runs)
+    figs = figures(bins, fam, out.parent / out.stem)
     n = board.iloc[0] if len(board) else None
     first = runs[0].metrics.set_index("detector")
     counts = (f"{int(first['n_simulation'].iloc[0])} simulation-mode and {int(first['n_csv'].iloc[0])} csv-mode "
@@ -544,7 +543,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
                      f"{_pct(1 - row.get('tn_no_attack_mean', np.nan))} | "
                      f"{row.get('roc_auc_mean', np.nan):.3f} |")
     lines += ["", "## What the paper found, checked here", "", *verdict(board, rule), "",
-              *why(runs, rule, others), ""]
+              *why(runs, rule, bins, fam, others), ""]
     lines += ["## Factor by factor", "",
               "Each experiment changes one factor. The detection rule, alpha and the burn-in rescore the saved scores "
               "of the same runs; the grid comparison reads the other profiles' runs in the same runs folder; a "
@@ -575,13 +574,13 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
             lines.append(f"| {det} | {_pct(a['tp_simulation'])} -> {_pct(b['tp_simulation'])} | "
                          f"{_pct(a['tp_csv'])} -> {_pct(b['tp_csv'])} | {_pct(a['far_no_attack'])} -> "
                          f"{_pct(b['far_no_attack'])} |")
-    lines += _profile_lines(profile, runs, others or {})
+    lines += _profile_lines(profile, runs, rule.reindex([d for d in board.index if d in rule.index]),
+                            others or {})
     lines += _trained_lines(board, trained or {})
     if not trained and profile != "quick":
         lines += ["", "Retrained configurations (" + "; ".join(c.short or c.what for c in TRAINED.values())
                   + ") train a detector again on every seed's dataset; they are on the quick profile's page "
                   "([results-quick.md](results-quick.md)), made with the same command without `--no-retrained`."]
-    fam = _families(runs)
     if len(fam):
         lines += ["", "## Per attack family", "", "TP in window, flights pooled over the seeds (simulation / csv; "
                   "n flights per mode in the header; a flight that combines several actions counts under "
@@ -594,7 +593,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
             d = fam[fam["detector"] == det].set_index(["value", "mode"])["tp_rate"]
             cells = [f"{_pct(d.get((f, 'simulation'), np.nan))} / {_pct(d.get((f, 'csv'), np.nan))}" for f in families]
             lines.append(f"| {det} | " + " | ".join(cells) + " |")
-    lines += _detectability_lines(runs)
+    lines += _detectability_lines(bins)
     if figs:
         lines += ["", "## Figures", ""] + [f"![{p.stem}]({p.parent.name}/{p.name})" for p in figs]
     out.parent.mkdir(parents=True, exist_ok=True)

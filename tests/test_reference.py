@@ -144,7 +144,7 @@ def test_attacks_that_changed_no_value_keep_their_detectability_column(tmp_path)
     assert "| statistical | 50.0 | 33.3 |" in table  # 1 of 2 flights at 3-10 sd, 1 of 3 with no value changed
 
 
-def test_the_strength_line_names_who_catches_the_strong_attacks(monkeypatch):
+def test_the_strength_line_names_who_catches_the_strong_attacks():
     """The verdict on strong attacks (>= 10 sd) names the detectors at 99 % or more, or the best one."""
     def pooled(rates):
         rows = [{"detector": d, "value": b, "mode": "all", "n": 1000, "detected": int(1000 * r)}
@@ -152,10 +152,9 @@ def test_the_strength_line_names_who_catches_the_strong_attacks(monkeypatch):
         return reference._summed(pd.DataFrame(rows))
 
     rule = pd.DataFrame(index=[])
-    monkeypatch.setattr(reference, "_families", lambda runs: pd.DataFrame())
-    monkeypatch.setattr(reference, "_pooled", lambda runs, dimension: pooled({"rdp": 0.994, "goad": 0.97}))
-    line = next(x for x in reference.why([], rule) if "strength" in x)
+    line = next(x for x in reference.why([], rule, pooled({"rdp": 0.994, "goad": 0.97}), pd.DataFrame())
+                if "strength" in x)
     assert "rdp catches 99 % or more of the attacks that move a field by 10" in line and "goad" not in line
-    monkeypatch.setattr(reference, "_pooled", lambda runs, dimension: pooled({"rdp": 0.90, "goad": 0.97}))
-    line = next(x for x in reference.why([], rule) if "strength" in x)
+    line = next(x for x in reference.why([], rule, pooled({"rdp": 0.90, "goad": 0.97}), pd.DataFrame())
+                if "strength" in x)
     assert "no detector catches 99 % of the attacks" in line and "(the best, goad: 97.0 %)" in line
