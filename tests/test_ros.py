@@ -143,14 +143,33 @@ def _pubsub(ns_in: str, ns_out: str, names):
         cls = ros1.msg_class(t.msg_type)
         pubs[n] = rospy.Publisher(ros1.join(ns_in, t.ros_name), cls, queue_size=1000)
         subs[n] = rospy.Subscriber(ros1.join(ns_out, t.ros_name), cls, got[n].append, queue_size=1000)
+    outputs = {ros1.join(ns_out, ros1.MAVROS_TOPICS[n].ros_name) for n in names}
     _wait(
         lambda: (
             all(p.get_num_connections() > 0 for p in pubs.values())
             and all(s.get_num_connections() > 0 for s in subs.values())
+            and outputs <= _node_sends_on()
         ),
         "the node's subscriptions and publications",
     )
     return pubs, subs, got
+
+
+def _node_sends_on(node: str = "/scart") -> set[str]:
+    """The topics on which ``node`` has an outbound connection, as the node itself sees them (its slave
+    API's bus info). Our subscriber counts a connection once the handshake is read, a moment before the
+    node's publisher adds it: a message the node relays in that moment reaches nobody."""
+    from xmlrpc.client import ServerProxy
+
+    import rosgraph
+    import rospy
+
+    try:
+        uri = rosgraph.Master(rospy.get_name()).lookupNode(node)
+        _, _, info = ServerProxy(uri).getBusInfo(rospy.get_name())
+    except (rosgraph.MasterError, OSError):  # not registered yet
+        return set()
+    return {c[4] for c in info if c[2] == "o"}
 
 
 def test_without_a_scenario_every_field_of_every_message_passes_unchanged(master, tmp_path, procs):
