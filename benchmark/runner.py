@@ -26,6 +26,7 @@ import platform
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
@@ -257,8 +258,9 @@ def _status(spec: JobSpec, res: JobResult) -> dict:
             "finished": _now()}
 
 
-def run_benchmark(cfg: RunConfig) -> RunOutcome:
-    """Run (or resume) a benchmark run and score it.
+def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = None) -> RunOutcome:
+    """Run (or resume) a benchmark run and score it. ``on_job_done(detector)`` is called after each
+    finished job is saved (a run folder at a URL uploads it then, so a kill loses no finished job).
 
     Bad input (unknown detector, missing dataset, foreign run folder, unreachable scheduler)
     raises RunError (a ValueError) before anything in the run folder is touched.
@@ -349,6 +351,8 @@ def run_benchmark(cfg: RunConfig) -> RunOutcome:
                              res.alarms if res.status == "OK" else None)
             statuses.append(res.status)
             progress.done(spec.detector, res)
+            if on_job_done is not None:
+                on_job_done(spec.detector)
 
         rows = ({str(f): int(r) for f, r in zip(ds.manifest["flight_id"], ds.manifest["rows"]) if pd.notna(r)}
                 if transfer is None and "rows" in ds.manifest else {})
