@@ -9,13 +9,21 @@ mission computer reacts to what it is fed), split ``test``.
 example one made with ``scart-bench generate --normal-only``, which holds the normal train and
 validation flights a benchmark run needs); the manifest is replaced atomically, so the dataset
 is complete before and after.
+
+A dataset at an fsspec URL (``--record s3://bucket/prefix``) is checked up front
+(:func:`check_record_url`), written in a local copy and published with its manifest last by the
+command (``scart_bench.cli.common.staged_dataset``); the journals and checkpoints of its
+recordings are kept in the local cache, beside :func:`url_anchor`, so that a killed recording or a
+failed upload is added by the next ``--record`` of the same URL.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import shutil
 import time
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -64,17 +72,101 @@ def proxy_record(proxy, flight_id: str, extra_config: dict) -> FlightRecord:
                          end_us=end_us)
 
 
-def new_flight_id(path: str | Path | None = None, prefix: str = "live") -> str:
-    """A flight id from the current time, unique in the dataset at ``path`` (if any)."""
+def new_flight_id(path: str | Path | None = None, prefix: str = "live", taken: set[str] | None = None) -> str:
+    """A flight id from the current time, unique in the dataset at ``path`` (if any) and not in ``taken``."""
     base = f"{prefix}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S')}"
-    taken: set[str] = set()
-    if path is not None and is_dataset(Path(path)):
-        taken = set(open_dataset(path).manifest["flight_id"].astype(str))
+    taken = flight_ids(path) | set(taken or ())
     fid, k = base, 1
     while fid in taken:
         k += 1
         fid = f"{base}-{k}"
     return fid
+
+
+def url_anchor(url: str) -> Path:
+    """The local stand-in of the dataset at ``url``: the journals and checkpoints of its live
+    recordings are kept beside it (in the cache, keyed by the URL), where the next ``--record`` of
+    the same URL finds them."""
+    from scart_bench.storage import default_cache
+
+    key = hashlib.sha256(url.rstrip("/").encode()).hexdigest()[:24]
+    return default_cache() / "recordings" / key / "dataset"
+
+
+def check_record_url(url: str, option: str = "--record") -> Path | None:
+    """Refuse up front (StorageError, one line) a URL a recording cannot be published to: not
+    writable, or objects there but no manifest. Returns a local copy of the dataset there (whose
+    flight ids are taken), None when there is none yet."""
+    from scart_bench.storage import StorageError, check_writable, fetch_dataset, has_manifest, has_objects
+
+    check_writable(url)
+    if has_manifest(url):
+        return fetch_dataset(url)
+    if has_objects(url):
+        raise StorageError(f"{option} {url}: holds objects but no manifest (not a complete scart-bench dataset); "
+                           "give a new prefix or an existing dataset to add the flight to")
+    return None
+
+
+class _NothingAdded(Exception):
+    """No journal or checkpoint was added: nothing to publish."""
+
+
+class RecordTarget:
+    """Where a live ``--record`` writes (sitl, proxy, ros node): a local dataset folder (checked by
+    ``check_local``, which returns it), or a dataset at an fsspec URL, checked up front and written
+    in a local copy published with its manifest last. ``anchor``: the local folder the journals and
+    checkpoints are kept beside (the folder itself, or for a URL a stand-in in the cache);
+    ``taken``: the flight ids the dataset holds; ``shown``: the target as the user named it."""
+
+    def __init__(self, location: str, check_local: Callable[[Path], Path], option: str = "--record"):
+        from scart_bench.storage import is_url, local_path
+
+        self.url = is_url(location)
+        if self.url:  # refused up front when it cannot be published to: never a local folder named "s3:"
+            self.location: str | Path = location.rstrip("/")
+            self.taken = flight_ids(check_record_url(self.location, option))
+            self.anchor = url_anchor(self.location)
+        else:
+            self.location = self.anchor = check_local(local_path(location))
+            self.taken = flight_ids(self.location)
+        self.shown = str(self.location)
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[Path]:
+        """The local dataset to add flights to: the folder, or a copy of the URL's dataset published
+        (manifest last) when the block succeeds; after a failure the URL is untouched."""
+        from scart_bench.cli.common import staged_dataset
+
+        with staged_dataset(self.location) as ds:
+            yield ds
+
+    def add_left(self, root: Path, recover: Callable[[Path, bool], list[str]],
+                 discard: Callable[[Path, list[str]], None]) -> None:
+        """Add the flights that journals or checkpoints in ``root`` hold (``recover(dataset, remove)``
+        adds them, returns their ids); for a URL they are published first and only then discarded."""
+        if not self.url:
+            self.taken |= set(recover(Path(self.location), True))
+            return
+        if not root.is_dir():
+            return
+        try:
+            with self.writing() as ds:
+                ids = recover(ds, False)
+                if not ids:
+                    raise _NothingAdded
+        except _NothingAdded:
+            discard(root, [])
+            return
+        discard(root, ids)
+        self.taken |= set(ids)
+
+
+def flight_ids(path: str | Path | None) -> set[str]:
+    """The flight ids of the dataset at local ``path`` (none when there is no dataset there)."""
+    if path is None or not is_dataset(Path(path)):
+        return set()
+    return set(open_dataset(path).manifest["flight_id"].astype(str))
 
 
 def save_recording(record: FlightRecord, out: str | Path, fmt: str = "parquet") -> Path:
@@ -177,28 +269,44 @@ def _missing(v) -> bool:
         return False
 
 
-def recover_recordings(dataset: str | Path, log=None) -> list[str]:
+def recover_recordings(dataset: str | Path, log=None, root: Path | None = None, remove: bool = True,
+                       shown: str | None = None) -> list[str]:
     """Add the checkpoints a killed ``proxy --record DATASET`` left (flights marked incomplete) to
-    ``dataset``; returns their flight ids."""
+    ``dataset``; returns their flight ids. ``root``: the folder of checkpoints when not the one
+    beside ``dataset`` (a dataset at a URL); ``remove=False``: the checkpoints of the flights added
+    stay until the caller has published the dataset (:func:`discard_checkpoints`)."""
     log = log or (lambda msg: None)
-    root = journal_root(dataset)
+    root = root if root is not None else journal_root(dataset)
+    shown = shown or str(dataset)
     if not root.is_dir():
         return []
     added = []
-    taken = set(open_dataset(dataset).manifest["flight_id"].astype(str)) if is_dataset(Path(dataset)) else set()
+    taken = flight_ids(dataset)
     for folder in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
         if not is_dataset(folder):
             shutil.rmtree(folder, ignore_errors=True)  # a checkpoint that never completed
             continue
         ds = open_dataset(folder)
+        fresh = False
         for fid in ds.manifest["flight_id"].astype(str):
             if fid in taken:
                 continue  # written after all (the process died after the write, before the cleanup)
             append_flights(dataset, [_record_of(ds, fid)], info={"profile": "live", "source": LIVE_SOURCE})
             taken.add(fid)
             added.append(fid)
-            log(f"proxy: added {fid}, an interrupted recording (incomplete: up to its last checkpoint), to {dataset}")
-        shutil.rmtree(folder, ignore_errors=True)
+            fresh = True
+            log(f"proxy: added {fid}, an interrupted recording (incomplete: up to its last checkpoint), to {shown}")
+        if remove or not fresh:
+            shutil.rmtree(folder, ignore_errors=True)
     with contextlib.suppress(OSError):
         root.rmdir()
     return added
+
+
+def discard_checkpoints(root: Path, flight_ids: list[str]) -> None:
+    """Remove the checkpoints of ``flight_ids`` (added to the dataset and published) from ``root``,
+    and ``root`` when it is left empty."""
+    for fid in flight_ids:
+        shutil.rmtree(root / fid, ignore_errors=True)
+    with contextlib.suppress(OSError):
+        root.rmdir()

@@ -37,13 +37,18 @@ def _require_mavlink():
 
 def cmd_proxy(args: argparse.Namespace) -> int:
     px = _require_mavlink()
+    from scart_bench.dataset import is_dataset
     from scart_bench.generator.mavlink.recording import (
         RecordingCheckpoint,
+        RecordTarget,
+        discard_checkpoints,
+        journal_root,
         new_flight_id,
         recover_recordings,
         save_recording,
     )
     from scart_bench.generator.scart.scenario import load_scenarios
+    from scart_bench.storage import StorageError
 
     listen = px.parse_endpoint(args.listen, "--listen")
     forward = px.parse_endpoint(args.forward, "--forward")
@@ -64,7 +69,7 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         raise UsageError(f"--duration {args.duration}: expected a positive, finite number of seconds")
     if args.flight_id is not None:
         check_id(args.flight_id, "--flight-id")
-    record = record_folder(args.record)
+    target = RecordTarget(args.record, record_folder) if args.record else None
     scenarios = load_scenarios(args.scenario)
     monitor = None
     if args.detector:
@@ -81,15 +86,20 @@ def cmd_proxy(args: argparse.Namespace) -> int:
              f"autopilot is sent {args.response}")
         defense = LiveDefense(monitor, Response(args.response, alarms=args.alarms))
 
-    if record is not None:
-        recover_recordings(record, log=_log)  # flights a killed proxy --record left as checkpoints
-    proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=record is not None,
+    fid = None
+    if target is not None:
+        root = journal_root(target.anchor)  # flights a killed proxy --record left as checkpoints
+        target.add_left(root, lambda ds, remove: recover_recordings(ds, log=_log, root=root, remove=remove,
+                                                                     shown=target.shown), discard_checkpoints)
+        fid = args.flight_id or new_flight_id(taken=target.taken)
+        if fid in target.taken:
+            raise UsageError(f"--flight-id {fid}: {target.shown} holds a flight {fid} already; give another id")
+    proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=target is not None,
                             listeners=[monitor] if monitor is not None and defense is None else [], log=_log,
                             defense=defense).open()
-    fid = (args.flight_id or new_flight_id(record)) if record is not None else None
     extra = {"scenario_file": str(args.scenario)}
-    checkpoint = (RecordingCheckpoint(proxy, record, fid, extra, period_s=args.checkpoint, log=_log)
-                  if record is not None else None)
+    checkpoint = (RecordingCheckpoint(proxy, target.anchor, fid, extra, period_s=args.checkpoint, log=_log)
+                  if target is not None else None)
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -119,16 +129,25 @@ def cmd_proxy(args: argparse.Namespace) -> int:
     if monitor is not None:
         monitor.flush()
         _log(f"proxy: {monitor.summary()}")
-    if record is not None:
+    if target is not None:
         if monitor is not None:
             extra["detector"] = {"name": args.detector, "run": str(args.run), "threshold": monitor.threshold,
                                  "alarm_rows": len(monitor.alarms)}
             if defense is not None:
                 extra["defense"] = {"response": args.response, "alarms": args.alarms,
                                     "notice_us": defense.notice_us, "response_us": defense.response_us}
-        path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), record, fmt=args.format)
+        try:
+            with target.writing() as ds:  # a URL: written in a local copy, published manifest last
+                path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), ds, fmt=args.format)
+        except (OSError, StorageError):
+            checkpoint.write()  # the whole flight, when the disk takes it (an upload that failed, say)
+            if is_dataset(checkpoint.folder):
+                _log(f"proxy: the flight could not be written into {target.shown}; its checkpoint {checkpoint.folder} "
+                     f"keeps it (up to the last checkpoint written), and the next `scart-bench proxy --record "
+                     f"{target.shown}` adds it as flight {fid}, marked incomplete")
+            raise
         checkpoint.discard()  # written whole: the checkpoint goes (a failed write above keeps it)
-        print(f"flight {fid} recorded in {record} ({path.name})")
+        print(f"flight {fid} recorded in {target.shown} ({path.name})")
     return 0
 
 

@@ -51,7 +51,7 @@ def _run_until(stop: threading.Event, duration: float | None, done: threading.Ev
 
 
 def cmd_node(args: argparse.Namespace) -> int:
-    from scart_bench.generator.mavlink.recording import new_flight_id
+    from scart_bench.generator.mavlink.recording import RecordTarget, new_flight_id
     from scart_bench.generator.ros.layer import RosLayer, save_recording
     from scart_bench.generator.scart.scenario import load_scenarios
 
@@ -60,7 +60,10 @@ def cmd_node(args: argparse.Namespace) -> int:
         raise UsageError(f"--scenario {args.scenario}: no such file")
     if args.flight_id is not None:
         check_id(args.flight_id, "--flight-id")
-    record = record_folder(args.record)
+    record = RecordTarget(args.record, record_folder) if args.record else None  # a URL: checked up front
+    if record is not None and args.flight_id in record.taken:
+        raise UsageError(f"--flight-id {args.flight_id}: {record.shown} holds a flight {args.flight_id} already; "
+                         "give another id")
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and record is not None and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
@@ -87,11 +90,12 @@ def cmd_node(args: argparse.Namespace) -> int:
     for s, e in layer.windows():
         log(f"ros node: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
     if record is not None:
-        fid = args.flight_id or new_flight_id(record, prefix="ros")
+        fid = args.flight_id or new_flight_id(prefix="ros", taken=record.taken)
         extra = {"scenario_file": args.scenario, "input_ns": args.input_ns, "output_ns": args.output_ns}
         rec = layer.record(fid, json.loads(json.dumps(extra)), split=args.split)
-        path = save_recording(rec, record, fmt=args.format)
-        print(f"flight {fid} recorded in {record} ({path.name})")
+        with record.writing() as ds:  # a URL: written in a local copy, published with its manifest last
+            path = save_recording(rec, ds, fmt=args.format)
+        print(f"flight {fid} recorded in {record.shown} ({path.name})")
     return 0
 
 

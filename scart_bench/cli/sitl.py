@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from scart_bench.cli.common import UsageError, record_folder
+from scart_bench.names import check_id
 
 DEFAULT_LISTEN = "udp:127.0.0.1:14580"
 
@@ -49,6 +50,8 @@ def _check_options(args: argparse.Namespace) -> None:
                          "and what the flight controller does on its alarm")
     if args.alarms < 1:
         raise UsageError(f"--alarms {args.alarms}: expected a whole number >= 1")
+    if args.flight_id is not None:
+        check_id(args.flight_id, "--flight-id")
 
 
 def _run(args: argparse.Namespace, listen, remote, sock) -> int:
@@ -57,26 +60,39 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     except ImportError as exc:
         raise UsageError(f"the sitl needs pymavlink, which is not installed: pip install scart-bench[mavlink] "
                          f"({exc})") from exc
-    from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
+    from scart_bench.generator.mavlink.recording import RecordTarget, new_flight_id, save_recording
     from scart_bench.generator.scart.scenario import load_scenarios
-    from scart_bench.generator.sitl.journal import Journal, recover
+    from scart_bench.generator.sitl.journal import Journal, discard, journal_root, recover
+    from scart_bench.storage import StorageError
 
-    record = record_folder(args.record)
+    target = RecordTarget(args.record, record_folder) if args.record else None
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
     defense = _defense(args) if args.detector else None
-    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=record is not None, log=_log, sock=sock,
-                      defense=defense)
+    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=target is not None, log=_log,
+                      sock=sock, defense=defense)
     fid = None
     extra = {"scenario_file": args.scenario}
     if defense is not None:
         extra["defense"] = {"detector": args.detector, "run": str(args.run), "threshold": defense.monitor.threshold,
                             "response": args.response, "alarms": args.alarms}
-    if record is not None:
-        recover(record, lambda rec: save_recording(rec, record, fmt=args.format), _log)
-        fid = args.flight_id or new_flight_id(record, prefix="sitl")
-        sitl.journal = Journal(record, fid, extra, args.split, _log)
+    if target is not None:
+        root = journal_root(target.anchor)  # flights of earlier recordings that only their journals hold
+        target.add_left(root, lambda ds, remove: recover(ds, lambda rec: save_recording(rec, ds, fmt=args.format),
+                                                         _log, root=root, remove=remove, shown=target.shown),
+                        discard)
+        fid = args.flight_id or new_flight_id(prefix="sitl", taken=target.taken)
+        if fid in target.taken:
+            raise UsageError(f"--flight-id {fid}: {target.shown} holds a flight {fid} already; give another id")
+        sitl.journal = Journal(target.anchor, fid, extra, args.split, _log)
+        try:
+            sitl.journal.start(sitl)
+        except OSError as exc:
+            sitl.journal.remove()
+            raise UsageError(f"--record {target.shown}: its journal {sitl.journal.folder} cannot be written "
+                             f"({exc.strerror or exc}), so a flight whose final write failed would be lost; free "
+                             "space there or record elsewhere") from None
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -103,7 +119,7 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     _log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
     for s, e in sitl.windows():
         _log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
-    if record is None:
+    if target is None:
         return 0
     if sitl.plant.step_index == 0:
         sitl.journal.remove()
@@ -111,15 +127,29 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
         return 0
     sitl.journal.flush(sitl)
     try:
-        path = save_recording(sitl.record(fid, extra, split=args.split), record,
-                              fmt=args.format)
-    except OSError:
-        _log(f"sitl: the flight could not be written into {record}; its journal {sitl.journal.folder} keeps it and "
-             f"the next `scart-bench sitl --record {record}` adds it as flight {fid}, marked incomplete")
+        with target.writing() as ds:  # a URL: written in a local copy, published manifest last
+            path = save_recording(sitl.record(fid, extra, split=args.split), ds, fmt=args.format)
+    except (OSError, StorageError):
+        _kept_or_lost(sitl.journal, target, fid, sitl.time_s)
         raise
     sitl.journal.remove()
-    print(f"flight {fid} recorded in {record} ({path.name})")
+    print(f"flight {fid} recorded in {target.shown} ({path.name})")
     return 0
+
+
+def _kept_or_lost(journal, target, fid: str, flown_s: float) -> None:
+    """The final write failed: say exactly what the journal keeps (and that the next --record adds
+    it), or that it keeps nothing and the flight is lost (its empty journal goes)."""
+    kept = journal.kept_us / 1e6
+    if not any(journal.rows.values()):
+        journal.remove()
+        _log(f"sitl: the flight could not be written into {target.shown}, and its journal {journal.folder} could "
+             f"not keep any of it either (its writes failed): the {flown_s:.1f} s flown are lost")
+        return
+    part = "all of it" if not journal.failed else f"its first {kept:.1f} s (the last flush that could be written)"
+    _log(f"sitl: the flight could not be written into {target.shown}; its journal {journal.folder} keeps {part} of "
+         f"the {flown_s:.1f} s flown, and the next `scart-bench sitl --record {target.shown}` adds it as flight "
+         f"{fid}, marked incomplete")
 
 
 def _defense(args: argparse.Namespace):
