@@ -190,6 +190,8 @@ def _previous_config(store: RunStore, seed: int) -> dict | None:
     before a dataset is generated for nothing."""
     store.check_usable()
     old = store.read_config() if store.exists() else None
+    if old is not None:
+        store.verify()  # the files a rerun keeps (labels, finished jobs) are the ones the run wrote
     if old is not None and old.get("identity", {}).get("seed") != seed:
         raise RunError(f"{store.path}: this run folder was made with a different config (seed: "
                          f"{old.get('identity', {}).get('seed')!r} -> {seed!r}); nothing was changed. "

@@ -29,17 +29,32 @@
                                once, shared by the jobs; removed when every job of the invocation
                                finished OK, kept (and reused) while one is left to --resume
 <run>/.lock                    held (flock) by the run writing the folder; a second writer is refused
+<run>/checksums.json           sha256 of every file the scores are computed from (truth.parquet,
+                               arming.csv, flights.csv and each job's status.json, scores.npz and
+                               alarms.npz), recorded when the run writes them
 ```
 A job is complete exactly when its status.json says OK: status.json is removed when a job
 starts and written after its scores and params.
+
+Every file the metrics are computed from is checked against checksums.json when it is read (and all
+of them by ``score``, ``report`` and a rerun into the folder, :meth:`RunStore.verify`): a flipped
+byte in the labels or the scores is refused (:class:`ChecksumError`, one line naming the file)
+instead of scored. A checksum is recorded before its file is written, and a job's files only count
+once its status.json exists, so a run killed between the two leaves nothing that reads as damaged.
+Run folders made before checksums (no checksums.json) are read as before. The tables made from
+these files (metrics.csv, flight_scores.csv, ...) are not covered: ``scart-bench score`` remakes them.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
+import math
 import os
+import re
 import tempfile
+import threading
 import zipfile
 from pathlib import Path
 
@@ -48,6 +63,7 @@ import pandas as pd
 
 from scart_bench.dataset.locks import FolderLock
 from scart_bench.errors import ScartBenchError
+from scart_bench.jsonfile import JsonFileError, loads_bounded, read_json
 from scart_bench.names import check_id, inside
 
 STATUSES = ("OK", "ERROR", "TIMEOUT")
@@ -55,8 +71,27 @@ STATUSES = ("OK", "ERROR", "TIMEOUT")
 SUMMARY_FILES = ("results.csv", "metrics.csv", "metrics.md", "breakdown.csv", "flight_scores.csv")
 
 
+#: The run folder's record of checksums (:meth:`RunStore.verify`).
+CHECKSUMS_FILE = "checksums.json"
+CHECKSUMS_FORMAT = "scart-bench-checksums/1"
+#: Run-level files the scores are computed from (each job's are in :data:`JOB_CHECKED_FILES`).
+RUN_CHECKED_FILES = ("truth.parquet", "arming.csv", "flights.csv")
+JOB_CHECKED_FILES = ("status.json", "scores.npz", "alarms.npz")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+_record_lock = threading.Lock()
+
+
 class RunStoreError(ScartBenchError):
     """A run folder is missing, foreign or incompatible with the requested run."""
+
+
+class ChecksumError(RunStoreError):
+    """A file of a run folder differs from the checksum the run recorded when it wrote it (or the
+    record itself is damaged)."""
+
+
+def sha256_hex(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
 
 
 def _json_default(obj):
@@ -131,10 +166,11 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return buf.getvalue()
 
 
-def read_npz(path: Path) -> dict[str, np.ndarray]:
-    """The arrays of a scores file (RunStoreError naming the file when it is not a valid .npz of arrays)."""
+def read_npz(path: Path, data: bytes | None = None) -> dict[str, np.ndarray]:
+    """The arrays of a scores file (RunStoreError naming the file when it is not a valid .npz of arrays);
+    ``data``: its bytes, already read."""
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with np.load(io.BytesIO(data) if data is not None else path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise
@@ -142,6 +178,110 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
         # numpy's message for a pickled entry suggests allow_pickle=True: never, scores are plain arrays
         raise RunStoreError(f"{path}: not a valid scores file (a .npz of numeric arrays): "
                             f"{type(exc).__name__}") from None
+
+
+def _shown(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _is_int(v: object) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def check_config(config: dict, path: Path) -> dict:
+    """``config`` (a run folder's config.json) when every field the project reads has its type;
+    RunStoreError naming the file, the field and what was expected otherwise."""
+    from scart_bench.benchmark.protocol import Protocol
+
+    def bad(name: str, value: object, expected: str) -> RunStoreError:
+        return RunStoreError(f"{path}: {name} = {_shown(value)}: expected {expected} "
+                             "(damaged or not written by scart-bench)")
+
+    identity = config.get("identity")
+    if not isinstance(identity, dict):
+        raise bad("identity", identity, "an object (the run's dataset fingerprint, seed and protocol)")
+    protocol = identity.get("protocol")
+    if not isinstance(protocol, dict):
+        raise bad("identity.protocol", protocol, "an object (threshold rules, burn-in, end transient)")
+    try:
+        Protocol.from_dict(protocol)
+    except (ScartBenchError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        what = f"no {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise RunStoreError(f"{path}: identity.protocol: {what}; expected the threshold rules scart-bench "
+                            "writes (damaged or not written by scart-bench)") from None
+    fields: dict[str, tuple] = {
+        "format": (str,), "name": (str,), "profile": (str,), "created": (str,), "updated": (str,),
+        "detectors": (list,), "jobs": (dict,), "executor": (dict,), "dataset": (dict,), "protocol": (dict,),
+        "run": (dict,), "plugins": (list,), "train_dataset": (dict,), "transfer": (dict,), "versions": (dict,),
+        "git": (dict,), "checksums": (str,),
+    }
+    names = {str: "a string", list: "a list", dict: "an object"}
+    for key, types in fields.items():
+        if config.get(key) is not None and not isinstance(config[key], types):
+            raise bad(key, config[key], names[types[0]])
+    for key in ("seed", "random_state"):
+        if config.get(key) is not None and not _is_int(config[key]):
+            raise bad(key, config[key], "an integer")
+    if identity.get("seed") is not None and not _is_int(identity["seed"]):
+        raise bad("identity.seed", identity["seed"], "an integer")
+    for key in ("detectors", "plugins"):
+        if not all(isinstance(x, str) for x in config.get(key) or []):
+            raise bad(key, config[key], "a list of strings")
+    for name, job in (config.get("jobs") or {}).items():
+        if not isinstance(job, dict):
+            raise bad(f"jobs.{name}", job, "an object (source, class, params)")
+    jobs = (config.get("executor") or {}).get("jobs")
+    if jobs is not None and not (_is_int(jobs) and jobs >= 1):
+        raise bad("executor.jobs", jobs, "a whole number >= 1")
+    if config.get("timeout_s") is not None and not (_is_number(config["timeout_s"]) and config["timeout_s"] > 0):
+        raise bad("timeout_s", config["timeout_s"], "a positive number of seconds")
+    for side in ("dataset", "train_dataset"):
+        part = config.get(side) or {}
+        for key, kind in (("path", str), ("fingerprint", str), ("flights", dict), ("info", dict),
+                          ("no_effect", list)):
+            if part.get(key) is not None and not isinstance(part[key], kind):
+                raise bad(f"{side}.{key}", part[key], names[kind])
+        for role, n in (part.get("flights") or {}).items():
+            if not (_is_int(n) and n >= 0):
+                raise bad(f"{side}.flights.{role}", n, "a count of flights >= 0")
+    columns = (config.get("transfer") or {}).get("columns")
+    if columns is not None and not (isinstance(columns, list) and all(isinstance(c, str) for c in columns)):
+        raise bad("transfer.columns", columns, "a list of column names")
+    return config
+
+
+#: status.json fields and their types (None allowed for every field but status)
+_STATUS_TEXT = ("detector", "message", "finished")
+_STATUS_SECONDS = ("fit_seconds", "score_seconds", "wall_seconds", "max_rss_mb")
+_STATUS_COUNTS = ("rows_scored", "n_train_flights", "n_scored_flights", "threads")
+
+
+def check_status(status: object, path: Path) -> dict:
+    """A job's status.json when its fields have their types; RunStoreError naming the file and field."""
+    def bad(name: str, value: object, expected: str) -> RunStoreError:
+        return RunStoreError(f"{path}: {name} = {_shown(value)}: expected {expected} "
+                             "(damaged or not written by scart-bench)")
+
+    if not isinstance(status, dict):
+        raise RunStoreError(f"{path}: the top level is {type(status).__name__}; expected a JSON object "
+                            "(damaged or not written by scart-bench)")
+    if status.get("status") not in STATUSES:
+        raise bad("status", status.get("status"), f"one of {', '.join(STATUSES)}")
+    for key in _STATUS_TEXT:
+        if status.get(key) is not None and not isinstance(status[key], str):
+            raise bad(key, status[key], "a string")
+    for key in _STATUS_SECONDS:
+        if status.get(key) is not None and not (_is_number(status[key]) and status[key] >= 0):
+            raise bad(key, status[key], "a number >= 0 (or null)")
+    for key in _STATUS_COUNTS:
+        if status.get(key) is not None and not (_is_int(status[key]) and status[key] >= 0):
+            raise bad(key, status[key], "a whole number >= 0 (or null)")
+    return status
 
 
 class RunStore:
@@ -155,23 +295,123 @@ class RunStore:
     def config_path(self) -> Path:
         return self.path / "config.json"
 
+    @property
+    def checksums_path(self) -> Path:
+        return self.path / CHECKSUMS_FILE
+
     def job_dir(self, detector: str) -> Path:
         return inside(self.path / "jobs", check_id(detector, "detector name"))
 
     def exists(self) -> bool:
         return self.config_path.exists()
 
+    # -- checksums ----------------------------------------------------------------------------
+    def has_checksums(self) -> bool:
+        """Whether the run records checksums (run folders made before them do not)."""
+        return self.checksums_path.exists()
+
+    def _checksums(self) -> dict | None:
+        """The recorded checksums (path in the run folder -> sha256 as written), None for a run folder
+        made before checksums. ChecksumError when the record is damaged, or missing although
+        config.json says the run keeps one."""
+        if not self.checksums_path.exists():
+            try:
+                says = read_json(self.config_path).get("checksums")  # type: ignore[union-attr]
+            except (JsonFileError, AttributeError):
+                says = None  # read_config names a damaged config.json
+            if says:
+                raise ChecksumError(f"{self.checksums_path}: missing, though {self.config_path} says the run "
+                                    "records checksums; the folder is incomplete or was edited (run it again into "
+                                    "a new --out)")
+            return None
+        try:
+            record = read_json(self.checksums_path)
+        except JsonFileError as exc:
+            raise ChecksumError(str(exc)) from None
+        files = record.get("files")  # type: ignore[union-attr]
+        if record.get("format") != CHECKSUMS_FORMAT or not isinstance(files, dict):  # type: ignore[union-attr]
+            raise ChecksumError(f"{self.checksums_path}: not a scart-bench checksum record; expected "
+                                f"format {CHECKSUMS_FORMAT!r} and \"files\": an object of sha256 digests")
+        return files
+
+    def _check(self, rel: str, digest: str, files: dict | None) -> None:
+        """ChecksumError naming ``rel`` when ``digest`` (sha256 of its bytes) is not what the run recorded."""
+        if files is None:
+            return
+        path = self.path / rel
+        if rel not in files:
+            raise ChecksumError(f"{path}: no checksum recorded for it in {self.checksums_path}, although the run "
+                                "records one for every file it writes; the file was added or the record edited "
+                                "(run it again into a new --out)")
+        expected = files[rel]
+        if not isinstance(expected, str) or not _SHA256.fullmatch(expected):
+            raise ChecksumError(f"{path}: its checksum in {self.checksums_path} is {_shown(expected)}; expected a "
+                                "sha256 hex digest (the record is damaged or was edited)")
+        if digest != expected:
+            raise ChecksumError(f"{path}: changed since the run wrote it (sha256 {digest[:16]}..., the run recorded "
+                                f"{expected[:16]}...); the file is damaged or was edited: remove it and rerun the "
+                                "run with --resume to write it again, or run it again into a new --out")
+
+    def _read_checked(self, rel: str) -> bytes:
+        """The bytes of ``rel`` (a path in the run folder), refused when they differ from its checksum."""
+        data = (self.path / rel).read_bytes()
+        self._check(rel, sha256_hex(data), self._checksums())
+        return data
+
+    def _record(self, entries: dict[str, str | None]) -> None:
+        """Record sha256 digests (None: forget the entry) of paths in the run folder, before their files
+        are written; nothing in a run folder made before checksums."""
+        with _record_lock:
+            files = self._checksums()
+            if files is None:
+                return
+            files = {**files, **entries}
+            atomic_write_json(self.checksums_path, {"format": CHECKSUMS_FORMAT, "algorithm": "sha256",
+                                                    "files": {k: v for k, v in files.items() if v is not None}})
+
+    def _write_checked(self, rel: str, data: bytes) -> None:
+        self._record({rel: sha256_hex(data)})
+        atomic_write_bytes(self.path / rel, data)
+
+    def checked_files(self) -> list[str]:
+        """The files of the run the scores are computed from, as paths in the folder: the run-level
+        files that exist and the files of every job with a status.json."""
+        out = [rel for rel in RUN_CHECKED_FILES if (self.path / rel).is_file()]
+        for name in self.job_names():
+            d = self.job_dir(name)
+            if (d / "status.json").is_file():
+                out += [f"jobs/{name}/{f}" for f in JOB_CHECKED_FILES if (d / f).is_file()]
+        return out
+
+    def verify(self) -> None:
+        """Compare every file the scores are computed from with the checksum recorded when the run
+        wrote it (``score``, ``report`` and a rerun into the folder do, before anything else):
+        ChecksumError naming the first that differs, or whose checksum is missing, null or empty.
+        A run folder made before checksums passes unchecked."""
+        files = self._checksums()
+        if files is None:
+            return
+        for rel in self.checked_files():
+            with open(self.path / rel, "rb") as fh:
+                digest = hashlib.file_digest(fh, "sha256").hexdigest()
+            self._check(rel, digest, files)
+
+    def seal(self, rel: str) -> None:
+        """Record the checksum of ``rel`` as it is now: for a file changed on purpose (a test's
+        damaged scores, a repaired table); a run folder without checksums is left as it is."""
+        self._record({rel: sha256_hex((self.path / rel).read_bytes())})
+
     # -- config -------------------------------------------------------------------------------
     def read_config(self) -> dict:
+        """config.json, bounded (:func:`scart_bench.jsonfile.read_json`) and checked field by field
+        (:func:`check_config`): a damaged or hostile file is one error naming it."""
         if not self.config_path.exists():
             raise RunStoreError(f"{self.path}: not a scart-bench run folder (no config.json)")
         try:
-            config = json.loads(self.config_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise RunStoreError(f"{self.config_path}: not valid JSON ({exc})") from None
-        if not isinstance(config, dict):
-            raise RunStoreError(f"{self.config_path}: expected a JSON object, got {type(config).__name__}")
-        return config
+            config = read_json(self.config_path)
+        except JsonFileError as exc:
+            raise RunStoreError(str(exc)) from None
+        return check_config(config, self.config_path)  # type: ignore[arg-type]
 
     def lock(self) -> FolderLock:
         """Hold the run folder for this process (LockHeld when another process holds it)."""
@@ -184,6 +424,12 @@ class RunStore:
             (self.path / name).unlink(missing_ok=True)
 
     def write_config(self, config: dict) -> None:
+        """config.json; a new run folder starts its checksum record here (and config.json says so,
+        so that a removed record is noticed)."""
+        if not self.config_path.exists() and not self.checksums_path.exists():
+            atomic_write_json(self.checksums_path, {"format": CHECKSUMS_FORMAT, "algorithm": "sha256", "files": {}})
+        if self.has_checksums():
+            config = {**config, "checksums": CHECKSUMS_FILE}
         atomic_write_json(self.config_path, config)
 
     def check_usable(self) -> None:
@@ -198,15 +444,28 @@ class RunStore:
 
     # -- flights and labels -------------------------------------------------------------------
     def write_flights(self, flights: pd.DataFrame) -> None:
-        atomic_write_csv(self.path / "flights.csv", flights)
+        self._write_checked("flights.csv", flights.to_csv(index=False).encode("utf-8"))
+
+    def _read_csv(self, rel: str, **kwargs) -> pd.DataFrame:
+        data = self._read_checked(rel)
+        try:
+            return pd.read_csv(io.BytesIO(data), **kwargs)
+        except (ValueError, pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise RunStoreError(f"{self.path / rel}: not a table scart-bench wrote ({type(exc).__name__}: "
+                                f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
 
     def read_flights(self) -> pd.DataFrame:
         """flights.csv, with ``armed_us`` / ``armed_by`` from arming.csv when the run has it."""
-        df = pd.read_csv(self.path / "flights.csv", dtype={"flight_id": str, "scenario_id": "string"},
-                         keep_default_na=True)
+        df = self._read_csv("flights.csv", dtype={"flight_id": str, "scenario_id": "string"}, keep_default_na=True)
+        if "flight_id" not in df.columns:
+            raise RunStoreError(f"{self.path / 'flights.csv'}: no flight_id column; not a table scart-bench wrote")
         for col in ("attack_start_us", "attack_end_us"):
             if col in df.columns:
-                df[col] = df[col].astype("Int64")
+                try:
+                    df[col] = df[col].astype("Int64")
+                except (TypeError, ValueError) as exc:
+                    raise RunStoreError(f"{self.path / 'flights.csv'}: column {col}: {exc}; expected whole "
+                                        "microseconds") from None
         arming = self.read_arming()
         if arming is not None:
             df = df.drop(columns=[c for c in ("armed_us", "armed_by") if c in df.columns]).merge(
@@ -218,17 +477,25 @@ class RunStore:
 
     def write_arming(self, arming: dict[str, tuple[int, str]]) -> None:
         """arming.csv: flight id -> (armed_us, the column that said so)."""
-        atomic_write_csv(self.path / "arming.csv", pd.DataFrame(
-            [(f, int(t), str(by)) for f, (t, by) in arming.items()], columns=["flight_id", "armed_us", "armed_by"]))
+        df = pd.DataFrame([(f, int(t), str(by)) for f, (t, by) in arming.items()],
+                          columns=["flight_id", "armed_us", "armed_by"])
+        self._write_checked("arming.csv", df.to_csv(index=False).encode("utf-8"))
 
     def read_arming(self) -> pd.DataFrame | None:
-        path = self.path / "arming.csv"
-        if not path.is_file():
+        if not (self.path / "arming.csv").is_file():
             return None
-        return pd.read_csv(path, dtype={"flight_id": str, "armed_us": "Int64", "armed_by": str})
+        df = self._read_csv("arming.csv", dtype={"flight_id": str, "armed_us": "Int64", "armed_by": str})
+        if "flight_id" not in df.columns or "armed_us" not in df.columns:
+            raise RunStoreError(f"{self.path / 'arming.csv'}: expected columns flight_id, armed_us, armed_by")
+        return df
 
     def has_truth(self) -> bool:
-        return (self.path / "truth.parquet").exists()
+        """truth.parquet is there (and, in a run that records checksums, so is its checksum: a run killed
+        between the two writes it again)."""
+        if not (self.path / "truth.parquet").exists():
+            return False
+        files = self._checksums()
+        return files is None or "truth.parquet" in files
 
     def write_truth(self, truth: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
         ids = list(truth)
@@ -242,29 +509,45 @@ class RunStore:
         })
         buf = io.BytesIO()
         df.to_parquet(buf, index=False)
-        atomic_write_bytes(self.path / "truth.parquet", buf.getvalue())
+        self._write_checked("truth.parquet", buf.getvalue())
 
     def read_truth(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Labels per flight: (timestamps, Is_Anomaly), checked against the run's checksum and for shape
+        (each flight one block of increasing timestamps, labels 0 or 1)."""
         path = self.path / "truth.parquet"
         if not path.is_file():
             raise RunStoreError(f"{path}: missing; the run's labels are gone (run it again into a new --out)")
+        data = self._read_checked("truth.parquet")
         try:
-            df = pd.read_parquet(path)
+            df = pd.read_parquet(io.BytesIO(data))
+            col = df["flight_id"]
+            ts = df["Timestamp"].to_numpy(np.int64)
+            lab = df["Is_Anomaly"].to_numpy()
         except Exception as exc:  # pyarrow raises its own types for a damaged file
             raise RunStoreError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
-        col = df["flight_id"]
         if isinstance(col.dtype, pd.CategoricalDtype):  # as written: compare codes, not 12 M strings
             fid, names = col.cat.codes.to_numpy(), np.asarray(col.cat.categories.astype(str))
         else:
             fid = col.astype(str).to_numpy()
             names = None
-        ts = df["Timestamp"].to_numpy(np.int64)
-        lab = df["Is_Anomaly"].to_numpy(np.int8)
         if fid.size == 0:
             return {}
+        if not np.isin(lab, (0, 1)).all():
+            raise RunStoreError(f"{path}: Is_Anomaly holds values other than 0 and 1; damaged or not written "
+                                "by scart-bench")
+        lab = lab.astype(np.int8)
         cut = np.flatnonzero(fid[1:] != fid[:-1]) + 1
         starts, ends = np.r_[0, cut], np.r_[cut, fid.size]
-        return {str(fid[s] if names is None else names[fid[s]]): (ts[s:e], lab[s:e]) for s, e in zip(starts, ends)}
+        out = {str(fid[s] if names is None else names[fid[s]]): (ts[s:e], lab[s:e]) for s, e in zip(starts, ends)}
+        if len(out) != starts.size:
+            raise RunStoreError(f"{path}: a flight's rows are not in one block; damaged or not written by scart-bench")
+        step = np.diff(ts)
+        step[cut - 1] = 1  # a new flight may start anywhere
+        if (step <= 0).any():
+            row = int(np.flatnonzero(step <= 0)[0]) + 1
+            raise RunStoreError(f"{path}: Timestamp not increasing at row {row}; damaged or not written by "
+                                "scart-bench")
+        return out
 
     # -- jobs ---------------------------------------------------------------------------------
     def job_names(self) -> list[str]:
@@ -272,20 +555,29 @@ class RunStore:
         return sorted(p.name for p in root.iterdir() if p.is_dir()) if root.exists() else []
 
     def read_status(self, detector: str) -> dict | None:
+        """A job's status.json (None when the job has none: not finished), checked against its
+        checksum, bounded and checked field by field."""
         p = self.job_dir(detector) / "status.json"
-        return json.loads(p.read_text()) if p.exists() else None
+        if not p.exists():
+            return None
+        data = self._read_checked(f"jobs/{detector}/status.json")
+        return check_status(loads_bounded(data, str(p)), p)
 
     def read_params(self, detector: str) -> dict | None:
         p = self.job_dir(detector) / "params.json"
-        return json.loads(p.read_text()) if p.exists() else None
+        return read_json(p) if p.exists() else None  # type: ignore[return-value]
 
     def read_scores(self, detector: str) -> dict[str, np.ndarray]:
-        return read_npz(self.job_dir(detector) / "scores.npz")
+        path = self.job_dir(detector) / "scores.npz"
+        return read_npz(path, self._read_checked(f"jobs/{detector}/scores.npz"))
 
     def read_alarms(self, detector: str) -> dict[str, np.ndarray] | None:
         """The detector's own row alarms (alarm rule "own"), None when the job saved none."""
         path = self.job_dir(detector) / "alarms.npz"
-        return {k: v.astype(bool) for k, v in read_npz(path).items()} if path.is_file() else None
+        if not path.is_file():
+            return None
+        arrays = read_npz(path, self._read_checked(f"jobs/{detector}/alarms.npz"))
+        return {k: v.astype(bool) for k, v in arrays.items()}
 
     def start_job(self, detector: str) -> None:
         """Mark a job as not complete: remove its status.json before anything else is written."""
@@ -295,22 +587,33 @@ class RunStore:
 
     def finish_job(self, detector: str, status: dict, params: dict, scores: dict[str, np.ndarray] | None,
                    log: str = "", alarms: dict[str, np.ndarray] | None = None) -> None:
-        """Write a finished job: scores (OK only), params, log, then status.json last."""
+        """Write a finished job: scores (OK only), params, log, their checksums, then status.json last."""
         if status.get("status") not in STATUSES:
             raise ValueError(f"job status {status.get('status')!r}: expected one of {STATUSES}")
         d = self.job_dir(detector)
         d.mkdir(parents=True, exist_ok=True)
+        rel = f"jobs/{detector}"
+        record: dict[str, str | None] = {}
         if scores is not None:
-            atomic_write_bytes(d / "scores.npz", npz_bytes(scores))
+            data = npz_bytes(scores)
+            record[f"{rel}/scores.npz"] = sha256_hex(data)
+            atomic_write_bytes(d / "scores.npz", data)
         else:
+            record[f"{rel}/scores.npz"] = None
             (d / "scores.npz").unlink(missing_ok=True)
         if scores is not None and alarms is not None:
-            atomic_write_bytes(d / "alarms.npz", npz_bytes({k: np.asarray(v, dtype=np.int8) for k, v in alarms.items()}))
+            data = npz_bytes({k: np.asarray(v, dtype=np.int8) for k, v in alarms.items()})
+            record[f"{rel}/alarms.npz"] = sha256_hex(data)
+            atomic_write_bytes(d / "alarms.npz", data)
         else:
+            record[f"{rel}/alarms.npz"] = None
             (d / "alarms.npz").unlink(missing_ok=True)
         atomic_write_json(d / "params.json", params)
         atomic_write_text(d / "log.txt", log)
-        atomic_write_json(d / "status.json", status)
+        text = (to_json(status) + "\n").encode("utf-8")
+        record[f"{rel}/status.json"] = sha256_hex(text)
+        self._record(record)  # before status.json: a job is complete (and checked) once that is there
+        atomic_write_bytes(d / "status.json", text)
 
     # -- tables -------------------------------------------------------------------------------
     def write_table(self, name: str, df: pd.DataFrame) -> None:

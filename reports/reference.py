@@ -31,6 +31,9 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.benchmark.protocol import Protocol
+from scart_bench.benchmark.store import RunStore
+from scart_bench.errors import ReportError
+from scart_bench.jsonfile import read_json
 from scart_bench.reports.leaderboard import leaderboard_of
 from scart_bench.reports.results import RunResults, load_runs
 
@@ -129,12 +132,21 @@ def _newer(variant: Path, run: Path) -> bool:
     return done.is_file() and done.stat().st_mtime >= (run / "metrics.csv").stat().st_mtime
 
 
+def wall_s(run: Path) -> float:
+    """The wall time a run's wall_s.json records (bounded read; ReportError naming the file and field)."""
+    path = run / "wall_s.json"
+    value = read_json(path).get("wall_s")  # type: ignore[union-attr]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
+        raise ReportError(f"{path}: wall_s = {value!r}: expected a number of seconds >= 0")
+    return float(value)
+
+
 def rescored(run: Path, name: str, changes: dict) -> Path:
     """A copy of ``run`` (scores, truth, flights; not its flight cache) scored under the changed protocol."""
     from scart_bench.benchmark.results import score_run
 
     out = run.parent / "variants" / f"{run.name}.{name}"
-    config = json.loads((run / "config.json").read_text())
+    config = RunStore(run).read_config()
     protocol = protocol_variant(Protocol.from_dict(config["identity"]["protocol"]), **changes)
     if _newer(out, run):
         return out
@@ -163,7 +175,7 @@ def retrained(run: Path, name: str, jobs: int) -> Path | None:
     out = run.parent / "variants" / f"{run.name}.{name}"
     if _newer(out, run):
         return out
-    config = json.loads((run / "config.json").read_text())
+    config = RunStore(run).read_config()
     t0 = time.perf_counter()
     protocol = dataclasses.replace(Protocol.from_dict(config["protocol"]), **conf.protocol)
     run_benchmark(RunConfig(detectors=[conf.detector], params={conf.detector: dict(conf.params)},
@@ -184,8 +196,7 @@ def _trained_lines(board: pd.DataFrame, trained: dict[str, list[RunResults]]) ->
         if detector not in other.index:
             continue
         a, b = board.loc[detector], other.loc[detector]
-        walls = [json.loads((r.path / "wall_s.json").read_text())["wall_s"] for r in trained[name]
-                 if (r.path / "wall_s.json").is_file()]
+        walls = [wall_s(r.path) for r in trained[name] if (r.path / "wall_s.json").is_file()]
         lines += ["", f"**{conf.what}** (`{conf.label()}`; "
                       f"{len(trained[name])} seeds, {sum(walls) / 60:.1f} min):", "",
                   "| Configuration | TP simulation | TP csv | TN no attack | ROC-AUC |", "|---|---|---|---|---|"]
@@ -499,8 +510,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
     counts = (f"{int(first['n_simulation'].iloc[0])} simulation-mode and {int(first['n_csv'].iloc[0])} csv-mode "
               f"attacked flights, {int(first['n_no_attack'].iloc[0])} held-out normal flights and "
               f"{int(first['n_validation'].iloc[0])} validation flights per seed") if n is not None else ""
-    run_walls = [json.loads((r.path / "wall_s.json").read_text())["wall_s"] for r in runs
-                 if (r.path / "wall_s.json").is_file()]
+    run_walls = [wall_s(r.path) for r in runs if (r.path / "wall_s.json").is_file()]
     lines = [
         "# Reference results",
         "",

@@ -21,8 +21,14 @@ TEXT_COLUMNS = ("detector", "status", "message", "flight_id", "role", "mode", "d
 
 
 def read_table(path: Path) -> pd.DataFrame:
-    """A CSV table of a run with text columns kept as text and every other column numeric or bool."""
-    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    """A CSV table of a run with text columns kept as text and every other column numeric or bool
+    (ReportError naming the file when it is not a table)."""
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (ValueError, UnicodeDecodeError) as exc:  # pandas' ParserError and EmptyDataError are ValueErrors
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise ReportError(f"{path}: not a table scart-bench wrote ({type(exc).__name__}: {first}); "
+                          f"rerun `scart-bench score {path.parent}`") from None
 
     def convert(col: str) -> pd.Series:
         if col in TEXT_COLUMNS:
@@ -68,12 +74,12 @@ def load_run(path: str | Path, label: str | None = None) -> RunResults:
     path = Path(path)
     if not path.is_dir():
         raise ReportError(f"{path}: no such run folder")
+    store = RunStore(path)
     try:
-        config = RunStore(path).read_config()
+        config = store.read_config()
     except RunStoreError as exc:
         raise ReportError(str(exc)) from exc
-    except ValueError as exc:
-        raise ReportError(f"{path / 'config.json'}: not valid JSON ({exc})") from exc
+    store.verify()  # the labels and scores behind the tables are the ones the run wrote (ChecksumError)
     if not (path / "metrics.csv").is_file():
         raise ReportError(f"{path}: no metrics.csv; the run has not been scored "
                          f"(run `scart-bench score {path}` first)")
