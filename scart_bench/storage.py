@@ -15,6 +15,11 @@ staging, with the guarantees of the local format kept:
 - **Run folders and reports** (:func:`fetch_folder`, :func:`push_folder`): downloaded into a local
   folder, worked on there, uploaded back (the run's flight cache stays local).
 
+Every object key under a URL becomes a local path through :func:`scart_bench.names.join_inside`
+only: a key that would leave its local folder (``..``, ``.`` or empty segments, an absolute key, a
+backslash or NUL) refuses the whole URL before anything is written, so whoever can write to a
+bucket cannot write outside the cache or staging folder (a ``.pth`` or shell rc file elsewhere).
+
 Object stores have no locks: two commands writing the same URL at once are not prevented.
 Bad URLs, a missing fsspec backend (s3fs, gcsfs, adlfs) and missing credentials raise
 :class:`StorageError`, one line naming the URL and what was expected.
@@ -30,6 +35,7 @@ import tempfile
 from pathlib import Path
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.names import join_inside, relative_parts
 
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*://")
 #: fsspec backends per scheme, for the "install ..." hint
@@ -96,7 +102,7 @@ def has_manifest(url: str) -> str | None:
 def has_objects(url: str) -> bool:
     """True when anything is stored under ``url``."""
     fs, root = _fs(url)
-    return bool(_files(fs, root))
+    return bool(_files(fs, root, url))
 
 
 def check_writable(url: str) -> None:
@@ -107,13 +113,26 @@ def check_writable(url: str) -> None:
     _call(url, fs.rm_file, probe)
 
 
-def _files(fs, root: str) -> list[str]:
-    """Every object under ``root`` as a path relative to it."""
+def _files(fs, root: str, url: str, check: bool = True) -> list[str]:
+    """Every object under ``root`` as a key relative to it; with ``check``, IdError naming ``url`` and
+    the key for a key that is not a plain relative name (``..``, empty segments, ...: it could leave
+    any folder; the fetches check them against their folder instead)."""
     try:
         found = fs.find(root)
     except FileNotFoundError:
         return []
-    return sorted(p[len(root):].lstrip("/") for p in found if p.startswith(root))
+    except Exception as exc:  # backends raise their own types: one line naming the URL
+        raise _access(url, exc) from None
+    prefix = f"{root}/"
+    rels = sorted(p[len(prefix):] for p in found if p.startswith(prefix))
+    for rel in rels if check else ():
+        relative_parts(rel, f"{url}: object key")
+    return rels
+
+
+def _local_paths(url: str, rels: list[str], folder: Path) -> list[str]:
+    """The local path of each key ``rels`` under ``folder``, all checked before anything is written."""
+    return [str(join_inside(folder, rel, f"{url}: object key")) for rel in rels]
 
 
 def fetch_dataset(url: str, cache_root: str | Path | None = None) -> Path:
@@ -134,8 +153,11 @@ def fetch_dataset(url: str, cache_root: str | Path | None = None) -> Path:
             return folder
         tmp = Path(tempfile.mkdtemp(prefix=f".{key}.", dir=folder.parent))
         try:
-            rels = [r for r in _files(fs, root) if r not in MANIFESTS and not r.startswith(".scart-bench-probe")]
-            _call(url, fs.get, [f"{root}/{r}" for r in rels], [str(tmp / r) for r in rels])
+            rels = [r for r in _files(fs, root, url, check=False)
+                    if r not in MANIFESTS and not r.startswith(".scart-bench-probe")]
+            dests = _local_paths(url, rels, tmp)
+            if rels:
+                _call(url, fs.get, [f"{root}/{r}" for r in rels], dests)
             (tmp / name).write_bytes(manifest)  # the manifest read first: the copy is the dataset it names
             shutil.rmtree(folder, ignore_errors=True)
             os.replace(tmp, folder)
@@ -155,20 +177,45 @@ def clear(url: str) -> None:
     for name in MANIFESTS:
         if _call(url, fs.exists, f"{root}/{name}"):
             _call(url, fs.rm_file, f"{root}/{name}")
-    rels = _files(fs, root)
+    rels = _files(fs, root, url)
     if rels:
         _call(url, fs.rm, [f"{root}/{r}" for r in rels])
 
 
-def upload_folder(local: str | Path, url: str, exclude: tuple[str, ...] = ()) -> None:
-    """Upload every file under ``local`` to ``url`` (same relative paths), except the top-level
-    entries named in ``exclude``."""
+def _local_files(local: Path, exclude: tuple[str, ...]) -> dict[str, Path]:
+    """The files under ``local`` by key (relative POSIX path), without the top-level entries ``exclude``."""
+    files = {}
+    for p in sorted(local.rglob("*")):
+        rel = p.relative_to(local)
+        if rel.parts[0] not in exclude and p.is_file():
+            files[rel.as_posix()] = p
+    return files
+
+
+def snapshot(local: str | Path, exclude: tuple[str, ...] = ()) -> dict[str, tuple[int, int, int]]:
+    """What each file under ``local`` is now (size, mtime, inode): :func:`push_folder` uploads only the
+    files that changed since the snapshot it is given."""
+    out = {}
+    for rel, p in _local_files(Path(local), exclude).items():
+        st = p.stat()
+        out[rel] = (st.st_size, st.st_mtime_ns, st.st_ino)
+    return out
+
+
+def upload_folder(local: str | Path, url: str, exclude: tuple[str, ...] = (),
+                  only: list[str] | None = None) -> None:
+    """Upload every file under ``local`` to ``url`` (same relative paths; ``only``: these keys),
+    except the top-level entries named in ``exclude``. A local name that is not a plain relative key
+    (a backslash, say) is refused: it could not be fetched back (see :func:`fetch_folder`)."""
     local = Path(local)
     fs, root = _fs(url)
-    files = [p for p in sorted(local.rglob("*")) if p.is_file()
-             and p.relative_to(local).parts[0] not in exclude]
-    if files:
-        _call(url, fs.put, [str(p) for p in files], [f"{root}/{p.relative_to(local).as_posix()}" for p in files])
+    files = _local_files(local, exclude)
+    wanted = None if only is None else set(only)
+    keys = [k for k in files if wanted is None or k in wanted]
+    for key in keys:
+        relative_parts(key, f"{local}: file for {url}")
+    if keys:
+        _call(url, fs.put, [str(files[k]) for k in keys], [f"{root}/{k}" for k in keys])
 
 
 def publish_dataset(local: str | Path, url: str, flights_uploaded: bool = False) -> None:
@@ -185,21 +232,28 @@ def publish_dataset(local: str | Path, url: str, flights_uploaded: bool = False)
 
 
 def fetch_folder(url: str, dest: str | Path) -> bool:
-    """Download every object under ``url`` into ``dest``; False when there is nothing there."""
+    """Download every object under ``url`` into ``dest``; False when there is nothing there. Every key
+    is checked first (:func:`scart_bench.names.join_inside`): a hostile one refuses the whole URL."""
     fs, root = _fs(url)
-    rels = _files(fs, root)
+    rels = _files(fs, root, url, check=False)
+    dests = _local_paths(url, rels, Path(dest))
     if rels:
-        _call(url, fs.get, [f"{root}/{r}" for r in rels], [str(Path(dest) / r) for r in rels])
+        _call(url, fs.get, [f"{root}/{r}" for r in rels], dests)
     return bool(rels)
 
 
-def push_folder(local: str | Path, url: str, exclude: tuple[str, ...] = ()) -> None:
-    """Make ``url`` hold the files of ``local`` (objects no longer there are removed)."""
+def push_folder(local: str | Path, url: str, exclude: tuple[str, ...] = (),
+                since: dict[str, tuple[int, int, int]] | None = None) -> dict[str, tuple[int, int, int]]:
+    """Make ``url`` hold the files of ``local`` (objects no longer there are removed); with ``since``
+    (the :func:`snapshot` of what ``url`` holds already) only new and changed files are uploaded.
+    Returns the snapshot of what was pushed, for the next call."""
     fs, root = _fs(url)
     local = Path(local)
-    keep = {p.relative_to(local).as_posix() for p in local.rglob("*") if p.is_file()
-            and p.relative_to(local).parts[0] not in exclude}
-    upload_folder(local, url, exclude)
-    gone = [f"{root}/{r}" for r in _files(fs, root) if r not in keep and r.split("/")[0] not in exclude]
+    now = snapshot(local, exclude)
+    changed = [k for k, v in now.items() if since is None or since.get(k) != v]
+    if changed:
+        upload_folder(local, url, exclude, only=changed)
+    gone = [f"{root}/{r}" for r in _files(fs, root, url) if r not in now and r.split("/")[0] not in exclude]
     if gone:
         _call(url, fs.rm, gone)
+    return now

@@ -6,6 +6,8 @@ Library code raises the errors of :mod:`scart_bench.errors`; ``UsageError`` is f
 
 from __future__ import annotations
 
+import os
+import re
 import shutil
 import sys
 import tempfile
@@ -48,35 +50,172 @@ def topic_list(text: str | None) -> list[str] | None:
 EXIT_JOBS_FAILED = 3
 
 
+#: prefix of the local staging folders of URL commands, in the temp folder: scart-stage-<pid>-<random>
+STAGE_PREFIX = "scart-stage-"
+#: a temp folder made by :func:`owned_tempdir`: scart-<what>-<pid>-<random>, holding the owner file
+_OWNED = re.compile(r"scart-[a-z]+-(\d+)-[^-]+")
+_OWNER = ".owner"  # beside the folder's content: flock-held by the owning process while it lives
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # another user's, or cannot tell: alive
+    return True
+
+
+def _owner_locked(path: Path) -> bool:
+    """True when a live process holds the flock on ``path`` (False without fcntl)."""
+    try:
+        import fcntl
+    except ImportError:
+        return False
+    try:
+        with open(path, "a") as fh:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    return False
+
+
+def remove_stale_temp(tmpdir: str | Path | None = None) -> list[Path]:
+    """Remove the temp folders of :func:`owned_tempdir` (``scart-<what>-<pid>-*``, such as the
+    staging folders of URL commands) whose process is gone (killed -9: no ``finally`` ran), and
+    return them. Stale means: the pid is not running, and the owner file exists and is not locked
+    (the kernel drops a dead process's flock, so a reused pid, or one of another pid namespace
+    sharing the temp folder, cannot make a live folder look stale). Other users' folders are left."""
+    removed: list[Path] = []
+    root = Path(tmpdir or tempfile.gettempdir())
+    try:
+        candidates = [p for p in root.iterdir() if _OWNED.fullmatch(p.name)]
+    except OSError:
+        return removed
+    for folder in candidates:
+        pid = int(_OWNED.fullmatch(folder.name).group(1))
+        try:
+            if (pid == os.getpid() or _pid_alive(pid) or folder.is_symlink() or not folder.is_dir()
+                    or folder.stat().st_uid != os.getuid() or not (folder / _OWNER).is_file()):
+                continue
+        except OSError:
+            continue
+        if _owner_locked(folder / _OWNER):
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        if not folder.exists():
+            removed.append(folder)
+    return removed
+
+
 @contextmanager
-def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), write: bool = True) -> Iterator[Path]:
-    """A local folder for ``location``: itself, or for an fsspec URL a local copy of what is there,
-    uploaded back afterwards (also after an error or an interrupt, so that ``--resume`` finds what
-    was done; ``exclude``: top-level entries kept local, such as a run's flight cache)."""
-    from scart_bench.storage import check_writable, fetch_folder, is_url, local_path, push_folder
+def owned_tempdir(prefix: str = STAGE_PREFIX) -> Iterator[Path]:
+    """A new temp folder ``<prefix><pid>-<random>`` (``prefix``: ``scart-<what>-``) owned by this
+    process (a flock on its owner file), removed on exit; one left by a killed process is removed by
+    the next command's start (:func:`remove_stale_temp`). Put the content in a subfolder: the owner
+    file sits at the top."""
+    if not re.fullmatch(r"scart-[a-z]+-", prefix):
+        raise ValueError(f"owned_tempdir prefix {prefix!r}: expected scart-<lowercase letters>-")
+    remove_stale_temp()
+    tmp = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
+    try:
+        owner = open(tmp / _OWNER, "w")  # noqa: SIM115 - held (locked) while the folder is in use
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    try:
+        try:
+            import fcntl
+
+            fcntl.flock(owner.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except ImportError:
+            pass
+        owner.write(f"scart-bench pid {os.getpid()}\n")
+        owner.flush()
+        yield tmp
+    finally:
+        owner.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _stage_name(url: str, default: str) -> str:
+    """The local copy's folder name: the URL's last segment when it is a plain id (a run's name), else
+    ``default`` (``s3://b/..`` or ``s3://b/x%00`` must not name a folder outside the staging folder)."""
+    from scart_bench.names import IdError, check_id
+
+    try:
+        return check_id(url.rsplit("/", 1)[-1], "URL name")
+    except IdError:
+        return default
+
+
+class Staged:
+    """A local folder standing for ``location``; :meth:`sync` uploads what changed in it since the last
+    sync when ``location`` is a URL (a run uploads each finished job so that a kill loses none)."""
+
+    def __init__(self, path: Path, url: str | None = None, exclude: tuple[str, ...] = ()):
+        self.path, self.url, self.exclude = path, url, exclude
+        self._pushed: dict | None = None
+
+    def fetched(self) -> None:
+        """Record the local copy as what the URL holds (only changes are uploaded afterwards)."""
+        from scart_bench.storage import snapshot
+
+        self._pushed = snapshot(self.path, self.exclude) if self.path.is_dir() else {}
+
+    def sync(self) -> None:
+        """Make the URL hold the local folder's files (no-op for a local folder)."""
+        from scart_bench.storage import push_folder
+
+        if self.url is not None and self.path.is_dir():
+            self._pushed = push_folder(self.path, self.url, self.exclude, since=self._pushed)
+
+
+@contextmanager
+def stage_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), write: bool = True) -> Iterator[Staged]:
+    """:func:`staged_folder`, yielding a :class:`Staged` (its ``sync`` uploads before the end)."""
+    from scart_bench.storage import check_writable, fetch_folder, is_url, local_path
 
     if not is_url(location):
-        yield local_path(location)
+        remove_stale_temp()
+        yield Staged(local_path(location))
         return
     url = str(location).rstrip("/")
     if write:
         check_writable(url)
-    with tempfile.TemporaryDirectory(prefix="scart-stage-") as tmp:
-        local = Path(tmp) / (url.rsplit("/", 1)[-1] or "folder")
+    with owned_tempdir(STAGE_PREFIX) as tmp:
+        local = tmp / _stage_name(url, "folder")
         if not fetch_folder(url, local) and not write:
             raise UsageError(f"{url}: nothing there; expected a run folder")
+        staged = Staged(local, url, exclude)
+        staged.fetched()
         try:
-            yield local
+            yield staged
         finally:
             if write and local.is_dir():
-                push_folder(local, url, exclude)
+                staged.sync()
 
 
 @contextmanager
-def staged_dataset(location: str | Path) -> Iterator[Path]:
+def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), write: bool = True) -> Iterator[Path]:
+    """A local folder for ``location``: itself, or for an fsspec URL a local copy of what is there,
+    uploaded back afterwards (also after an error or an interrupt, so that ``--resume`` finds what
+    was done; ``exclude``: top-level entries kept local, such as a run's flight cache). The copy is
+    made in a staging folder owned by this process; those of killed processes are removed here."""
+    with stage_folder(location, exclude, write) as staged:
+        yield staged.path
+
+
+@contextmanager
+def staged_dataset(location: str | Path, overwrite: bool = False) -> Iterator[Path]:
     """A local folder for the dataset at ``location`` that a command creates or adds to: itself, or
     for an fsspec URL a local copy of the dataset there (if any), published back with its manifest
-    last once the command succeeded (scart_bench.storage); after a failure the URL is untouched."""
+    last once the command succeeded (scart_bench.storage); after a failure the URL is untouched.
+    Objects without a manifest (a half-uploaded dataset) are refused, or with ``overwrite`` replaced
+    by the new dataset when it is published."""
     from scart_bench.dataset import is_dataset
     from scart_bench.storage import (
         StorageError,
@@ -91,17 +230,18 @@ def staged_dataset(location: str | Path) -> Iterator[Path]:
     )
 
     if not is_url(location):
+        remove_stale_temp()
         yield local_path(location)
         return
     url = str(location).rstrip("/")
     check_writable(url)
-    with tempfile.TemporaryDirectory(prefix="scart-stage-") as tmp:
-        local = Path(tmp) / (url.rsplit("/", 1)[-1] or "dataset")
+    with owned_tempdir(STAGE_PREFIX) as tmp:
+        local = tmp / _stage_name(url, "dataset")
         if has_manifest(url):
             shutil.copytree(fetch_dataset(url), local)
-        elif has_objects(url):
+        elif has_objects(url) and not overwrite:
             raise StorageError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
-                               "choose a new prefix")
+                               "choose a new prefix, or pass --overwrite to replace them")
         yield local
         if is_dataset(local):
             clear(url)

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from scart_bench.cli.common import name_failed, print_tables, staged_folder
+from scart_bench.cli.common import name_failed, print_tables, remove_stale_temp, stage_folder
 from scart_bench.generator.profiles import PROFILES
 
 
@@ -93,19 +94,86 @@ def protocol_options(protocol, args: argparse.Namespace):
     return protocol
 
 
+def resume_datasets(cfg, folder: Path):
+    """``--resume`` without ``--dataset``: the run's own datasets, read from ``folder``'s config.json
+    (``dataset.url`` or ``dataset.path``, and the train dataset of a transfer run), so that nothing is
+    generated for a run made on another dataset. RunError up front when a saved dataset is gone; ``cfg``
+    unchanged for a new folder or one made on this profile's own dataset (generated when missing)."""
+    import dataclasses
+
+    from scart_bench.errors import RunError
+    from scart_bench.jsonfile import read_json
+    from scart_bench.storage import is_url, local_path
+
+    path = folder / "config.json"
+    if not cfg.resume or cfg.dataset is not None or not path.is_file():
+        return cfg
+    config = read_json(path)
+
+    def saved(key: str) -> tuple[str, str] | None:
+        """(the dataset's URL or folder, the field it came from), None when the run has no such entry."""
+        entry, run = config.get(key), config.get("run")
+        if entry is None:
+            return None
+        if not isinstance(entry, dict):
+            raise RunError(f"{path}: field {key!r} is {type(entry).__name__}; expected an object with the "
+                           "dataset's path")
+        given = run.get(key) if isinstance(run, dict) else None
+        for value, field in ((entry.get("url"), f"{key}.url"), (given if is_url(given) else None, f"run.{key}"),
+                             (entry.get("path"), f"{key}.path")):
+            if value is None:
+                continue
+            if not isinstance(value, str) or not value or "\0" in value:
+                raise RunError(f"{path}: field {field!r} is {value!r}; expected the dataset's folder or URL")
+            return value, field
+        return None
+
+    def usable(found: tuple[str, str], option: str):
+        from scart_bench.dataset import is_dataset
+
+        value, field = found
+        if is_url(value):
+            return value
+        if is_dataset(local_path(value)):
+            return local_path(value)
+        raise RunError(f"{path}: --resume without {option}: this run was made on the dataset {value} (field "
+                       f"{field!r}), which is not there any more; pass {option} DIR|URL with that dataset")
+
+    dataset, train = saved("dataset"), saved("train_dataset")
+    if dataset is None:
+        return cfg
+    own = (cfg.data_root / f"{cfg.profile}-seed{cfg.seed}").resolve()
+    if train is None and not is_url(dataset[0]) and local_path(dataset[0]).resolve() == own:
+        return cfg  # the profile's own dataset: regenerated as before when it is missing
+    changes = {"dataset": usable(dataset, "--dataset")}
+    if train is not None and cfg.train_dataset is None:
+        changes["train_dataset"] = usable(train, "--train-dataset")
+    print(f"resume: the run's dataset {changes['dataset']} (from {path})", file=sys.stderr)
+    return dataclasses.replace(cfg, **changes)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from scart_bench.benchmark.runner import run_benchmark
+    from scart_bench.errors import ScartBenchError
     from scart_bench.storage import is_url
 
     cfg = run_config(args)
-    if is_url(cfg.out):  # a run folder at a URL: worked on in a local copy, uploaded back
-        with staged_folder(cfg.out) as local:
-            outcome = run_benchmark(dataclasses.replace(cfg, out=local))
+    if is_url(cfg.out):  # a run folder at a URL: worked on in a local copy, each finished job uploaded
+        with stage_folder(cfg.out) as staged:
+            def upload(detector: str) -> None:
+                try:
+                    staged.sync()
+                except ScartBenchError as exc:  # kept locally and uploaded at the end (or by --resume)
+                    print(f"note: job {detector} not uploaded yet ({exc}); retried at the end", file=sys.stderr)
+
+            local_cfg = resume_datasets(dataclasses.replace(cfg, out=staged.path), staged.path)
+            outcome = run_benchmark(local_cfg, on_job_done=upload)
             print_tables(outcome.path, outcome.metrics, shown=str(cfg.out))
     else:
-        outcome = run_benchmark(cfg)
+        remove_stale_temp()
+        outcome = run_benchmark(resume_datasets(cfg, cfg.out_path))
         print_tables(outcome.path, outcome.metrics)
     failed = outcome.metrics[outcome.metrics["status"].isin(("ERROR", "TIMEOUT"))]
     return name_failed("run", failed, "did not finish OK",
