@@ -25,12 +25,18 @@ any window), ``Anomaly_Ids`` (the active scenario ids, joined by "+", empty outs
 
 Modules: :mod:`.schema` (topics, fields, units), :mod:`.record` (formats, views, a flight's record),
 :mod:`.labels`, :mod:`.compact` (the compact layout), :mod:`.tables` (one table on disk), :mod:`.locks`
-(one writer at a time, atomic replacement), :mod:`.write` and :mod:`.read`. The names below are the
+(one writer at a time, atomic replacement, stale staging folders), :mod:`.checks` (the manifest's fields,
+and each row against its flight's labels and event log), :mod:`.write` and :mod:`.read`. The names below are the
 public API; import them from ``scart_bench.dataset``.
 """
 
 from __future__ import annotations
 
+from scart_bench.dataset.checks import (  # noqa: F401
+    MODES,
+    SPLITS,
+    check_manifest,
+)
 from scart_bench.dataset.labels import (  # noqa: F401
     LABEL_COLUMNS,
     combine,
@@ -49,7 +55,6 @@ from scart_bench.dataset.locks import (  # noqa: F401
 )
 from scart_bench.dataset.read import (  # noqa: F401
     Dataset,
-    check_manifest,
     open_dataset,
     read_view,
 )

@@ -1,19 +1,36 @@
-"""Reading datasets: :func:`open_dataset` and :class:`Dataset` (manifest, flights, topics, events, configs),
-with each flight's checksum verified on its first read."""
+"""Reading datasets: :func:`open_dataset` and :class:`Dataset` (manifest, flights, topics, events, configs).
+
+The manifest's fields are checked when the dataset is opened; each flight's checksum, and its manifest
+row against its own labels and event log, on its first read (:mod:`.checks`)."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from pathlib import Path
 
 import pandas as pd
 
 from scart_bench.dataset import compact
+from scart_bench.dataset.checks import (
+    Labels,
+    check_flight_row,
+    check_manifest,
+    labels_from_rows,
+    labels_from_windows,
+)
 from scart_bench.dataset.labels import combine
 from scart_bench.dataset.locks import recover
-from scart_bench.dataset.record import TABLES, TOPIC_VIEWS, TRUTH_TOPICS, VIEWS, DatasetError
+from scart_bench.dataset.record import (
+    FORMATS,
+    LAYOUTS,
+    TABLES,
+    TOPIC_VIEWS,
+    TRUTH_TOPICS,
+    VIEWS,
+    DatasetError,
+)
 from scart_bench.dataset.tables import flight_checksum, read_table
+from scart_bench.jsonfile import JsonFileError, read_json
 from scart_bench.names import check_id, inside
 
 
@@ -25,28 +42,22 @@ class Dataset:
         recover(self.path)  # a writer killed mid-replace left its partial folder (or the old dataset aside)
         if not self.path.is_dir():
             raise DatasetError(f"{self.path}: no such dataset folder")
-        if (self.path / "manifest.parquet").exists():
-            self.manifest = pd.read_parquet(self.path / "manifest.parquet")
-        elif (self.path / "manifest.csv").exists():
-            # ids are text: "007" stays "007"
-            self.manifest = pd.read_csv(self.path / "manifest.csv", dtype={"scenario_id": "string", "flight_id": str,
-                                                                           "source_flight": "string"})
-        else:
+        self.manifest_path = self.path / "manifest.parquet"
+        if not self.manifest_path.exists():
+            self.manifest_path = self.path / "manifest.csv"
+        if not self.manifest_path.exists():
             raise DatasetError(f"{self.path}: no manifest.parquet or manifest.csv; the dataset is missing or "
                                "incomplete (the manifest is written last)")
-        missing = [c for c in ("flight_id", "mode", "split") if c not in self.manifest.columns]
-        if missing:
-            raise DatasetError(f"{self.path}/manifest: missing column(s) {missing}")
-        check_manifest(self.manifest, self.path / "manifest")
+        self.manifest = _read_manifest(self.manifest_path)
+        check_manifest(self.manifest, self.manifest_path)
         info = self.path / "dataset.json"
         try:
-            self.info = json.loads(info.read_text()) if info.exists() else {}
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise DatasetError(f"{info}: not valid JSON ({exc}); it holds the dataset's format and versions") from None
-        if not isinstance(self.info, dict):
-            raise DatasetError(f"{info}: expected a JSON object (format, layout, profile, seed, versions)")
+            self.info = read_json(info) if info.exists() else {}
+        except JsonFileError as exc:
+            raise DatasetError(f"{exc}; it holds the dataset's format and versions") from None
+        _check_info(self.info, info)
         self._verified: set[str] = set()
-        self._checksums: dict | None = None
+        self._rows: dict[str, dict] | None = None
 
     def __len__(self) -> int:
         return len(self.manifest)
@@ -55,7 +66,7 @@ class Dataset:
     def flight_defaults(self) -> int:
         """Which generator defaults made the flights (generator.engine.flight_batch.FLIGHT_DEFAULTS); 1 for a
         dataset written before dataset.json said so."""
-        return int(self.info.get("flight_defaults", 1))
+        return int(self.info.get("flight_defaults", 1))  # an integer >= 1 (checked when opened)
 
     def flight_dir(self, flight_id: str) -> Path:
         return inside(self.path / "flights", check_id(flight_id, f"{self.path}: flight id"))
@@ -91,19 +102,52 @@ class Dataset:
 
     def verify(self, flight_id: str) -> None:
         """DatasetError naming the flight when its files differ from the checksum the manifest
-        recorded when it was written (datasets written before checksums: nothing to compare)."""
-        if flight_id in self._verified or "checksum" not in self.manifest.columns:
+        recorded when it was written (datasets written before checksums: nothing to compare), or
+        when its manifest row disagrees with the flight's own labels and event log (its mode, its
+        attack window: :func:`scart_bench.dataset.checks.check_flight_row`)."""
+        if flight_id in self._verified:
             return
-        if self._checksums is None:  # once: a manifest scan per flight was O(n^2) over a run's flights
-            self._checksums = dict(zip(self.manifest["flight_id"].astype(str), self.manifest["checksum"]))
-        expected = self._checksums.get(str(flight_id))
-        if isinstance(expected, str) and expected:
+        if self._rows is None:  # once: a manifest scan per flight was O(n^2) over a run's flights
+            self._rows = {str(r["flight_id"]): r for r in self.manifest.to_dict("records")}
+        row = self._rows.get(str(flight_id))
+        expected = None if row is None else row.get("checksum")
+        if isinstance(expected, str) and expected:  # an empty one is refused when the manifest is read
             got = flight_checksum(self.flight_dir(flight_id))
             if got != expected:
                 raise DatasetError(f"{self.flight_dir(flight_id)}: flight {flight_id!r} changed since it was written "
                                    f"(checksum {got}, the manifest recorded {expected}); its files are damaged or "
                                    "were edited: regenerate it, or remove it from the dataset")
+        if row is not None and self.flight_dir(flight_id).is_dir():
+            check_flight_row(self.manifest_path, str(flight_id), row, self._labels(flight_id),
+                             self.flight_dir(flight_id) / "raw" / "events.csv")
         self._verified.add(flight_id)
+
+    def _labels(self, flight_id: str) -> Labels:
+        """Where the flight's own labels put its attack: the compact layout's stored windows (which the
+        labels are made from), or the labelled rows of the paper layout's navigator table."""
+        root = self.flight_dir(flight_id)
+        if self.is_compact(flight_id):
+            path = root / "navigator.parquet"
+            try:
+                windows = compact.read_meta(path).get("windows", [])
+            except compact.CompactError as exc:
+                raise DatasetError(str(exc)) from None
+            if not isinstance(windows, list):
+                raise DatasetError(f"{path}: its metadata's windows are {type(windows).__name__}; expected a list "
+                                   "(damaged or not written by scart-bench)")
+            return labels_from_windows(windows, path)
+        base = root / "combined" / "navigator_most_frequent"
+        path = base.with_suffix(".parquet") if base.with_suffix(".parquet").exists() else base.with_suffix(".csv")
+        if not path.exists():
+            return Labels(path)  # no table: check_flights and the reader name it
+        try:
+            df = read_table(base, ["Timestamp", "Is_Anomaly"])
+            ts = pd.to_numeric(df["Timestamp"], errors="raise").to_numpy()
+            flags = pd.to_numeric(df["Is_Anomaly"], errors="raise").fillna(0).to_numpy()
+        except Exception as exc:  # pyarrow and pandas raise their own types for a damaged table
+            raise DatasetError(f"{path}: its Timestamp and Is_Anomaly columns are unreadable "
+                               f"({type(exc).__name__}: {exc}); regenerate or remove flight {flight_id!r}") from None
+        return labels_from_rows(ts, flags, path)
 
     def _windows(self, flight_id: str, view: str) -> list[tuple]:
         meta = compact.read_meta(self.flight_dir(flight_id) / f"{view}.parquet")
@@ -176,37 +220,48 @@ class Dataset:
         return folder
 
     def events(self, flight_id: str) -> pd.DataFrame:
-        return pd.read_csv(self.flight_dir(flight_id) / "raw" / "events.csv")
+        """The flight's attack event log (raw/events.csv: timestamp_us, event, scenario_id, detail)."""
+        path = self.flight_dir(flight_id) / "raw" / "events.csv"
+        try:
+            return pd.read_csv(path)
+        except FileNotFoundError:
+            raise DatasetError(f"{path}: missing; flight {flight_id!r} has no event log") from None
+        except pd.errors.EmptyDataError:
+            return pd.DataFrame(columns=["timestamp_us", "event", "scenario_id", "detail"])
+        except (ValueError, OSError, UnicodeDecodeError) as exc:
+            raise DatasetError(f"{path}: unreadable ({type(exc).__name__}: {exc}); expected the flight's attack "
+                               "event log (CSV)") from None
 
     def config(self, flight_id: str) -> dict:
-        return json.loads((self.flight_dir(flight_id) / "raw" / "config.json").read_text())
+        """The flight's raw/config.json (scenario, mission, seed, versions), read bounded."""
+        path = self.flight_dir(flight_id) / "raw" / "config.json"
+        try:
+            return read_json(path)
+        except JsonFileError as exc:
+            raise DatasetError(f"{exc}; it holds flight {flight_id!r}'s configuration") from None
 
 
-def check_manifest(manifest: pd.DataFrame, where: Path) -> None:
-    """DatasetError naming the flight and the field when a manifest row cannot be right: an empty or
-    repeated flight id, or an attack window that ends before it starts or lies outside the flight."""
-    ids = manifest["flight_id"].astype(str)
-    if (ids.str.strip() == "").any() or manifest["flight_id"].isna().any():
-        raise DatasetError(f"{where}: a row has an empty flight_id")
-    dup = ids[ids.duplicated()]
-    if len(dup):
-        raise DatasetError(f"{where}: flight {dup.iloc[0]!r} is listed more than once")
-    if "attack_start_us" not in manifest.columns or "attack_end_us" not in manifest.columns:
-        return
-    start = pd.to_numeric(manifest["attack_start_us"], errors="coerce")
-    end = pd.to_numeric(manifest["attack_end_us"], errors="coerce")
-    bad = start.notna() & end.notna() & (end <= start)
-    if bad.any():
-        i = bad[bad].index[0]
-        raise DatasetError(f"{where}: flight {ids[i]!r} has attack_end_us {int(end[i])} <= attack_start_us "
-                           f"{int(start[i])}; expected start < end (an attack window [start, end) in µs)")
-    if "duration_s" in manifest.columns:
-        limit = pd.to_numeric(manifest["duration_s"], errors="coerce") * 1e6 + 1e6  # a second of slack
-        out = start.notna() & limit.notna() & ((start < 0) | (start > limit))
-        if out.any():
-            i = out[out].index[0]
-            raise DatasetError(f"{where}: flight {ids[i]!r} has attack_start_us {int(start[i])} outside the flight "
-                               f"(0 to {manifest['duration_s'][i]} s)")
+def _read_manifest(path: Path) -> pd.DataFrame:
+    """The manifest table (ids as text), DatasetError naming the file when it is not readable."""
+    try:
+        if path.suffix == ".parquet":
+            return pd.read_parquet(path)
+        # ids are text: "007" stays "007"
+        return pd.read_csv(path, dtype={"scenario_id": "string", "flight_id": str, "source_flight": "string"})
+    except Exception as exc:  # pyarrow and pandas raise their own types for a damaged file
+        raise DatasetError(f"{path}: unreadable ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}); "
+                           "expected the dataset's manifest (damaged or not written by scart-bench)") from None
+
+
+def _check_info(info: dict, path: Path) -> None:
+    """DatasetError naming dataset.json and the field when a field the readers use has the wrong type."""
+    fd = info.get("flight_defaults", 1)
+    if isinstance(fd, bool) or not isinstance(fd, int) or not 1 <= fd <= 1_000_000:
+        raise DatasetError(f"{path}: field 'flight_defaults' is {fd!r}; expected an integer >= 1")
+    if "format" in info and info["format"] not in FORMATS:
+        raise DatasetError(f"{path}: field 'format' is {info['format']!r}; expected one of {', '.join(FORMATS)}")
+    if "layout" in info and info["layout"] not in LAYOUTS:
+        raise DatasetError(f"{path}: field 'layout' is {info['layout']!r}; expected one of {', '.join(LAYOUTS)}")
 
 
 def read_view(flight_dir: Path, view: str, names: list[str] | None = None,
