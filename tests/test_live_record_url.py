@@ -6,6 +6,7 @@ of that URL. Served by a moto S3 server started here."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import socket
@@ -135,18 +136,15 @@ def test_a_url_holding_something_else_is_refused_up_front(s3, here, sink, capsys
     assert not (here / "s3:").exists()
 
 
-def test_proxy_records_into_a_url(s3, here, capsys):
+@contextlib.contextmanager
+def _autopilot(port: int):
+    """50 Hz attitude at the proxy's ``port`` while the block runs (the first may precede its bind)."""
     from scart_bench.dataset.schema import TOPICS
     from scart_bench.generator.mavlink.codec import CODECS, Packer
 
-    url = f"s3://{BUCKET}/proxy/y"
-    port = _free_port()
-    mc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    mc.bind(("127.0.0.1", 0))
     stop = threading.Event()
 
-    def autopilot():
-        """50 Hz attitude at the proxy's port until the test is done (the first ones may precede its bind)."""
+    def send():
         packer, row = Packer(), np.full(len(TOPICS["attitude"].fields), 0.1)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as ap:
             k = 0
@@ -156,20 +154,51 @@ def test_proxy_records_into_a_url(s3, here, capsys):
                 k += 1
                 time.sleep(0.02)
 
-    sender = threading.Thread(target=autopilot, daemon=True)
+    sender = threading.Thread(target=send, daemon=True)
     sender.start()
     try:
-        argv = ["proxy", "--listen", f"udp:127.0.0.1:{port}", "--forward", f"udp:127.0.0.1:{mc.getsockname()[1]}",
-                "--scenario", str(SPOOF), "--duration", "2", "--flight-id", "p1"]
-        assert main([*argv, "--record", url]) == 0
-        assert not (here / "s3:").exists(), "a URL is never a local folder"
-        assert f"flight p1 recorded in {url}" in capsys.readouterr().out
-        assert main([*argv[:-1], "p2", "--record", url]) == 0
+        yield
     finally:
         stop.set()
         sender.join(timeout=5)
-        mc.close()
+
+
+def _proxy(url: str, fid: str, seconds: float = 2.0) -> list[str]:
+    """``proxy --record url`` fed by :func:`_autopilot` (the mission computer is a socket nobody reads)."""
+    port = _free_port()
+    return ["proxy", "--listen", f"udp:127.0.0.1:{port}", "--forward", f"udp:127.0.0.1:{_free_port()}",
+            "--scenario", str(SPOOF), "--duration", str(seconds), "--flight-id", fid, "--record", url]
+
+
+def _fly_proxy(argv: list[str]) -> int:
+    with _autopilot(int(argv[2].rsplit(":", 1)[1])):
+        return main(argv)
+
+
+def test_proxy_records_into_a_url(s3, here, capsys):
+    url = f"s3://{BUCKET}/proxy/y"
+    assert _fly_proxy(_proxy(url, "p1")) == 0
+    assert not (here / "s3:").exists(), "a URL is never a local folder"
+    assert f"flight p1 recorded in {url}" in capsys.readouterr().out
+    assert _fly_proxy(_proxy(url, "p2")) == 0
     ds = open_dataset(fetch_dataset(url))
-    assert set(ds.manifest["flight_id"]) == {"p1", "p2"}
+    assert set(ds.manifest["flight_id"]) == {"p1", "p2"}, "the second flight is added to the dataset there"
     assert len(ds.topic("p1", "attitude")) > 20
     assert not (here / "s3:").exists()
+
+
+def test_a_proxy_flight_whose_upload_fails_is_published_by_the_next_record(s3, here, monkeypatch, capsys):
+    import scart_bench.generator.mavlink.recording as recording
+
+    url = f"s3://{BUCKET}/proxy/failed"
+    with monkeypatch.context() as m:
+        m.setattr(recording, "save_recording", lambda *a, **k: (_ for _ in ()).throw(OSError(errno.EIO, "upload")))
+        assert _fly_proxy(_proxy(url, "q1")) == 2
+    err = capsys.readouterr().err
+    assert "checkpoint" in err and f"proxy --record {url}" in err and "as flight q1" in err, err
+    assert not s3.exists(f"{BUCKET}/proxy/failed/manifest.parquet")
+    assert _fly_proxy(_proxy(url, "q2")) == 0
+    assert "added q1" in capsys.readouterr().err
+    ds = open_dataset(fetch_dataset(url))
+    assert set(ds.manifest["flight_id"]) == {"q1", "q2"}
+    assert ds.config("q1")["incomplete"] is True and len(ds.topic("q1", "attitude")) > 20

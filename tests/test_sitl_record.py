@@ -7,8 +7,10 @@ incomplete. Loopback only (the vehicle's telemetry goes to a local sink so it ru
 
 from __future__ import annotations
 
+import builtins
 import errno
 import json
+import math
 import socket
 import subprocess
 import sys
@@ -86,3 +88,130 @@ def test_a_killed_recording_keeps_what_was_flown(tmp_path, sink):
     assert ds.manifest.set_index("flight_id").loc["k1", "duration_s"] >= 4.0
     nav = ds.topic("k1", "attitude")
     assert len(nav) > 100 and nav["Timestamp"].is_monotonic_increasing
+
+
+# --- a full disk: the journal promises only what it keeps ----------------------------------------
+class _Disk:
+    """The disk under the journals of ``root`` with ``free`` bytes (the files there count): a write
+    past it writes what fits and raises ENOSPC; ``frees_up``: the space comes back after the first
+    failure (another program deleted something)."""
+
+    def __init__(self, root: Path, free: float, frees_up: bool = False):
+        self.root, self.free, self.frees_up, self.failures = root, free, frees_up, 0
+
+    def used(self) -> int:
+        return sum(p.stat().st_size for p in self.root.rglob("*") if p.is_file()) if self.root.exists() else 0
+
+    def open(self, path, mode="r", *args, **kwargs):
+        fh = builtins.open(path, mode, *args, **kwargs)
+        return fh if set(mode) <= {"r", "b", "t"} else _File(fh, self)
+
+
+class _File:
+    def __init__(self, fh, disk: _Disk):
+        self.fh, self.disk = fh, disk
+
+    def write(self, data):
+        self.fh.flush()
+        room = self.disk.free - self.disk.used() if not (self.disk.frees_up and self.disk.failures) else math.inf
+        if len(data) > room:
+            self.fh.write(data[:max(0, int(room))])
+            self.fh.flush()
+            self.disk.failures += 1
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return self.fh.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.fh, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.fh.close()
+
+
+def _full_disk(monkeypatch, out: Path, free: float, frees_up: bool = False) -> _Disk:
+    """The journal's writes go to a disk with ``free`` bytes, and the flight's final write fails."""
+    import scart_bench.generator.mavlink.recording as recording
+    import scart_bench.generator.sitl.journal as journal
+
+    def disk_full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    disk = _Disk(journal_root(out), free, frees_up)
+    monkeypatch.setattr(journal, "open", disk.open, raising=False)
+    monkeypatch.setattr(recording, "save_recording", disk_full)
+    return disk
+
+
+def test_with_40_kb_free_the_journal_promises_nothing_it_cannot_keep(tmp_path, sink, monkeypatch, capsys):
+    """40 KB hold no flush of the journal (about 90 KB per 2 s): the command says the flight is lost
+    instead of promising that the next start adds it; no journal is left to be dropped silently."""
+    out = tmp_path / "mine"
+    with monkeypatch.context() as m:
+        _full_disk(m, out, 40_000)
+        assert main(_args(out, sink, "f1", 3.0)) == 2
+    err = capsys.readouterr().err
+    assert "adds it" not in err and "keeps" not in err, err
+    assert f"{journal_root(out) / 'f1'}" in err and "lost" in err, err
+    assert not (journal_root(out) / "f1").exists()
+    assert main(_args(out, sink, "f2", 0.5)) == 0
+    assert set(open_dataset(out).manifest["flight_id"]) == {"f2"}
+
+
+def test_a_disk_that_fills_mid_flight_keeps_the_part_it_says_and_the_next_start_adds_it(tmp_path, sink, monkeypatch,
+                                                                                          capsys):
+    out = tmp_path / "mine"
+    with monkeypatch.context() as m:
+        _full_disk(m, out, 130_000)  # the first flush (2 s) fits, the second does not
+        assert main(_args(out, sink, "f1", 5.0)) == 2
+    err = capsys.readouterr().err
+    assert "keeps its first 2.0 s" in err and f"sitl --record {out}" in err and "as flight f1" in err, err
+    assert main(_args(out, sink, "f2", 0.5)) == 0
+    assert "recovered flight f1" in capsys.readouterr().err
+    ds = open_dataset(out)
+    assert set(ds.manifest["flight_id"]) == {"f1", "f2"} and ds.config("f1")["incomplete"] is True
+    t = ds.topic("f1", "truth", view="simulator")["Timestamp"]
+    assert 1.9e6 <= t.iloc[-1] <= 2.1e6 and t.is_monotonic_increasing, "the first 2 s, whole"
+    assert not journal_root(out).exists()
+
+
+def test_a_disk_that_frees_up_mid_flight_loses_nothing(tmp_path, sink, monkeypatch, capsys):
+    """The first flush fails (40 KB free), then space comes back: the next flushes write the whole
+    flight from the start, and the next start adds it."""
+    out = tmp_path / "mine"
+    with monkeypatch.context() as m:
+        disk = _full_disk(m, out, 40_000, frees_up=True)
+        assert main(_args(out, sink, "f1", 3.0)) == 2
+    assert disk.failures == 1
+    err = capsys.readouterr().err
+    assert "keeps all of it" in err and "as flight f1" in err, err
+    assert main(_args(out, sink, "f2", 0.5)) == 0
+    ds = open_dataset(out)
+    assert set(ds.manifest["flight_id"]) == {"f1", "f2"}
+    truth = ds.topic("f1", "truth", view="simulator")
+    assert truth["Timestamp"].iloc[-1] >= 2.9e6 and truth["Timestamp"].is_monotonic_increasing
+    assert len(truth) == len(truth["Timestamp"].unique()), "no row written twice by the retried flush"
+
+
+def test_a_journal_that_cannot_start_is_refused_before_the_flight(tmp_path, sink, monkeypatch, capsys):
+    out = tmp_path / "mine"
+    with monkeypatch.context() as m:
+        _full_disk(m, out, 0)
+        assert main(_args(out, sink, "f1", 3.0)) == 2
+    err = capsys.readouterr().err
+    assert "stopped after" not in err, "refused before it flew"
+    line = err.strip().splitlines()[-1]
+    assert str(journal_root(out) / "f1") in line and "No space left" in line, err
+    assert not journal_root(out).exists()
+
+
+def test_a_journal_without_state_is_never_removed_silently(tmp_path, sink, capsys):
+    out = tmp_path / "mine"
+    left = journal_root(out) / "old"
+    left.mkdir(parents=True)
+    (left / "navigator.attitude.ts.i64").write_bytes(b"\0" * 64)
+    assert main(_args(out, sink, "f2", 0.2)) == 0
+    err = capsys.readouterr().err
+    assert f"journal {left} removed" in err and STATE in err, err
