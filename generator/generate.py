@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 from scart_bench.dataset import (
@@ -19,13 +20,33 @@ from scart_bench.generator.plan import GenerationPlan, Sources, fly_normal_batch
 from scart_bench.progress import Progress
 from scart_bench.storage import is_url, local_path
 
+#: Most normal flights of one dataset. Flights are flown and written a batch at a time, but the plan
+#: holds a seed and a split per flight (~50 bytes: 0.5 GB here) and the attack stage keeps the
+#: validation and csv-source flights; ten million quick-profile flights are also ~5 TB on disk.
+MAX_FLIGHTS = 10_000_000
+#: Most flights flown together: a batch is simulated in memory at once (the default 256 takes a few GB
+#: at most; 16 times that is the most a large machine holds).
+MAX_BATCH_SIZE = 4096
+
+
+def check_counts(n_normal: int | None, batch_size: int | None) -> None:
+    """DatasetError stating the maximum and why when a count cannot be generated (before anything
+    is allocated: ``--flights 10**12`` would ask numpy for 3.6 TiB of seeds)."""
+    if n_normal is not None and not 1 <= int(n_normal) <= MAX_FLIGHTS:
+        raise DatasetError(f"flight count {n_normal}: expected 1 to {MAX_FLIGHTS:,} normal flights (the plan holds "
+                           "a seed and a split per flight, and ten million flights are terabytes on disk)")
+    if batch_size is not None and not 1 <= int(batch_size) <= MAX_BATCH_SIZE:
+        raise DatasetError(f"batch size {batch_size}: expected 1 to {MAX_BATCH_SIZE:,} flights (a batch is "
+                           "simulated in memory at once)")
+
 
 def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "parquet",
                      n_normal: int | None = None, overwrite: bool = False, with_attacks: bool = True,
                      config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
                      scenarios: str | Path | None = None, layout: str | None = None,
                      uorb: bool | None = None, batch_size: int | None = None, executor: str = "local",
-                     scheduler: str | None = None, jobs: int = 1, progress: Progress | None = None) -> Path | str:
+                     scheduler: str | None = None, jobs: int = 1, progress: Progress | None = None,
+                     staging: Callable[[], AbstractContextManager[Path]] | None = None) -> Path | str:
     """Generate a complete dataset; returns its folder (or URL). The manifest is written last.
 
     ``out``: a folder, or an fsspec URL (``s3://bucket/prefix``; :mod:`scart_bench.storage`).
@@ -44,7 +65,12 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
 
     ``progress``: counts the flights written per kind (normal, simulation, csv) against the plan's
     totals, whichever executor flies them (:mod:`scart_bench.progress`).
+
+    ``staging``: makes the temp folder a dataset for a URL is written in (default
+    ``tempfile.TemporaryDirectory``); the command line passes one owned by its process, so that the
+    folder of a killed generate is removed by the next command.
     """
+    check_counts(n_normal, batch_size)
     plan = plan_generation(profile, seed, n_normal, with_attacks, config, scenarios, uorb, batch_size)
     layout = check_layout(fmt, layout)
     if executor not in ("local", "dask"):
@@ -55,7 +81,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
             progress.expect(kind, total)
         advance = progress.add
     if is_url(out):
-        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log, advance)
+        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log, advance, staging)
         return out
     out = local_path(out)
     check_output_dir(out, overwrite=overwrite)
@@ -72,7 +98,8 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
 
 
 def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, overwrite: bool, executor: str,
-                     scheduler: str | None, jobs: int, log, advance: Callable[[str, int], None] | None = None) -> None:
+                     scheduler: str | None, jobs: int, log, advance: Callable[[str, int], None] | None = None,
+                     staging: Callable[[], AbstractContextManager[Path]] | None = None) -> None:
     """A dataset at an object-store URL (scart_bench.storage): written here and uploaded with its
     manifest last; with dask, the workers upload their flights and this process the manifest.
     An old dataset there is removed, manifest first, just before the new one is uploaded."""
@@ -87,7 +114,8 @@ def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, over
     if not old and has_objects(url):
         raise DatasetError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
                            "choose a new prefix")
-    with tempfile.TemporaryDirectory(prefix="scart-generate-") as tmp:
+    stage = staging() if staging is not None else tempfile.TemporaryDirectory(prefix="scart-generate-")
+    with stage as tmp:
         local = Path(tmp) / "dataset"
         if executor == "dask":
             from scart_bench.generator.sharded import generate_sharded

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.dataset import DatasetError, read_view
+from scart_bench.dataset import TRUTH_TOPICS, DatasetError, compact, read_view
 from scart_bench.generator.logs.dataflash import read_dataflash
 from scart_bench.generator.logs.rosbag import read_rosbag
 from scart_bench.generator.logs.tables import (
@@ -441,6 +441,60 @@ def _stem(path: Path) -> str:
     return name
 
 
+def _compact_meta(path: Path) -> dict | None:
+    """The metadata of ``path`` when it is a view file of the project's compact layout (topics stacked
+    in one table, :mod:`scart_bench.dataset.compact`), else None (an ordinary Parquet table)."""
+    try:
+        import pyarrow.parquet as pq
+
+        if compact.META_KEY not in (pq.read_schema(path).metadata or {}):
+            return None
+    except Exception:  # not readable as Parquet: _read_parquet names the file
+        return None
+    try:
+        return compact.read_meta(path)
+    except compact.CompactError as exc:
+        raise DatasetError(str(exc)) from None
+
+
+def _load_compact_view(path: Path, meta: dict, topics: list[str] | None) -> dict[str, pd.DataFrame]:
+    """The topic tables of one compact view file (a flight's ``navigator.parquet``, whatever it is
+    called now): each topic read from its own rows, not the stacked table as one topic. A topic the
+    file keeps in another view's file (the simulator view reuses the navigator's) is read from that
+    file beside it. The true state (never on the link) is left out."""
+    names = [n for n in meta.get("topics", []) if n not in TRUTH_TOPICS]
+    try:
+        elsewhere: dict[str, list[str]] = {}  # view -> topics (or some of their fields) kept in its file
+        for n in names:
+            if n in meta.get("reuse", {}):
+                elsewhere.setdefault(str(meta["reuse"][n]), []).append(n)
+        for span in meta.get("stored", []):
+            if span.get("shared") and span.get("name") in names:
+                elsewhere.setdefault(str(span["shared"]["view"]), []).append(span["name"])
+        for view, wanted in elsewhere.items():
+            other = path.parent / f"{view}.parquet"
+            if not other.exists():
+                raise DatasetError(f"{path}: keeps topic(s) {sorted(set(wanted))} (or some of their fields) in the "
+                                   f"{view} view's file {other}, which is missing; pass the flight folder, or keep "
+                                   "the two files together")
+        tables = compact.read_topics(path, names, meta)
+        for view, wanted in elsewhere.items():
+            reused = [n for n in wanted if n not in tables]
+            if reused:
+                tables.update(compact.read_topics(path.parent / f"{view}.parquet", reused))
+    except (KeyError, TypeError) as exc:  # metadata of the wrong shape
+        raise DatasetError(f"{path}: its compact-layout metadata is damaged ({type(exc).__name__}: {exc})") from None
+    except compact.CompactError as exc:
+        raise DatasetError(str(exc)) from None
+    raw: dict[str, tuple] = {}
+    for stem in names:
+        if stem in tables:  # our own tables: microseconds from the flight's start
+            raw.update(_frame_topics(tables[stem], path, stem, False, split=False, unit="us"))
+    if not raw:
+        raise DatasetError(f"{path}: a compact flight view with no topic tables: empty flight")
+    return finish_tables(raw, path, topics, origin=0)
+
+
 # ----------------------------------------------------------------------------------------------
 # scart-bench flight folder
 
@@ -527,8 +581,10 @@ def load_flight_file(path: str | Path, topics: list[str] | None = None, *,
       ``field.<name>``, the table is one topic named after the file stem (sanitised to
       ``[a-z0-9_]``). Load a flight's ``all_sensors``
       table, not ``most_frequent``: the latter is resampled (values repeated at the base rate).
-    * A scart-bench dataset flight folder: the navigator-view topic tables in
-      ``sensors/navigator`` (Parquet preferred over CSV), ``Is_Anomaly`` dropped.
+    * A scart-bench dataset flight folder: the navigator-view topic tables (``navigator.parquet``
+      of the compact layout, or ``sensors/navigator``, Parquet preferred over CSV), labels dropped.
+    * One view file of the compact layout (``flights/<id>/navigator.parquet``, recognised by its
+      metadata whatever its name): its topic tables, as from the flight folder.
 
     ``start_s`` / ``end_s`` keep the messages in ``[start_s, end_s)`` seconds from time zero (e.g.
     before an injected fault or a crash) and make ``start_s`` the new time zero.
@@ -587,6 +643,9 @@ def _load_any(path: Path, topics: list[str] | None, allow_corrupt: bool) -> dict
         df = _read_csv(path)
         raw = _frame_topics(df, path, _stem(path), is_csv=True)
     elif suffix in PARQUET_SUFFIXES:
+        meta = _compact_meta(path)
+        if meta is not None:  # a flight's view file of the compact layout: one table per topic inside
+            return _load_compact_view(path, meta, topics)
         df = _read_parquet(path)
         raw = _frame_topics(df, path, _stem(path), is_csv=False)
     else:

@@ -6,17 +6,28 @@ import argparse
 import dataclasses
 import shutil
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed
+from scart_bench.cli.common import (
+    LAYOUT_HELP,
+    LAYOUTS,
+    UsageError,
+    check_seed,
+    owned_tempdir,
+    remove_stale_temp,
+)
 from scart_bench.generator.profiles import PROFILES
+
+#: Most local dask workers (--jobs): each is a process holding a batch of flights.
+MAX_JOBS = 1024
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from scart_bench.generator.generate import generate_dataset
+    from scart_bench.generator.generate import MAX_BATCH_SIZE, MAX_FLIGHTS, generate_dataset
 
     if args.profile not in PROFILES:
         raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
-    if args.flights is not None and args.flights < 1:
-        raise UsageError(f"--flights must be at least 1, got {args.flights}")
+    if args.flights is not None and not 1 <= args.flights <= MAX_FLIGHTS:
+        raise UsageError(f"--flights {args.flights}: expected 1 to {MAX_FLIGHTS:,} normal flights (the plan holds a "
+                         "seed and a split per flight, and ten million flights are terabytes on disk)")
     check_seed(args.seed)
     from scart_bench.generator.params import GPS_ACCURACY
 
@@ -37,12 +48,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
         if args.timing not in TIMINGS:
             raise UsageError(f"--timing {args.timing!r}: expected one of {', '.join(TIMINGS)}")
         profile = dataclasses.replace(profile, timing=args.timing)
-    if args.batch_size is not None and args.batch_size < 1:
-        raise UsageError(f"--batch-size must be at least 1, got {args.batch_size}")
+    if args.batch_size is not None and not 1 <= args.batch_size <= MAX_BATCH_SIZE:
+        raise UsageError(f"--batch-size {args.batch_size}: expected 1 to {MAX_BATCH_SIZE:,} flights (a batch is "
+                         "simulated in memory at once)")
     if args.scheduler and args.executor != "dask":
         raise UsageError("--scheduler needs --executor dask")
-    if args.jobs < 1:
-        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    if not 1 <= args.jobs <= MAX_JOBS:
+        raise UsageError(f"--jobs {args.jobs}: expected 1 to {MAX_JOBS} local dask workers")
+    remove_stale_temp()  # the staging folders of killed commands (a generate to a URL writes in one)
     from scart_bench.progress import Progress
     from scart_bench.storage import is_url, local_path
 
@@ -54,7 +67,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
                              overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
                              scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
                              uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
-                             scheduler=args.scheduler, jobs=args.jobs, progress=progress)
+                             scheduler=args.scheduler, jobs=args.jobs, progress=progress,
+                             staging=lambda: owned_tempdir("scart-generate-"))
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind

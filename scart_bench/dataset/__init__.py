@@ -51,6 +51,7 @@ from scart_bench.dataset.locks import (  # noqa: F401
     dataset_lock,
     exit_with_parent,
     recover,
+    recover_beside,
     replacing,
 )
 from scart_bench.dataset.read import (  # noqa: F401

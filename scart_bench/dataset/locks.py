@@ -1,4 +1,5 @@
-"""Writers that cannot tear a dataset: one writer at a time, atomic replacement, recovery after a kill.
+"""Writers that cannot tear a dataset: one writer at a time, atomic replacement, recovery after a kill
+(of the dataset written, and of the partial folders killed writers left beside other datasets).
 
 One writer at a time: an exclusive lock on a file beside what is written (``fcntl.flock``).
 
@@ -107,6 +108,34 @@ def recover(out: str | Path) -> None:
         lock.release()
 
 
+def recover_beside(parent: str | Path) -> list[Path]:
+    """:func:`recover` every dataset in ``parent`` that a killed writer left a partial folder beside
+    (``.<name>.partial`` with the lock file ``.<name>.lock`` that every writer makes): a generate
+    killed with SIGKILL runs no cleanup, and its partial folder (megabytes per flight) would stay
+    until a command used that very dataset again. Returns the datasets recovered; folders of live
+    writers (their lock held) are left alone."""
+    parent = Path(parent)
+    done = []
+    try:
+        entries = list(parent.iterdir())
+    except OSError:
+        return done
+    for entry in entries:
+        name = entry.name
+        if not (name.startswith(".") and name.endswith(".partial")) or len(name) <= len("..partial"):
+            continue
+        out = parent / name[1:-len(".partial")]
+        try:
+            if entry.is_symlink() or not entry.is_dir() or not (parent / f".{out.name}.lock").is_file():
+                continue
+        except OSError:
+            continue
+        recover(out)
+        if not entry.exists():
+            done.append(out)
+    return done
+
+
 @contextmanager
 def replacing(out: str | Path) -> Iterator[Path]:
     """Build a dataset in a hidden sibling folder and move it to ``out`` only once complete.
@@ -117,6 +146,7 @@ def replacing(out: str | Path) -> Iterator[Path]:
     """
     out = Path(out)
     recover(out)
+    recover_beside(out.parent)  # and what killed writers left beside other datasets in this folder
     with dataset_lock(out):
         partial = out.parent / f".{out.name}.partial"
         old = out.parent / f".{out.name}.old"

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +30,27 @@ from scart_bench.dataset.record import (
 )
 from scart_bench.dataset.tables import flight_checksum, write_table
 from scart_bench.names import check_id, inside
+
+#: errno values that mean the disk (or the user's quota) is full
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+@contextmanager
+def writing(path: Path) -> Iterator[None]:
+    """Turn an OSError while ``path`` is written into one DatasetError line naming the file: the
+    ``write`` that finds the disk full names no file by itself (nor does pyarrow's), so a full disk
+    said only "No space left on device"."""
+    try:
+        yield
+    except DatasetError:
+        raise
+    except OSError as exc:
+        text = str(exc)
+        if exc.errno in _FULL or "No space left" in text or "Disk quota exceeded" in text:
+            raise DatasetError(f"{path}: no space left on device while writing the dataset; free some space or "
+                               "write it elsewhere (the old dataset, if any, is kept)") from None
+        why = exc.strerror or (text.splitlines()[0] if text else type(exc).__name__)
+        raise DatasetError(f"{path}: cannot be written ({why})") from None
 
 
 def check_output_dir(out: Path, overwrite: bool = False) -> None:
@@ -157,8 +180,9 @@ class DatasetWriter:
                 self._pending = []
                 self._pool.shutdown()
                 self._pool = None
-        (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt, "layout": self.layout}, indent=2,
-                                                          sort_keys=True, default=json_default))
+        with writing(self.out / "dataset.json"):
+            (self.out / "dataset.json").write_text(json.dumps({**self.info, "format": self.fmt, "layout": self.layout},
+                                                              indent=2, sort_keys=True, default=json_default))
         manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
         if self.existing is not None:
             old = self.existing.reindex(columns=list(MANIFEST_COLUMNS))
@@ -177,11 +201,12 @@ class DatasetWriter:
         final = self.out / f"manifest.{self.fmt}"
         tmp = self.out / f".manifest.tmp.{self.fmt}"
         try:
-            if self.fmt == "parquet":
-                manifest.to_parquet(tmp, index=False)
-            else:
-                manifest.to_csv(tmp, index=False)
-            os.replace(tmp, final)
+            with writing(final):
+                if self.fmt == "parquet":
+                    manifest.to_parquet(tmp, index=False)
+                else:
+                    manifest.to_csv(tmp, index=False)
+                os.replace(tmp, final)
         finally:
             tmp.unlink(missing_ok=True)
             self._release()
@@ -200,11 +225,14 @@ def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper
     if not any(k not in TRUTH_TOPICS for k in record.navigator):
         raise DatasetError(f"flight {record.flight_id!r}: cannot combine a flight with no topics")
     root = inside(out / "flights", check_id(record.flight_id, "flight id"))
-    (root / "raw").mkdir(parents=True, exist_ok=True)
-    (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
-                                                         default=json_default))
+    with writing(root / "raw"):
+        (root / "raw").mkdir(parents=True, exist_ok=True)
+    with writing(root / "raw" / "config.json"):
+        (root / "raw" / "config.json").write_text(json.dumps(record.config, indent=2, sort_keys=True,
+                                                             default=json_default))
     events = pd.DataFrame(record.events, columns=["timestamp_us", "event", "scenario_id", "detail"])
-    events.to_csv(root / "raw" / "events.csv", index=False)
+    with writing(root / "raw" / "events.csv"):
+        events.to_csv(root / "raw" / "events.csv", index=False)
     if layout == "compact":
         _write_compact(root, record)
     else:
@@ -229,15 +257,19 @@ def _most_frequent_rows(topics: dict[str, pd.DataFrame]) -> int:
 
 def _write_paper(root: Path, fmt: str, record: FlightRecord) -> None:
     for view, topics in _views(record):
-        (root / "sensors" / view).mkdir(parents=True, exist_ok=True)
+        with writing(root / "sensors" / view):
+            (root / "sensors" / view).mkdir(parents=True, exist_ok=True)
         for name, df in topics.items():
-            write_table(df, root / "sensors" / view / name, fmt)
+            with writing((root / "sensors" / view / name).with_suffix(f".{fmt}")):
+                write_table(df, root / "sensors" / view / name, fmt)
         if view == "uorb":
             continue  # the uORB view has no combined tables in the paper's layout
-        (root / "combined").mkdir(exist_ok=True)
+        with writing(root / "combined"):
+            (root / "combined").mkdir(exist_ok=True)
         link_topics = {k: v for k, v in topics.items() if k not in TRUTH_TOPICS}
         for table, df in combine(link_topics, record.windows).items():
-            write_table(df, root / "combined" / f"{view}_{table}", fmt)
+            with writing(root / "combined" / f"{view}_{table}.{fmt}"):
+                write_table(df, root / "combined" / f"{view}_{table}", fmt)
 
 
 def _write_compact(root: Path, record: FlightRecord) -> None:
@@ -254,8 +286,9 @@ def _write_compact(root: Path, record: FlightRecord) -> None:
                 elif same:
                     shared[name] = ("navigator", same)
         tmp = root / f".{view}.parquet.tmp"
-        compact.write_view(tmp, topics, windows, reuse, shared)
-        os.replace(tmp, root / f"{view}.parquet")
+        with writing(root / f"{view}.parquet"):
+            compact.write_view(tmp, topics, windows, reuse, shared)
+            os.replace(tmp, root / f"{view}.parquet")
 
 
 def append_flights(out: str | Path, records: Iterable[FlightRecord], fmt: str = "parquet",
