@@ -133,6 +133,8 @@ def test_a_url_holding_something_else_is_refused_up_front(s3, here, sink, capsys
     assert not (here / "s3:").exists()
     assert main(["proxy", "--scenario", str(SPOOF), "--record", f"s3://{BUCKET}/notes", "--duration", "0.1"]) == 2
     assert "no manifest" in capsys.readouterr().err
+    assert main(["ros", "node", "--record", f"s3://{BUCKET}/notes", "--duration", "0.1"]) == 2  # before ROS is touched
+    assert "no manifest" in capsys.readouterr().err
     assert not (here / "s3:").exists()
 
 

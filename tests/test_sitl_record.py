@@ -215,3 +215,19 @@ def test_a_journal_without_state_is_never_removed_silently(tmp_path, sink, capsy
     assert main(_args(out, sink, "f2", 0.2)) == 0
     err = capsys.readouterr().err
     assert f"journal {left} removed" in err and STATE in err, err
+
+
+def test_a_journal_that_cannot_be_added_is_kept_and_never_reused(tmp_path, sink, capsys):
+    """A journal the next start cannot add stays, named; recording again under its flight id is
+    refused instead of overwriting it (and removing it with the new flight's journal)."""
+    out = tmp_path / "mine"
+    bad = journal_root(out) / "f1"
+    bad.mkdir(parents=True)
+    (bad / STATE).write_text("{ cut", encoding="utf-8")
+    assert main(_args(out, sink, "f1", 0.2)) == 2
+    err = capsys.readouterr().err
+    assert f"journal {bad} not recovered" in err and f"sitl --record {out}" in err, err
+    assert "--flight-id f1" in err.strip().splitlines()[-1]
+    assert (bad / STATE).read_text(encoding="utf-8") == "{ cut", "the journal is left as it was"
+    assert main(_args(out, sink, "f2", 0.2)) == 0
+    assert (bad / STATE).read_text(encoding="utf-8") == "{ cut"

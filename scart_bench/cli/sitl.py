@@ -82,9 +82,13 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
         target.add_left(root, lambda ds, remove: recover(ds, lambda rec: save_recording(rec, ds, fmt=args.format),
                                                          _log, root=root, remove=remove, shown=target.shown),
                         discard)
-        fid = args.flight_id or new_flight_id(prefix="sitl", taken=target.taken)
+        kept = {p.name for p in root.iterdir()} if root.is_dir() else set()  # journals that could not be added
+        fid = args.flight_id or new_flight_id(prefix="sitl", taken=target.taken | kept)
         if fid in target.taken:
             raise UsageError(f"--flight-id {fid}: {target.shown} holds a flight {fid} already; give another id")
+        if fid in kept:
+            raise UsageError(f"--flight-id {fid}: the journal {root / fid} holds flight {fid}, not yet added to "
+                             f"{target.shown} (see the line above); give another id, so that it is kept")
         sitl.journal = Journal(target.anchor, fid, extra, args.split, _log)
         try:
             sitl.journal.start(sitl)
