@@ -180,7 +180,8 @@ def test_other_hostile_keys_are_refused(s3, dataset, tmp_path, monkeypatch, caps
     client.put_object(Bucket=BUCKET, Key=f"{ds}/{key}", Body=b"x")
     assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", f"s3://{BUCKET}/{ds}",
                  "--out", str(tmp_path / "r")]) == 2
-    assert f"s3://{BUCKET}/{ds}" in _one_line(capsys)
+    err = _one_line(capsys)
+    assert f"s3://{BUCKET}/{ds}: object key" in err and str(tmp_path / "cache") in err
     assert not (tmp_path / "r").exists()
 
 
@@ -192,7 +193,7 @@ def test_killed_url_run_keeps_finished_jobs_and_its_staging_is_removed(s3, datas
     tmp.mkdir()
     run_url = f"s3://{BUCKET}/killed/run"
     env = {**os.environ, "TMPDIR": str(tmp), "SCART_TEST_PID_DIR": str(tmp_path),
-           "SCART_BENCH_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(Path(__file__).parent)}
+           "SCART_BENCH_CACHE": str(tmp_path / "cache"), "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]))}
     args = ["run", "--detectors", "zscore_test,hang_test", "--plugin", ZS, "--plugin", plugin("Hang"),
             "--dataset", str(dataset), "--out", run_url, "--jobs", "1", "--timeout", "300"]
     proc = subprocess.Popen([sys.executable, "-m", "scart_bench", *args], env=env, stdout=subprocess.DEVNULL,
@@ -231,12 +232,14 @@ def test_killed_url_run_keeps_finished_jobs_and_its_staging_is_removed(s3, datas
     assert all((p / ".owner").is_file() for p in stale)
     assert stale, list(tmp.iterdir())  # what kill -9 leaves
 
-    # the next command's start removes it; --resume keeps the uploaded job
+    # the next command's start removes it; --resume keeps the uploaded job (and, without --dataset,
+    # takes the dataset from the uploaded config.json)
     monkeypatch.setattr(tempfile, "tempdir", str(tmp))
     monkeypatch.setenv("SCART_BENCH_CACHE", str(tmp_path / "cache"))
-    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset),
-                 "--out", run_url, "--resume"]) == 0
-    assert "resume: 1 finished job(s) kept: zscore_test" in capsys.readouterr().err
+    assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--out", run_url, "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert "resume: 1 finished job(s) kept: zscore_test" in err
+    assert f"resume: the run's dataset '{dataset}' (from {run_url}/config.json)" in err
     assert not any(p.exists() for p in stale)
     assert not [p for p in tmp.iterdir() if p.name.startswith("scart-stage-")]
 

@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from scart_bench.cli.common import name_failed, print_tables, remove_stale_temp, stage_folder
 from scart_bench.generator.profiles import PROFILES
+
+if TYPE_CHECKING:
+    from scart_bench.benchmark.config import RunConfig
 
 
 def _patterns(values: list[str] | None) -> list[str] | None:
@@ -94,11 +98,12 @@ def protocol_options(protocol, args: argparse.Namespace):
     return protocol
 
 
-def resume_datasets(cfg, folder: Path):
+def resume_datasets(cfg: RunConfig, folder: Path, shown: str | None = None) -> RunConfig:
     """``--resume`` without ``--dataset``: the run's own datasets, read from ``folder``'s config.json
     (``dataset.url`` or ``dataset.path``, and the train dataset of a transfer run), so that nothing is
     generated for a run made on another dataset. RunError up front when a saved dataset is gone; ``cfg``
-    unchanged for a new folder or one made on this profile's own dataset (generated when missing)."""
+    unchanged for a new folder or one made on this profile's own dataset (generated when missing).
+    ``shown``: the run folder's name in messages (its URL; ``folder`` is then a local copy)."""
     import dataclasses
 
     from scart_bench.errors import RunError
@@ -106,6 +111,7 @@ def resume_datasets(cfg, folder: Path):
     from scart_bench.storage import is_url, local_path
 
     path = folder / "config.json"
+    where = f"{shown.rstrip('/')}/config.json" if shown else str(path)
     if not cfg.resume or cfg.dataset is not None or not path.is_file():
         return cfg
     config = read_json(path)
@@ -116,7 +122,7 @@ def resume_datasets(cfg, folder: Path):
         if entry is None:
             return None
         if not isinstance(entry, dict):
-            raise RunError(f"{path}: field {key!r} is {type(entry).__name__}; expected an object with the "
+            raise RunError(f"{where}: field {key!r} is {type(entry).__name__}; expected an object with the "
                            "dataset's path")
         given = run.get(key) if isinstance(run, dict) else None
         for value, field in ((entry.get("url"), f"{key}.url"), (given if is_url(given) else None, f"run.{key}"),
@@ -124,7 +130,7 @@ def resume_datasets(cfg, folder: Path):
             if value is None:
                 continue
             if not isinstance(value, str) or not value or "\0" in value:
-                raise RunError(f"{path}: field {field!r} is {value!r}; expected the dataset's folder or URL")
+                raise RunError(f"{where}: field {field!r} is {value!r}; expected the dataset's folder or URL")
             return value, field
         return None
 
@@ -134,9 +140,12 @@ def resume_datasets(cfg, folder: Path):
         value, field = found
         if is_url(value):
             return value
-        if is_dataset(local_path(value)):
-            return local_path(value)
-        raise RunError(f"{path}: --resume without {option}: this run was made on the dataset {value} (field "
+        try:
+            if is_dataset(local_path(value)):
+                return local_path(value)
+        except OSError:  # a name too long for this file system, say: not there
+            pass
+        raise RunError(f"{where}: --resume without {option}: this run was made on the dataset {value!r} (field "
                        f"{field!r}), which is not there any more; pass {option} DIR|URL with that dataset")
 
     dataset, train = saved("dataset"), saved("train_dataset")
@@ -148,7 +157,7 @@ def resume_datasets(cfg, folder: Path):
     changes = {"dataset": usable(dataset, "--dataset")}
     if train is not None and cfg.train_dataset is None:
         changes["train_dataset"] = usable(train, "--train-dataset")
-    print(f"resume: the run's dataset {changes['dataset']} (from {path})", file=sys.stderr)
+    print(f"resume: the run's dataset {str(changes['dataset'])!r} (from {where})", file=sys.stderr)
     return dataclasses.replace(cfg, **changes)
 
 
@@ -168,7 +177,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 except ScartBenchError as exc:  # kept locally and uploaded at the end (or by --resume)
                     print(f"note: job {detector} not uploaded yet ({exc}); retried at the end", file=sys.stderr)
 
-            local_cfg = resume_datasets(dataclasses.replace(cfg, out=staged.path), staged.path)
+            local_cfg = resume_datasets(dataclasses.replace(cfg, out=staged.path), staged.path, str(cfg.out))
             outcome = run_benchmark(local_cfg, on_job_done=upload)
             print_tables(outcome.path, outcome.metrics, shown=str(cfg.out))
     else:
