@@ -166,8 +166,8 @@ def register(sub) -> None:
                    help=f"where the mission computer listens (default {DEFAULT_FORWARD})")
     p.add_argument("--scenario", required=True, metavar="FILE", help="a scenario file (TOML), points link/command")
     p.add_argument("--seed", type=int, default=0, help="seed of the scenario's random draws (default 0)")
-    p.add_argument("--record", metavar="DIR", help="write the flight (both views, labels) into this dataset: "
-                   "added to an existing dataset, or a new one")
+    p.add_argument("--record", metavar="DIR|URL", help="write the flight (both views, labels) into this dataset, "
+                   "a folder or a URL such as s3://bucket/prefix: added to an existing dataset, or a new one")
     p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
     p.add_argument("--flight-id", help="flight id of the recording (default live-<UTC time>)")
     p.add_argument("--checkpoint", type=float, default=5.0, metavar="SECONDS",

@@ -186,7 +186,8 @@ def register(sub) -> None:
         metavar="NS",
         help="where the mission computer reads it (default /mavros)",
     )
-    n.add_argument("--record", metavar="DIR", help="write the flight (both views, labels) into this dataset")
+    n.add_argument("--record", metavar="DIR|URL", help="write the flight (both views, labels) into this dataset: "
+                   "a folder or a URL such as s3://bucket/prefix, added to a dataset there")
     n.add_argument(
         "--split",
         choices=("train", "validation", "test"),

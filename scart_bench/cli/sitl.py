@@ -191,7 +191,8 @@ def register(sub) -> None:
                    help="no wall-clock pacing: run as fast as the simulation can, from the first client message")
     p.add_argument("--seed", type=int, default=0, help="seed of the wind, sensor errors and scenario draws")
     p.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this much simulated time")
-    p.add_argument("--record", metavar="DIR", help="write the flight (both views, truth, labels) into this dataset")
+    p.add_argument("--record", metavar="DIR|URL", help="write the flight (both views, truth, labels) into this "
+                   "dataset: a folder or a URL such as s3://bucket/prefix, added to a dataset there")
     p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="format of a new dataset")
     p.add_argument("--flight-id", help="flight id of the recording (default sitl-<UTC time>)")
     p.add_argument("--split", choices=("train", "validation", "test"), default="test",
