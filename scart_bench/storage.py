@@ -20,6 +20,10 @@ only: a key that would leave its local folder (``..``, ``.`` or empty segments, 
 backslash or NUL) refuses the whole URL before anything is written, so whoever can write to a
 bucket cannot write outside the cache or staging folder (a ``.pth`` or shell rc file elsewhere).
 
+Local copies live in temp folders owned by their process (:func:`owned_tempdir`: the pid in the
+name, a flock on an owner file); those of a process killed with SIGKILL are removed by the next
+command's start (:func:`remove_stale_temp`).
+
 Object stores have no locks: two commands writing the same URL at once are not prevented.
 Bad URLs, a missing fsspec backend (s3fs, gcsfs, adlfs) and missing credentials raise
 :class:`StorageError`, one line naming the URL and what was expected.
@@ -32,6 +36,8 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from scart_bench.errors import ScartBenchError
@@ -257,3 +263,94 @@ def push_folder(local: str | Path, url: str, exclude: tuple[str, ...] = (),
     if gone:
         _call(url, fs.rm, gone)
     return now
+
+
+# -- temp folders owned by this process ------------------------------------------------------------
+
+#: a temp folder made by :func:`owned_tempdir`: scart-<what>-<pid>-<random>, holding the owner file
+_OWNED = re.compile(r"scart-[a-z]+-(\d+)-[^-]+")
+_OWNER = ".owner"  # beside the folder's content: flock-held by the owning process while it lives
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # another user's, or cannot tell: alive
+    return True
+
+
+def _owner_locked(path: Path) -> bool:
+    """True when a live process holds the flock on ``path`` (False without fcntl)."""
+    try:
+        import fcntl
+    except ImportError:
+        return False
+    try:
+        with open(path, "a") as fh:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    return False
+
+
+def remove_stale_temp(tmpdir: str | Path | None = None) -> list[Path]:
+    """Remove the temp folders of :func:`owned_tempdir` (``scart-<what>-<pid>-*``, such as the
+    staging folders of URL commands) whose process is gone (killed -9: no ``finally`` ran), and
+    return them. Stale means: the pid is not running, and the owner file exists and is not locked
+    (the kernel drops a dead process's flock, so a reused pid, or one of another pid namespace
+    sharing the temp folder, cannot make a live folder look stale). Other users' folders are left."""
+    removed: list[Path] = []
+    root = Path(tmpdir or tempfile.gettempdir())
+    try:
+        candidates = [p for p in root.iterdir() if _OWNED.fullmatch(p.name)]
+    except OSError:
+        return removed
+    for folder in candidates:
+        pid = int(_OWNED.fullmatch(folder.name).group(1))
+        try:
+            if (pid == os.getpid() or _pid_alive(pid) or folder.is_symlink() or not folder.is_dir()
+                    or folder.stat().st_uid != os.getuid() or not (folder / _OWNER).is_file()):
+                continue
+        except OSError:
+            continue
+        if _owner_locked(folder / _OWNER):
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        if not folder.exists():
+            removed.append(folder)
+    return removed
+
+
+@contextmanager
+def owned_tempdir(prefix: str = "scart-stage-") -> Iterator[Path]:
+    """A new temp folder ``<prefix><pid>-<random>`` (``prefix``: ``scart-<what>-``) owned by this
+    process (a flock on its owner file), removed on exit; one left by a killed process is removed by
+    the next command's start (:func:`remove_stale_temp`). Put the content in a subfolder: the owner
+    file sits at the top."""
+    if not re.fullmatch(r"scart-[a-z]+-", prefix):
+        raise ValueError(f"owned_tempdir prefix {prefix!r}: expected scart-<lowercase letters>-")
+    remove_stale_temp()
+    tmp = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
+    try:
+        owner = open(tmp / _OWNER, "w")  # noqa: SIM115 - held (locked) while the folder is in use
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    try:
+        try:
+            import fcntl
+
+            fcntl.flock(owner.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except ImportError:
+            pass
+        owner.write(f"scart-bench pid {os.getpid()}\n")
+        owner.flush()
+        yield tmp
+    finally:
+        owner.close()
+        shutil.rmtree(tmp, ignore_errors=True)

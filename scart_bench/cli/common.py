@@ -6,16 +6,14 @@ Library code raises the errors of :mod:`scart_bench.errors`; ``UsageError`` is f
 
 from __future__ import annotations
 
-import os
-import re
 import shutil
 import sys
-import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from scart_bench.errors import ScartBenchError
+from scart_bench.storage import owned_tempdir, remove_stale_temp  # the commands import them from here too
 
 
 class UsageError(ScartBenchError):
@@ -52,95 +50,6 @@ EXIT_JOBS_FAILED = 3
 
 #: prefix of the local staging folders of URL commands, in the temp folder: scart-stage-<pid>-<random>
 STAGE_PREFIX = "scart-stage-"
-#: a temp folder made by :func:`owned_tempdir`: scart-<what>-<pid>-<random>, holding the owner file
-_OWNED = re.compile(r"scart-[a-z]+-(\d+)-[^-]+")
-_OWNER = ".owner"  # beside the folder's content: flock-held by the owning process while it lives
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:
-        return True  # another user's, or cannot tell: alive
-    return True
-
-
-def _owner_locked(path: Path) -> bool:
-    """True when a live process holds the flock on ``path`` (False without fcntl)."""
-    try:
-        import fcntl
-    except ImportError:
-        return False
-    try:
-        with open(path, "a") as fh:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
-    except OSError:
-        return False
-    return False
-
-
-def remove_stale_temp(tmpdir: str | Path | None = None) -> list[Path]:
-    """Remove the temp folders of :func:`owned_tempdir` (``scart-<what>-<pid>-*``, such as the
-    staging folders of URL commands) whose process is gone (killed -9: no ``finally`` ran), and
-    return them. Stale means: the pid is not running, and the owner file exists and is not locked
-    (the kernel drops a dead process's flock, so a reused pid, or one of another pid namespace
-    sharing the temp folder, cannot make a live folder look stale). Other users' folders are left."""
-    removed: list[Path] = []
-    root = Path(tmpdir or tempfile.gettempdir())
-    try:
-        candidates = [p for p in root.iterdir() if _OWNED.fullmatch(p.name)]
-    except OSError:
-        return removed
-    for folder in candidates:
-        pid = int(_OWNED.fullmatch(folder.name).group(1))
-        try:
-            if (pid == os.getpid() or _pid_alive(pid) or folder.is_symlink() or not folder.is_dir()
-                    or folder.stat().st_uid != os.getuid() or not (folder / _OWNER).is_file()):
-                continue
-        except OSError:
-            continue
-        if _owner_locked(folder / _OWNER):
-            continue
-        shutil.rmtree(folder, ignore_errors=True)
-        if not folder.exists():
-            removed.append(folder)
-    return removed
-
-
-@contextmanager
-def owned_tempdir(prefix: str = STAGE_PREFIX) -> Iterator[Path]:
-    """A new temp folder ``<prefix><pid>-<random>`` (``prefix``: ``scart-<what>-``) owned by this
-    process (a flock on its owner file), removed on exit; one left by a killed process is removed by
-    the next command's start (:func:`remove_stale_temp`). Put the content in a subfolder: the owner
-    file sits at the top."""
-    if not re.fullmatch(r"scart-[a-z]+-", prefix):
-        raise ValueError(f"owned_tempdir prefix {prefix!r}: expected scart-<lowercase letters>-")
-    remove_stale_temp()
-    tmp = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
-    try:
-        owner = open(tmp / _OWNER, "w")  # noqa: SIM115 - held (locked) while the folder is in use
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    try:
-        try:
-            import fcntl
-
-            fcntl.flock(owner.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except ImportError:
-            pass
-        owner.write(f"scart-bench pid {os.getpid()}\n")
-        owner.flush()
-        yield tmp
-    finally:
-        owner.close()
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def _stage_name(url: str, default: str) -> str:
     """The local copy's folder name: the URL's last segment when it is a plain id (a run's name), else
     ``default`` (``s3://b/..`` or ``s3://b/x%00`` must not name a folder outside the staging folder)."""
