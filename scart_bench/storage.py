@@ -203,7 +203,10 @@ def snapshot(local: str | Path, exclude: tuple[str, ...] = ()) -> dict[str, tupl
     files that changed since the snapshot it is given."""
     out = {}
     for rel, p in _local_files(Path(local), exclude).items():
-        st = p.stat()
+        try:
+            st = p.stat()
+        except FileNotFoundError:  # replaced or removed since it was listed: the next snapshot sees it
+            continue
         out[rel] = (st.st_size, st.st_mtime_ns, st.st_ino)
     return out
 

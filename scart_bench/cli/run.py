@@ -174,7 +174,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             def upload(detector: str) -> None:
                 try:
                     staged.sync()
-                except ScartBenchError as exc:  # kept locally and uploaded at the end (or by --resume)
+                except (ScartBenchError, OSError) as exc:  # kept locally, uploaded at the end
                     print(f"note: job {detector} not uploaded yet ({exc}); retried at the end", file=sys.stderr)
 
             local_cfg = resume_datasets(dataclasses.replace(cfg, out=staged.path), staged.path, str(cfg.out))
@@ -209,9 +209,11 @@ def register(sub) -> None:
                         "(every normal flight of it and its attacked flights), the columns matched by meaning "
                         "(docs/own_logs.md, 'Train on simulation, test on your flights')")
     r.add_argument("--out", metavar="DIR|URL", help="run folder (default runs/<profile>-seed<N>), or an fsspec URL "
-                   "(worked on in a local copy and uploaded back, also after a failure, so --resume works)")
+                   "(worked on in a local copy; each finished job is uploaded as it finishes, the rest at the end, "
+                   "also after a failure, so --resume works even after a kill)")
     r.add_argument("--resume", action="store_true",
-                   help="keep jobs that finished OK with the same parameters; run only the others")
+                   help="keep jobs that finished OK with the same parameters; run only the others (without "
+                        "--dataset: the dataset the run folder's config.json names)")
     r.add_argument("--executor", choices=("local", "dask"),
                    help="local worker processes (default) or dask.distributed")
     r.add_argument("--scheduler", metavar="ADDRESS",
