@@ -68,6 +68,10 @@ _TRUE = ("true", "1", "1.0", "yes")
 _FALSE = ("false", "0", "0.0", "no", "")
 
 
+def _bound(x: float) -> str:
+    return f"{int(x):,}" if abs(x) < 1e15 else f"{x:g}"
+
+
 def _shown(value: object) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
@@ -118,6 +122,16 @@ def check_manifest(manifest: pd.DataFrame, where: str | Path) -> None:
     _windows(manifest, ids, where)
 
 
+def numeric_columns(manifest: pd.DataFrame) -> pd.DataFrame:
+    """``manifest`` with its number columns as numbers: a CSV manifest's column that held a text cell
+    reads back as text throughout; once :func:`check_manifest` has accepted every cell, they are
+    numbers again (a run reads ``int(rows)``)."""
+    for name, (kind, _, _) in FIELDS.items():
+        if kind in ("int", "float") and name in manifest.columns and manifest[name].dtype == object:
+            manifest[name] = pd.to_numeric(manifest[name], errors="coerce")
+    return manifest
+
+
 def _flight_id(value: object, i: int, where) -> str:
     if _missing(value) or (isinstance(value, str) and not value.strip()):
         raise DatasetError(f"{where}: row {i + 1} has an empty flight_id; expected a flight id")
@@ -138,6 +152,7 @@ def _choice(manifest: pd.DataFrame, name: str, allowed: tuple[str, ...], ids: li
 
 def _typed(column: pd.Series, name: str, kind: str, lo: float, hi: float, ids: list[str], where) -> None:
     """Each present value of ``column`` of ``kind`` (int, float, bool or text) and within [lo, hi]."""
+    text_numbers = str(where).endswith(".csv")
     dtype = column.dtype
     if kind == "text" and (isinstance(dtype, pd.StringDtype) or dtype == np.dtype("str")):
         return  # text throughout
@@ -159,7 +174,7 @@ def _typed(column: pd.Series, name: str, kind: str, lo: float, hi: float, ids: l
         if _missing(value):
             continue
         if kind == "text":
-            if isinstance(value, str) or (_is_number(value) and str(where).endswith(".csv")):
+            if isinstance(value, str) or (_is_number(value) and text_numbers):
                 continue  # a CSV has no types: a text column of digits reads back as numbers
             raise DatasetError(f"{where}: flight {fid!r} field {name!r} is {_shown(value)}; expected text")
         if kind == "bool":
@@ -168,9 +183,14 @@ def _typed(column: pd.Series, name: str, kind: str, lo: float, hi: float, ids: l
                 continue
             raise DatasetError(f"{where}: flight {fid!r} field {name!r} is {_shown(value)}; expected true or false")
         expected = "an integer" if kind == "int" else "a number"
+        if isinstance(value, str) and text_numbers:  # a CSV has no types: one text cell makes the column text
+            try:
+                value = float(value)
+            except ValueError:
+                pass
         if not _is_number(value):
             raise DatasetError(f"{where}: flight {fid!r} field {name!r} is {_shown(value)}; expected {expected}"
-                               + (f" from {lo:g} to {hi:g}" if math.isfinite(hi) else ""))
+                               + (f" from {_bound(lo)} to {_bound(hi)}" if math.isfinite(hi) else ""))
         x = float(value)
         if not math.isfinite(x):
             raise DatasetError(f"{where}: flight {fid!r} field {name!r} is {_shown(value)}; expected a finite number")
@@ -178,7 +198,7 @@ def _typed(column: pd.Series, name: str, kind: str, lo: float, hi: float, ids: l
             raise DatasetError(f"{where}: flight {fid!r} field {name!r} is {_shown(value)}; expected {expected}")
         if not lo <= x <= hi:
             raise DatasetError(f"{where}: flight {fid!r} field {name!r} is {_shown(value)}; expected {expected} "
-                               f"from {lo:g} to {hi:g}")
+                               f"from {_bound(lo)} to {_bound(hi)}")
 
 
 def _windows(manifest: pd.DataFrame, ids: list[str], where) -> None:

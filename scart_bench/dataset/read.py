@@ -17,6 +17,7 @@ from scart_bench.dataset.checks import (
     check_manifest,
     labels_from_rows,
     labels_from_windows,
+    numeric_columns,
 )
 from scart_bench.dataset.labels import combine
 from scart_bench.dataset.locks import recover
@@ -50,6 +51,7 @@ class Dataset:
                                "incomplete (the manifest is written last)")
         self.manifest = _read_manifest(self.manifest_path)
         check_manifest(self.manifest, self.manifest_path)
+        self.manifest = numeric_columns(self.manifest)
         info = self.path / "dataset.json"
         try:
             self.info = read_json(info) if info.exists() else {}
