@@ -21,6 +21,7 @@ from scart_bench.dataset.read import open_dataset
 from scart_bench.dataset.record import (
     FORMATS,
     MANIFEST_COLUMNS,
+    MANIFEST_DEFAULTS,
     TRUTH_TOPICS,
     DatasetError,
     FlightRecord,
@@ -238,6 +239,9 @@ def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper
     else:
         _write_paper(root, fmt, record)
     row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
+    for k in ("mode", "split"):  # a record built without flight_record: the reader refuses an empty one
+        if row[k] is None:
+            row[k] = MANIFEST_DEFAULTS[k]
     row["flight_id"] = record.flight_id
     row["checksum"] = flight_checksum(root)
     row["rows"] = _most_frequent_rows({k: v for k, v in record.navigator.items() if k not in TRUTH_TOPICS})
