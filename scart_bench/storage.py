@@ -357,3 +357,46 @@ def owned_tempdir(prefix: str = "scart-stage-") -> Iterator[Path]:
     finally:
         owner.close()
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+#: prefix of the local staging folders of URL commands, in the temp folder: scart-stage-<pid>-<random>
+STAGE_PREFIX = "scart-stage-"
+
+
+def stage_name(url: str, default: str) -> str:
+    """The local copy's folder name: the URL's last segment when it is a plain id (a run's name), else
+    ``default`` (``s3://b/..`` or ``s3://b/x%00`` must not name a folder outside the staging folder)."""
+    from scart_bench.names import IdError, check_id
+
+    try:
+        return check_id(url.rsplit("/", 1)[-1], "URL name")
+    except IdError:
+        return default
+
+
+@contextmanager
+def staged_dataset(location: str | Path, overwrite: bool = False) -> Iterator[Path]:
+    """A local folder for the dataset at ``location`` that a command creates or adds to: itself, or
+    for an fsspec URL a local copy of the dataset there (if any), published back with its manifest
+    last once the command succeeded (see :func:`publish_dataset`); after a failure the URL is untouched.
+    Objects without a manifest (a half-uploaded dataset) are refused, or with ``overwrite`` replaced
+    by the new dataset when it is published."""
+    from scart_bench.dataset import is_dataset
+
+    if not is_url(location):
+        remove_stale_temp()
+        yield local_path(location)
+        return
+    url = str(location).rstrip("/")
+    check_writable(url)
+    with owned_tempdir(STAGE_PREFIX) as tmp:
+        local = tmp / stage_name(url, "dataset")
+        if has_manifest(url):
+            shutil.copytree(fetch_dataset(url), local)
+        elif has_objects(url) and not overwrite:
+            raise StorageError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
+                               "choose a new prefix, or pass --overwrite to replace them")
+        yield local
+        if is_dataset(local):
+            clear(url)
+            publish_dataset(local, url)

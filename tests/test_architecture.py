@@ -3,7 +3,7 @@
 The rooms, from the top: the command line (``scart_bench.cli``) -> the reports -> the benchmark (the run
 and its evaluation) -> the detectors and the generator (side by side, neither imports the other) ->
 the shared services (``scart_bench.storage``: URLs; ``scart_bench.cluster``: Dask) -> the dataset format
-(``scart_bench.dataset``) -> the shared base (``scart_bench.errors``, ``names``, ``progress``). A
+(``scart_bench.dataset``) -> the shared base (``scart_bench.errors``, ``names``, ``progress``, ``jsonfile``). A
 room imports only rooms below it, so no package imports one that imports it (a loop between
 packages fails here even when no two modules form a circle).
 """
@@ -56,7 +56,7 @@ def _modules() -> dict[str, Path]:
 
 def _room(module: str) -> str:
     parts = module.split(".")
-    if len(parts) == 1 or parts[1] in ("errors", "names", "progress"):
+    if len(parts) == 1 or parts[1] in ("errors", "names", "progress", "jsonfile"):
         return "base"
     if parts[1] == "__main__":
         return "main"

@@ -277,8 +277,7 @@ def test_stale_temp_folders_only_of_dead_owners_are_removed(tmp_path, monkeypatc
 # -- a half-uploaded dataset and --overwrite ------------------------------------------------------
 
 def test_half_uploaded_dataset_is_replaced_only_with_overwrite(s3, dataset, tmp_path, monkeypatch):
-    from scart_bench.cli.common import staged_dataset
-    from scart_bench.storage import StorageError
+    from scart_bench.storage import StorageError, staged_dataset
 
     fs, client = s3
     monkeypatch.setenv("SCART_BENCH_CACHE", str(tmp_path / "cache"))

@@ -12,7 +12,7 @@ is complete before and after.
 
 A dataset at an fsspec URL (``--record s3://bucket/prefix``) is checked up front
 (:func:`check_record_url`), written in a local copy and published with its manifest last by the
-command (``scart_bench.cli.common.staged_dataset``); the journals and checkpoints of its
+command (``scart_bench.storage.staged_dataset``); the journals and checkpoints of its
 recordings are kept in the local cache, beside :func:`url_anchor`, so that a killed recording or a
 failed upload is added by the next ``--record`` of the same URL.
 """
@@ -136,7 +136,7 @@ class RecordTarget:
     def writing(self) -> Iterator[Path]:
         """The local dataset to add flights to: the folder, or a copy of the URL's dataset published
         (manifest last) when the block succeeds; after a failure the URL is untouched."""
-        from scart_bench.cli.common import staged_dataset
+        from scart_bench.storage import staged_dataset
 
         with staged_dataset(self.location) as ds:
             yield ds

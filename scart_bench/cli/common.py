@@ -6,14 +6,19 @@ Library code raises the errors of :mod:`scart_bench.errors`; ``UsageError`` is f
 
 from __future__ import annotations
 
-import shutil
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from scart_bench.errors import ScartBenchError
-from scart_bench.storage import owned_tempdir, remove_stale_temp  # the commands import them from here too
+from scart_bench.storage import (  # noqa: F401 (the commands import them from here too)
+    STAGE_PREFIX,
+    owned_tempdir,
+    remove_stale_temp,
+    stage_name,
+    staged_dataset,
+)
 
 
 class UsageError(ScartBenchError):
@@ -46,19 +51,6 @@ def topic_list(text: str | None) -> list[str] | None:
 
 #: Exit status of ``scart-bench run`` when a job ended ERROR or TIMEOUT (the run is written).
 EXIT_JOBS_FAILED = 3
-
-
-#: prefix of the local staging folders of URL commands, in the temp folder: scart-stage-<pid>-<random>
-STAGE_PREFIX = "scart-stage-"
-def _stage_name(url: str, default: str) -> str:
-    """The local copy's folder name: the URL's last segment when it is a plain id (a run's name), else
-    ``default`` (``s3://b/..`` or ``s3://b/x%00`` must not name a folder outside the staging folder)."""
-    from scart_bench.names import IdError, check_id
-
-    try:
-        return check_id(url.rsplit("/", 1)[-1], "URL name")
-    except IdError:
-        return default
 
 
 class Staged:
@@ -96,7 +88,7 @@ def stage_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), wr
     if write:
         check_writable(url)
     with owned_tempdir(STAGE_PREFIX) as tmp:
-        local = tmp / _stage_name(url, "folder")
+        local = tmp / stage_name(url, "folder")
         if not fetch_folder(url, local) and not write:
             raise UsageError(f"{url}: nothing there; expected a run folder")
         staged = Staged(local, url, exclude)
@@ -116,45 +108,6 @@ def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), w
     made in a staging folder owned by this process; those of killed processes are removed here."""
     with stage_folder(location, exclude, write) as staged:
         yield staged.path
-
-
-@contextmanager
-def staged_dataset(location: str | Path, overwrite: bool = False) -> Iterator[Path]:
-    """A local folder for the dataset at ``location`` that a command creates or adds to: itself, or
-    for an fsspec URL a local copy of the dataset there (if any), published back with its manifest
-    last once the command succeeded (scart_bench.storage); after a failure the URL is untouched.
-    Objects without a manifest (a half-uploaded dataset) are refused, or with ``overwrite`` replaced
-    by the new dataset when it is published."""
-    from scart_bench.dataset import is_dataset
-    from scart_bench.storage import (
-        StorageError,
-        check_writable,
-        clear,
-        fetch_dataset,
-        has_manifest,
-        has_objects,
-        is_url,
-        local_path,
-        publish_dataset,
-    )
-
-    if not is_url(location):
-        remove_stale_temp()
-        yield local_path(location)
-        return
-    url = str(location).rstrip("/")
-    check_writable(url)
-    with owned_tempdir(STAGE_PREFIX) as tmp:
-        local = tmp / _stage_name(url, "dataset")
-        if has_manifest(url):
-            shutil.copytree(fetch_dataset(url), local)
-        elif has_objects(url) and not overwrite:
-            raise StorageError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
-                               "choose a new prefix, or pass --overwrite to replace them")
-        yield local
-        if is_dataset(local):
-            clear(url)
-            publish_dataset(local, url)
 
 
 def print_tables(path: Path, metrics, shown: str | None = None) -> None:
