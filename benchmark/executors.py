@@ -20,11 +20,9 @@ from __future__ import annotations
 
 import os
 import pickle
-import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections import deque
@@ -36,6 +34,7 @@ from scart_bench.benchmark.jobs import JobResult, run_job
 from scart_bench.cluster import CONNECT_TIMEOUT_S
 from scart_bench.errors import RunError
 from scart_bench.progress import duration, progress_every_s
+from scart_bench.storage import claim_tempdir, release_tempdir
 
 #: Seconds a worker may take to start Python and import the benchmark before its job begins; the
 #: job's own ``--timeout`` is counted from then, so a loaded machine does not time out fast jobs.
@@ -62,6 +61,7 @@ class _Worker:
     log: object
     started: float
     timeout: float
+    owner: object = None  # the folder's owner file (scart_bench.storage.claim_tempdir)
     job_started: float | None = None
 
     last_report: float = 0.0
@@ -94,8 +94,13 @@ class _Worker:
 
 
 def _launch(spec, timeout: float) -> _Worker:
-    folder = Path(tempfile.mkdtemp(prefix="scart-job-"))
-    (folder / "spec.pkl").write_bytes(pickle.dumps(spec))
+    # owned by this process: a run killed -9 leaves it behind, and the next command's start removes it
+    folder, owner = claim_tempdir("scart-job-")
+    try:
+        (folder / "spec.pkl").write_bytes(pickle.dumps(spec))
+    except BaseException:
+        release_tempdir(folder, owner)
+        raise
     env = dict(os.environ)
     env.update(dict.fromkeys(_THREAD_VARS, str(spec.threads)))
     # OpenMP threads that wait by spinning make torch 5-7x slower when another process holds one of
@@ -109,7 +114,7 @@ def _launch(spec, timeout: float) -> _Worker:
         [sys.executable, "-m", "scart_bench.benchmark.executors", str(folder / "spec.pkl"), str(folder / "result.pkl")],
         stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
     )
-    return _Worker(spec, proc, folder, log, time.monotonic(), timeout)
+    return _Worker(spec, proc, folder, log, time.monotonic(), timeout, owner)
 
 
 def _kill(w: _Worker) -> None:
@@ -146,7 +151,7 @@ def _collect(w: _Worker, timed_out: bool = False, timeout: float = 0.0):
         res.wall_seconds = time.monotonic() - w.started
         return res
     finally:
-        shutil.rmtree(w.folder, ignore_errors=True)
+        release_tempdir(w.folder, w.owner)
 
 
 def run_isolated(spec, timeout: float):
@@ -179,7 +184,7 @@ def run_isolated(spec, timeout: float):
         return _collect(w)
     except BaseException:
         _kill(w)
-        shutil.rmtree(w.folder, ignore_errors=True)
+        release_tempdir(w.folder, w.owner)
         raise
 
 
@@ -223,7 +228,7 @@ class LocalExecutor:
             for w in running:  # interrupted: no unfinished job leaves a process or a status
                 _kill(w)
                 w.log.close()
-                shutil.rmtree(w.folder, ignore_errors=True)
+                release_tempdir(w.folder, w.owner)
 
     def check_dataset(self, path: str) -> None:
         """Local workers read the dataset where this process does: nothing to check."""

@@ -329,22 +329,19 @@ def remove_stale_temp(tmpdir: str | Path | None = None) -> list[Path]:
     return removed
 
 
-@contextmanager
-def owned_tempdir(prefix: str = "scart-stage-") -> Iterator[Path]:
-    """A new temp folder ``<prefix><pid>-<random>`` (``prefix``: ``scart-<what>-``) owned by this
-    process (a flock on its owner file), removed on exit; one left by a killed process is removed by
-    the next command's start (:func:`remove_stale_temp`). Put the content in a subfolder: the owner
-    file sits at the top."""
+def claim_tempdir(prefix: str = "scart-stage-"):
+    """A new temp folder ``<prefix><pid>-<random>`` (``prefix``: ``scart-<what>-``) and its owner
+    file, open and flock-held by this process: (folder, owner). Release both with
+    :func:`release_tempdir`; a folder left by a killed process is removed by the next command's start
+    (:func:`remove_stale_temp`). For a folder that outlives one block (a job's worker folder);
+    :func:`owned_tempdir` is the context manager."""
     if not re.fullmatch(r"scart-[a-z]+-", prefix):
         raise ValueError(f"owned_tempdir prefix {prefix!r}: expected scart-<lowercase letters>-")
     remove_stale_temp()
     tmp = Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))
+    owner = None
     try:
         owner = open(tmp / _OWNER, "w")  # noqa: SIM115 - held (locked) while the folder is in use
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    try:
         try:
             import fcntl
 
@@ -353,10 +350,33 @@ def owned_tempdir(prefix: str = "scart-stage-") -> Iterator[Path]:
             pass
         owner.write(f"scart-bench pid {os.getpid()}\n")
         owner.flush()
+    except BaseException:
+        if owner is not None:
+            owner.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return tmp, owner
+
+
+def release_tempdir(folder: Path, owner) -> None:
+    """Close the owner file of a :func:`claim_tempdir` folder and remove the folder."""
+    try:
+        owner.close()
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextmanager
+def owned_tempdir(prefix: str = "scart-stage-") -> Iterator[Path]:
+    """A new temp folder ``<prefix><pid>-<random>`` (``prefix``: ``scart-<what>-``) owned by this
+    process (a flock on its owner file), removed on exit; one left by a killed process is removed by
+    the next command's start (:func:`remove_stale_temp`). Put the content in a subfolder: the owner
+    file sits at the top."""
+    tmp, owner = claim_tempdir(prefix)
+    try:
         yield tmp
     finally:
-        owner.close()
-        shutil.rmtree(tmp, ignore_errors=True)
+        release_tempdir(tmp, owner)
 
 
 #: prefix of the local staging folders of URL commands, in the temp folder: scart-stage-<pid>-<random>

@@ -231,6 +231,8 @@ def test_killed_url_run_keeps_finished_jobs_and_its_staging_is_removed(s3, datas
     stale = [p for p in tmp.iterdir() if p.name.startswith(f"scart-stage-{proc.pid}-")]
     assert all((p / ".owner").is_file() for p in stale)
     assert stale, list(tmp.iterdir())  # what kill -9 leaves
+    jobs = [p for p in tmp.iterdir() if p.name.startswith(f"scart-job-{proc.pid}-")]
+    assert jobs and all((p / ".owner").is_file() for p in jobs)  # hang_test's worker folder, owned by the run
 
     # the next command's start removes it; --resume keeps the uploaded job (and, without --dataset,
     # takes the dataset from the uploaded config.json)
@@ -242,6 +244,7 @@ def test_killed_url_run_keeps_finished_jobs_and_its_staging_is_removed(s3, datas
     assert f"resume: the run's dataset '{dataset}' (from {run_url}/config.json)" in err
     assert not any(p.exists() for p in stale)
     assert not [p for p in tmp.iterdir() if p.name.startswith("scart-stage-")]
+    assert not any(p.exists() for p in jobs)
 
 
 def test_stale_temp_folders_only_of_dead_owners_are_removed(tmp_path, monkeypatch):
