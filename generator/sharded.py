@@ -37,6 +37,7 @@ from scart_bench.generator.attacks import (
 )
 from scart_bench.generator.plan import GenerationPlan, Sources, fly_normal_batch
 from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.names import join_inside
 
 
 @dataclass(frozen=True)
@@ -161,8 +162,8 @@ def _run(client, shards: list[Shard], args: Callable[[Shard], tuple], out: Path,
             except Exception as exc:
                 raise ClusterError(f"generate --executor dask: shard {shard} failed ({type(exc).__name__}: "
                                    f"{exc}); nothing was committed") from exc
-            for rel, data in res.files.items():
-                path = out / rel
+            for rel, data in res.files.items():  # names a worker sent back: kept inside the dataset
+                path = join_inside(out, rel, f"generate --executor dask: shard {shard}: file")
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_bytes(data)
             res.files = {}
