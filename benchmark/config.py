@@ -36,11 +36,15 @@ loaded only when the command line names them with ``--plugin`` or passes ``--tru
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import pandas as pd
 
 from scart_bench.benchmark.protocol import Protocol, ProtocolError, ThresholdRule
 from scart_bench.errors import RunError
@@ -260,3 +264,56 @@ def merge_params(base: dict[str, dict], extra: dict[str, dict]) -> dict[str, dic
     for name, values in extra.items():
         out.setdefault(name, {}).update(values)
     return out
+
+
+def check_against_flights(cfg: RunConfig, chosen: list, splits, flights: pd.DataFrame,
+                          read: Callable[[str], pd.DataFrame]) -> None:
+    """Refuse, before any job runs, what would only fail inside every job or score nothing: a
+    detector window (a parameter in its class's ``window_params``) not shorter than the run's
+    shortest flight, a burn-in at least as long as every validation or every test flight, and
+    ``--features`` / ``--exclude`` that leave no column of the first training flight.
+
+    ``flights``: the run's flights (flight_id with the manifest's ``rows`` and ``duration_s`` where
+    known); ``read``: a flight by id (the table the jobs read). RunError naming the option and the
+    accepted range."""
+    from scart_bench.dataset.schema import sensor_columns
+    from scart_bench.detectors.base import is_feature_name
+
+    def column(name: str, ids) -> pd.Series:
+        if name not in flights.columns:
+            return pd.Series(dtype=float)
+        known = flights[flights["flight_id"].astype(str).isin(set(ids))]
+        values = pd.to_numeric(known[name], errors="coerce")
+        return values[values.notna() & (values > 0)]
+
+    used = (*splits.train, *splits.scored)
+    rows = column("rows", used)
+    for choice in chosen:
+        for param in getattr(choice.cls, "window_params", ()):
+            value = choice.params.get(param)  # as given (a default window on short flights pads, as before)
+            if not isinstance(value, int) or isinstance(value, bool) or not len(rows):
+                continue
+            shortest = int(rows.min())
+            if value >= shortest:
+                raise RunError(f"--param {choice.name}.{param}={value}: expected a window of fewer rows than the "
+                               f"run's shortest flight ({shortest} rows)")
+    burn_in = float(cfg.protocol.burn_in_s)
+    for role, ids in (("validation", splits.validation), ("test", splits.test_normal + splits.test_attacked)):
+        durations = column("duration_s", ids)
+        if burn_in > 0 and len(durations) == len(ids) and len(ids) and burn_in >= float(durations.max()):
+            raise RunError(f"--burn-in {burn_in:g}: expected fewer seconds than the longest {role} flight "
+                           f"({float(durations.max()):g} s); no row of any {role} flight would count")
+    if not (cfg.features or cfg.exclude) or not splits.train:
+        return
+    first = splits.train[0]
+    columns = sensor_columns(read(first).columns)
+    keep = ([c for c in columns if any(fnmatch.fnmatchcase(c, p) for p in cfg.features)] if cfg.features
+            else [c for c in columns if is_feature_name(c)])
+    shown = ", ".join(columns[:8]) + (", ..." if len(columns) > 8 else "")
+    if cfg.features and not keep:
+        raise RunError(f"--features {','.join(cfg.features)}: matches no column of the dataset's flights "
+                       f"({first} has {shown or 'none'}); expected glob patterns on topic.field")
+    if cfg.exclude and not [c for c in keep if not any(fnmatch.fnmatchcase(c, p) for p in cfg.exclude)]:
+        raise RunError(f"--exclude {','.join(cfg.exclude)}: leaves no feature column of the dataset's flights "
+                       f"({first} has {shown or 'none'}); expected patterns that keep at least one")
+

@@ -160,6 +160,9 @@ DEFAULT_ALPHA = 0.05
 DEFAULT_BURN_IN_S = 8.0
 #: Default end transient (seconds after the last attacked row) in which an alarm counts as "at the end".
 DEFAULT_END_TRANSIENT_S = 2.0
+#: The longest burn-in or end transient accepted (an hour, longer than any flight's start-up or
+#: landing; 1e12 s would overflow the microsecond arithmetic and count no row at all).
+MAX_PROTOCOL_S = 3600.0
 #: Values of ``Protocol.alarm_rule``.
 ALARM_RULES = ("calibrated", "own")
 #: Rules calibrated on the validation flights' scores (one value per flight).
@@ -306,8 +309,8 @@ class Protocol:
     def __post_init__(self) -> None:
         for name in ("burn_in_s", "end_transient_s"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v >= 0):
-                raise ProtocolError(f"{name} {v!r}: expected a number of seconds >= 0")
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and 0 <= v <= MAX_PROTOCOL_S):
+                raise ProtocolError(f"{name} {v!r}: expected a finite number of seconds in 0..{MAX_PROTOCOL_S:g}")
         if self.alarm_rule not in ALARM_RULES:
             raise ProtocolError(f"alarm rule {self.alarm_rule!r}: expected one of {', '.join(ALARM_RULES)}")
 

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.config import RunConfig
+from scart_bench.benchmark.config import RunConfig, check_against_flights
 from scart_bench.benchmark.flight_cache import (
     CacheInvalid,
     DatasetReader,
@@ -283,6 +283,8 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
     else:
         splits = Splits.from_manifest(ds.manifest)
         ds.check_flights(dict.fromkeys(splits.train + splits.scored))  # a damaged table stops the run here
+    check_against_flights(cfg, chosen, splits, ds.manifest if transfer is None else transfer.flights,
+                          ds.flight if transfer is None else transfer.reader)  # windows, burn-in, --features
     identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest, ds.path),
                 "seed": int(cfg.seed), "protocol": cfg.protocol.rules()}
     if transfer is not None:  # absent otherwise: runs on one dataset keep their identity

@@ -56,6 +56,7 @@ import re
 import tempfile
 import threading
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -174,7 +175,7 @@ def read_npz(path: Path, data: bytes | None = None) -> dict[str, np.ndarray]:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
         # numpy's message for a pickled entry suggests allow_pickle=True: never, scores are plain arrays
         raise RunStoreError(f"{path}: not a valid scores file (a .npz of numeric arrays): "
                             f"{type(exc).__name__}") from None
@@ -387,14 +388,16 @@ class RunStore:
         """Compare every file the scores are computed from with the checksum recorded when the run
         wrote it (``score``, ``report`` and a rerun into the folder do, before anything else):
         ChecksumError naming the first that differs, or whose checksum is missing, null or empty.
-        A run folder made before checksums passes unchecked."""
+        A run folder made before checksums passes unchecked. Then every job's status.json is read
+        (:meth:`read_status`), so a damaged one is named here in every command."""
         files = self._checksums()
-        if files is None:
-            return
-        for rel in self.checked_files():
-            with open(self.path / rel, "rb") as fh:
-                digest = hashlib.file_digest(fh, "sha256").hexdigest()
-            self._check(rel, digest, files)
+        if files is not None:
+            for rel in self.checked_files():
+                with open(self.path / rel, "rb") as fh:
+                    digest = hashlib.file_digest(fh, "sha256").hexdigest()
+                self._check(rel, digest, files)
+        for name in self.job_names():
+            self.read_status(name)
 
     def seal(self, rel: str) -> None:
         """Record the checksum of ``rel`` as it is now: for a file changed on purpose (a test's
@@ -524,7 +527,8 @@ class RunStore:
             ts = df["Timestamp"].to_numpy(np.int64)
             lab = df["Is_Anomaly"].to_numpy()
         except Exception as exc:  # pyarrow raises its own types for a damaged file
-            raise RunStoreError(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
+            what = " ".join(str(exc).split())  # pyarrow's messages span lines; an error here is one line
+            raise RunStoreError(f"{path}: cannot be read ({type(exc).__name__}: {what[:300]})") from None
         if isinstance(col.dtype, pd.CategoricalDtype):  # as written: compare codes, not 12 M strings
             fid, names = col.cat.codes.to_numpy(), np.asarray(col.cat.categories.astype(str))
         else:

@@ -277,10 +277,13 @@ class TransferFlights:
     in the process that reads). ``train_ids`` are read from the train dataset, the rest from the test
     dataset, which is resampled to the plan's interval."""
 
-    def __init__(self, train_path: str, test_path: str, train_ids: Iterable[str], columns: Iterable[str],
-                 interval_us: int):
+    def __init__(self, train_path: str, test_path: str, train_ids: Iterable[str] | dict[str, str],
+                 columns: Iterable[str], interval_us: int):
         self.train_path, self.test_path = str(train_path), str(test_path)
-        self.train_ids = frozenset(str(f) for f in train_ids)
+        # the run's id of each train-dataset flight -> its id in that dataset (they differ where the
+        # test dataset has a different flight of the same id: open_transfer)
+        self.train_ids = ({str(k): str(v) for k, v in train_ids.items()} if isinstance(train_ids, dict)
+                          else {str(f): str(f) for f in train_ids})
         self.columns = tuple(columns)
         self.interval_us = int(interval_us)
         self._open: dict = {}
@@ -298,7 +301,7 @@ class TransferFlights:
     def flight(self, flight_id: str) -> pd.DataFrame:
         fid = str(flight_id)
         if fid in self.train_ids:
-            return shared_table(self._dataset(self.train_path).flight(fid), self.columns)
+            return shared_table(self._dataset(self.train_path).flight(self.train_ids[fid]), self.columns)
         return shared_table(self._dataset(self.test_path).flight(fid), self.columns, self.interval_us)
 
     __call__ = flight
@@ -314,11 +317,15 @@ class TransferRun:
     plan: TransferPlan
     reader: TransferFlights
     flights: pd.DataFrame  # flights.csv: the run's flights with their role and dataset
+    #: the run's id -> the train dataset's id, for train-dataset flights renamed (TRAIN_PREFIX) because
+    #: the test dataset has a different flight of the same id; empty when no id is shared
+    renamed: dict[str, str] = field(default_factory=dict)
 
     def job_args(self) -> dict:
         """What a job needs to read the flights by meaning (JobSpec.transfer; plain data)."""
-        return {"train_dataset": str(self.train.path.resolve()), "train_ids": [*self.splits.train,
-                                                                               *self.splits.validation],
+        ids = [*self.splits.train, *self.splits.validation]
+        return {"train_dataset": str(self.train.path.resolve()),
+                "train_ids": {f: self.renamed.get(f, f) for f in ids} if self.renamed else ids,
                 "columns": list(self.plan.columns), "interval_us": int(self.plan.interval_us)}
 
     def dropped_table(self) -> pd.DataFrame:
@@ -342,7 +349,7 @@ def open_transfer(train_path, test_ds, note=print) -> TransferRun:
     """The transfer run of ``test_ds`` trained on the dataset at ``train_path``: splits, shared columns
     (every flight of both is read once) and the flight reader. Raises RunError (one line, naming the
     dataset) when the train dataset is missing or lacks train/validation flights, the test dataset has
-    no test flights, flight ids clash, or no quantity is shared."""
+    no test flights, a flight is in both, or no quantity is shared."""
     from scart_bench.benchmark.protocol import ProtocolError, Splits, assign_roles
     from scart_bench.dataset import DatasetError, is_dataset, open_dataset
 
@@ -364,12 +371,10 @@ def open_transfer(train_path, test_ds, note=print) -> TransferRun:
     tested = {r: tuple(test_ids[test_roles == r]) for r in ("test_normal", "test_attacked", "no_effect")}
     if not tested["test_normal"] and not tested["test_attacked"]:
         raise RunError(f"--dataset {test_ds.path}: no flights to test (normal or attacked)")
-    clash = sorted(set(part["train"] + part["validation"]) & set(test_ids))
-    if clash:
-        raise RunError(f"--train-dataset {train_path} / --dataset {test_ds.path}: flight id {clash[0]!r} is in both "
-                       f"({len(clash)} such); a transfer run needs distinct flight ids")
-    splits = Splits(part["train"], part["validation"], tested["test_normal"], tested["test_attacked"],
-                    tested["no_effect"], ())
+    renamed = _run_ids(train, test_ds, part["train"] + part["validation"], set(test_ids), train_path)
+    run_id = {v: k for k, v in renamed.items()}
+    splits = Splits(*(tuple(run_id.get(f, f) for f in part[r]) for r in ("train", "validation")),
+                    tested["test_normal"], tested["test_attacked"], tested["no_effect"], ())
     used_test = tested["test_normal"] + tested["test_attacked"]
     train.check_flights(dict.fromkeys(part["train"] + part["validation"]))
     test_ds.check_flights(dict.fromkeys(used_test))
@@ -379,11 +384,62 @@ def open_transfer(train_path, test_ds, note=print) -> TransferRun:
          f"{len(part['validation'])} validation flights), tested on {test_ds.path} ({len(tested['test_normal'])} "
          f"normal, {len(tested['test_attacked'])} attacked flights); {plan.describe()}")
     reader = TransferFlights(str(train.path.resolve()), str(test_ds.path.resolve()),
-                             part["train"] + part["validation"], plan.columns, plan.interval_us)
+                             {f: renamed.get(f, f) for f in splits.train + splits.validation}, plan.columns,
+                             plan.interval_us)
     tm = train.manifest.assign(role=train_roles, dataset=str(train.path))
     tm = tm[tm["role"].isin(("train", "validation"))]
+    if renamed:  # the run's ids, and the train dataset's own beside them
+        original = tm["flight_id"].astype(str)
+        tm = tm.assign(flight_id=original.map(lambda f: run_id.get(f, f)), dataset_flight_id=original)
     rm = test_ds.manifest.assign(role=test_roles, dataset=str(test_ds.path))
     flights = pd.concat([tm, rm], ignore_index=True)
     flights = flights[["flight_id", "role", "dataset", *(c for c in flights.columns
                                                          if c not in ("flight_id", "role", "dataset"))]]
-    return TransferRun(train, test_ds, splits, plan, reader, flights)
+    return TransferRun(train, test_ds, splits, plan, reader, flights, renamed)
+
+
+#: Prefix of a train-dataset flight's id in a transfer run whose test dataset has another flight of that id.
+TRAIN_PREFIX = "train+"
+
+
+def _flight_digest(ds, flight_id: str) -> str:
+    """What identifies a flight's contents: the checksum its manifest recorded, else the digest of its files."""
+    from scart_bench.dataset.tables import flight_checksum
+
+    if "checksum" in ds.manifest.columns:
+        row = ds.manifest.loc[ds.manifest["flight_id"].astype(str) == flight_id, "checksum"]
+        if len(row) and isinstance(row.iloc[0], str) and row.iloc[0]:
+            return row.iloc[0]
+    return flight_checksum(ds.flight_dir(flight_id))
+
+
+def _run_ids(train, test_ds, train_ids: tuple[str, ...], test_ids: set[str], train_path) -> dict[str, str]:
+    """Flights are keyed by (dataset, flight id): a train-dataset flight whose id the test dataset also
+    uses gets the run id ``train+<id>`` when the two are different flights (two generated datasets
+    both have normal-0000), so labels and scores stay apart. The same flight in both roles (the same
+    dataset, or a copy of it) is refused: a detector would be tested on what it was fitted or
+    calibrated on. Returns run id -> train dataset id for the renamed flights (empty when no id is shared)."""
+    from scart_bench.names import IdError, check_id
+
+    clash = [f for f in train_ids if f in test_ids]
+    if not clash:
+        return {}
+    same_folder = train.path.resolve() == test_ds.path.resolve()
+    same = [f for f in clash if same_folder or _flight_digest(train, f) == _flight_digest(test_ds, f)]
+    if same:
+        raise RunError(f"--train-dataset {train_path} / --dataset {test_ds.path}: flight {same[0]!r} is the same "
+                       f"flight in both ({len(same)} such: same id and contents); a transfer run needs test flights "
+                       "it was not trained or calibrated on")
+    renamed = {}
+    for f in train_ids:
+        run_id = TRAIN_PREFIX + f
+        try:
+            check_id(run_id, f"--train-dataset {train_path}: flight id")
+        except IdError as exc:
+            raise RunError(f"{exc}; the test dataset has another flight {f!r}, so the run names this one "
+                           f"{TRAIN_PREFIX}<id>") from None
+        if run_id in test_ids:
+            raise RunError(f"--train-dataset {train_path} / --dataset {test_ds.path}: flight id {f!r} is in both "
+                           f"and {run_id!r} is taken by the test dataset; a transfer run needs ids it can tell apart")
+        renamed[run_id] = f
+    return renamed

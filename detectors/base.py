@@ -69,6 +69,11 @@ CONTROL_STATE_FIELDS = re.compile(
 )
 
 
+#: The longest window, in rows, a built-in detector accepts (5.5 h at 50 Hz): a bound on the memory a
+#: parameter can ask for before any flight is read (the run also checks windows against its flights).
+MAX_WINDOW_ROWS = 1_000_000
+
+
 def is_feature_name(column: str) -> bool:
     """False for a ``topic.field`` column whose field is a timestamp, counter, id or reset counter,
     or a control or state flag (:data:`CONTROL_STATE_FIELDS`)."""

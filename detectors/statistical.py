@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from scart_bench.detectors.base import Detector, DetectorError
+from scart_bench.detectors.base import MAX_WINDOW_ROWS, Detector, DetectorError
 
 #: Floor of every learned spread or threshold, in standardised units (constant channels).
 _EPS = 1e-6
@@ -114,6 +114,8 @@ class Statistical(Detector):
     """
 
     name = "statistical"
+    #: parameters counted in rows: a run refuses values not shorter than its shortest flight
+    window_params = ("window",)
     relative_cost = 3.6  # us per row, paper flights (scheduling hint)
     description = "mean / std / variance / moving-average thresholds; alarm when several are exceeded at once"
     has_alarms = True
@@ -135,8 +137,9 @@ class Statistical(Detector):
         self.random_state = random_state
 
     def _check_params(self) -> None:
-        if int(self.window) < 2:
-            raise DetectorError(f"{self.name}: window must be at least 2 rows, got {self.window}")
+        if not 2 <= int(self.window) <= MAX_WINDOW_ROWS:
+            raise DetectorError(f"{self.name}: window must be at least 2 and at most {MAX_WINDOW_ROWS:,} rows, got "
+                                f"{self.window}; expected 2..{MAX_WINDOW_ROWS:,} rows, fewer than the shortest flight has")
         if not 1 <= int(self.min_exceed) <= N_STATISTICS:
             raise DetectorError(
                 f"{self.name}: min_exceed must be in 1..{N_STATISTICS}, got {self.min_exceed}"

@@ -34,7 +34,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy.stats import norm
 
 from scart_bench.detectors._kernels import bitmap_distances
-from scart_bench.detectors.base import Detector, DetectorError, DetectorStream
+from scart_bench.detectors.base import MAX_WINDOW_ROWS, Detector, DetectorError, DetectorStream
 from scart_bench.detectors.statistical import pad_start
 
 #: Smallest per-channel unit of distance: one bitmap cell entirely different. Keeps channels that
@@ -46,6 +46,9 @@ def sax_breakpoints(alphabet_size: int) -> np.ndarray:
     """The ``alphabet_size - 1`` cut points of a standard normal into equiprobable regions."""
     return norm.ppf(np.arange(1, alphabet_size) / alphabet_size)
 
+
+#: The most bitmap cells (alphabet_size ** level_size) accepted: each channel keeps two such count arrays.
+MAX_CELLS = 65_536
 
 class TSBitmaps(Detector):
     """Time-series bitmaps (Wei et al. 2005): distance between lag and lead SAX bitmaps.
@@ -119,18 +122,23 @@ class TSBitmaps(Detector):
     # -- the method ------------------------------------------------------------------------------
     def _check_params(self) -> None:
         checks = {
-            "feature_window_size": int(self.feature_window_size) >= 1,
-            "alphabet_size": int(self.alphabet_size) >= 2,
-            "level_size": int(self.level_size) >= 1,
-            "lag_window_size": int(self.lag_window_size) >= 1,
-            "lead_window_size": int(self.lead_window_size) >= 1,
+            "feature_window_size": 1 <= int(self.feature_window_size) <= MAX_WINDOW_ROWS,
+            "alphabet_size": 2 <= int(self.alphabet_size) <= MAX_CELLS,
+            "level_size": 1 <= int(self.level_size) <= 16,
+            "lag_window_size": 1 <= int(self.lag_window_size) <= MAX_WINDOW_ROWS,
+            "lead_window_size": 1 <= int(self.lead_window_size) <= MAX_WINDOW_ROWS,
             "min_std": float(self.min_std) > 0.0,
             "q": 0.0 < float(self.q) <= 100.0,
             "combine": self.combine in ("max", "mean"),
         }
         bad = ", ".join(f"{k}={getattr(self, k)!r}" for k, ok in checks.items() if not ok)
+        if not bad and int(self.alphabet_size) ** int(self.level_size) > MAX_CELLS:
+            bad = (f"alphabet_size={self.alphabet_size!r} and level_size={self.level_size!r} "
+                   f"(alphabet_size ** level_size cells, at most {MAX_CELLS:,})")
         if bad:
-            raise DetectorError(f"{self.name}: invalid parameter(s) {bad}")
+            raise DetectorError(f"{self.name}: invalid parameter(s) {bad}; expected windows of 1..{MAX_WINDOW_ROWS:,} "
+                                f"rows, alphabet_size >= 2, level_size 1..16 with alphabet_size ** level_size <= "
+                                f"{MAX_CELLS:,}, min_std > 0, 0 < q <= 100 and combine max or mean")
 
     def _subword_codes(self, X: np.ndarray) -> np.ndarray:
         """Integer code (rows, channels) of the SAX word ending at each row.

@@ -244,6 +244,10 @@ def test_a_garbage_scores_file_is_named_without_pickle_advice(tmp_path, dataset,
     run = tmp_path / "run"
     assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(run)]) == 0
     (run / "jobs" / "zscore_test" / "scores.npz").write_bytes(b"PK\x03\x04 not really a zip")
+    assert main(["score", str(run)]) == 2  # the run's checksum names it first
+    err = capsys.readouterr().err
+    assert "scores.npz: changed since the run wrote it" in err and "pickle" not in err
+    RunStore(run).seal("jobs/zscore_test/scores.npz")  # past the checksum: the reader names it
     assert main(["score", str(run)]) == 3  # the job becomes an ERROR row (exit 3, as run), the rest is scored
     metrics = pd.read_csv(run / "metrics.csv").set_index("detector")
     assert metrics.loc["zscore_test", "status"] == "ERROR"

@@ -52,7 +52,7 @@ def snapshot(folder: Path) -> dict[str, tuple[str, int]]:
 def test_run_folder_layout(reference_run, dataset):
     names = {str(p.relative_to(reference_run)) for p in reference_run.rglob("*") if p.is_file()}
     expected = {"config.json", "flights.csv", "truth.parquet", "arming.csv", "results.csv", "metrics.csv",
-                "metrics.md", "breakdown.csv", "flight_scores.csv", "calibration.csv", ".lock"}
+                "metrics.md", "breakdown.csv", "flight_scores.csv", "calibration.csv", ".lock", "checksums.json"}
     for det in ("zscore_test", "diff_test"):
         expected |= {f"jobs/{det}/{f}" for f in ("status.json", "params.json", "scores.npz", "log.txt")}
     assert names == expected  # and no temp file left behind
@@ -142,13 +142,14 @@ def test_score_gives_the_same_tables_in_one_process_or_several(reference_run, tm
 
 
 def test_saved_nan_scores_make_the_job_an_error(reference_run, tmp_path):
-    from scart_bench.benchmark.store import atomic_write_bytes, npz_bytes
+    from scart_bench.benchmark.store import RunStore, atomic_write_bytes, npz_bytes
 
     run = tmp_path / "copy"
     shutil.copytree(reference_run, run)
     scores = read_npz(run / "jobs/diff_test/scores.npz")
     scores["sim-000"][5] = np.nan
     atomic_write_bytes(run / "jobs/diff_test/scores.npz", npz_bytes(scores))
+    RunStore(run).seal("jobs/diff_test/scores.npz")  # changed on purpose: past the run's checksum
     assert main(["score", str(run)]) == 3  # the other detector is scored; the exit says one job failed
     m = pd.read_csv(run / "metrics.csv").set_index("detector")
     assert m.loc["diff_test", "status"] == "ERROR" and "NaN" in m.loc["diff_test", "message"]
