@@ -205,6 +205,23 @@ def test_a_deeply_nested_dataset_json_or_config_json_is_one_line(compact_ds, tmp
         open_dataset(root).config("normal-000")
 
 
+def test_a_view_files_metadata_nested_deeply_is_one_line(compact_ds, tmp_path):
+    """A compact file's metadata is JSON too (a dataset from before checksums is not verified)."""
+    import pyarrow.parquet as pq
+
+    from scart_bench.dataset.compact import META_KEY
+
+    root = _copy(compact_ds, tmp_path / "ds")
+    pd.read_parquet(root / "manifest.parquet").drop(columns="checksum").to_parquet(root / "manifest.parquet")
+    view = root / "flights" / "normal-000" / "navigator.parquet"
+    table = pq.read_table(view)
+    for meta, said in ((b"[" * 100_000, "nested more than"), (b'{"version": "2"}', "not a scart-bench flight view")):
+        pq.write_table(table.replace_schema_metadata({META_KEY: meta}), view)
+        with pytest.raises(DatasetError, match=said) as info:
+            open_dataset(root).flight("normal-000")
+        assert "normal-000/navigator.parquet" in str(info.value) and "\n" not in str(info.value)
+
+
 # -- counts, a full disk, killed generates, compact files as input ---------------------------------
 
 def test_an_unreasonable_flight_count_is_refused_up_front(tmp_path, capsys):

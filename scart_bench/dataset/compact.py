@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 
 from scart_bench.dataset.schema import TOPICS, TRUTH_FIELDS
 from scart_bench.errors import ScartBenchError
+from scart_bench.jsonfile import JsonFileError, loads_bounded
 
 META_KEY = b"scart_bench"
 #: Bumped when the compact file's layout changes; a reader refuses newer versions.
@@ -191,8 +192,16 @@ def read_meta(path: Path) -> dict:
     raw = (schema.metadata or {}).get(META_KEY)
     if raw is None:
         raise CompactError(f"{path}: not a scart-bench flight view (no {META_KEY.decode()} metadata)")
-    meta = json.loads(raw)
-    if int(meta.get("version", 0)) > COMPACT_VERSION:
+    try:  # bounded: a file's metadata is data too (100,000 nested '[' must not be a RecursionError)
+        meta = loads_bounded(raw, f"{path} (its {META_KEY.decode()} metadata)")
+    except JsonFileError as exc:
+        raise CompactError(str(exc)) from None
+    version = meta.get("version", 0) if isinstance(meta, dict) else None
+    if (not isinstance(meta, dict) or not isinstance(version, int) or not isinstance(meta.get("topics"), list)
+            or not isinstance(meta.get("stored", []), list) or not isinstance(meta.get("reuse", {}), dict)):
+        raise CompactError(f"{path}: its {META_KEY.decode()} metadata is not a scart-bench flight view's (expected "
+                           "an object with an integer version, a topics list and the stored spans)")
+    if version > COMPACT_VERSION:
         raise CompactError(f"{path}: written by a newer scart-bench (layout version {meta['version']}, this one "
                            f"reads up to {COMPACT_VERSION}); upgrade scart-bench or regenerate the dataset")
     return meta

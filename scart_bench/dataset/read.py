@@ -287,6 +287,9 @@ def read_view(flight_dir: Path, view: str, names: list[str] | None = None,
             here.update(compact.read_topics(Path(flight_dir) / f"{other}.parquet", wanted, arrays=arrays))
     except compact.CompactError as exc:
         raise DatasetError(str(exc)) from None
+    except (KeyError, TypeError, IndexError, AttributeError) as exc:  # spans of the wrong shape
+        raise DatasetError(f"{path}: its {compact.META_KEY.decode()} metadata is damaged ({type(exc).__name__}: "
+                           f"{exc}); regenerate the flight") from None
     return {n: here[n] for n in order if n in here}
 
 
