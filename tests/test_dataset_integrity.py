@@ -105,3 +105,19 @@ def test_a_killed_overwrite_is_cleaned_up_by_the_next_command(tmp_path):
 
 def is_complete(path) -> bool:
     return (path / "manifest.parquet").exists() and len(open_dataset(path)) == 16
+
+
+def test_appending_to_a_dataset_from_before_checksums_records_every_flights(tmp_path):
+    """Only a dataset without a checksum column is "older"; appending to one gives it the column, so
+    the flights already there get theirs too (an empty checksum is refused by the reader)."""
+    from scart_bench.dataset import append_flights, flight_record
+
+    root = write_dataset(tmp_path / "ds")
+    m = pd.read_parquet(root / "manifest.parquet").drop(columns="checksum")
+    m.to_parquet(root / "manifest.parquet", index=False)
+    ds = open_dataset(root)
+    topics = {t: ds.topic("normal-000", t) for t in ds.topics("normal-000")}
+    append_flights(root, [flight_record("extra-1", topics, topics, {"mode": "normal", "split": "test"}, {})])
+    again = open_dataset(root)
+    assert again.manifest["checksum"].str.match(r"^b2:[0-9a-f]{32}$").all() and len(again) == 17
+    again.check_flights(list(again.manifest["flight_id"]))

@@ -187,6 +187,10 @@ class DatasetWriter:
         manifest = pd.DataFrame(self.rows, columns=list(MANIFEST_COLUMNS))
         if self.existing is not None:
             old = self.existing.reindex(columns=list(MANIFEST_COLUMNS))
+            if "checksum" not in self.existing.columns:
+                # a dataset from before checksums gains the column: every row records one (an empty one
+                # is refused by the reader), so its flights' are taken now, as they are
+                old["checksum"] = [flight_checksum(inside(self.out / "flights", str(f))) for f in old["flight_id"]]
             manifest = pd.concat([old, manifest], ignore_index=True) if len(manifest) else old
         for col in ("attack_start_us", "attack_end_us"):
             manifest[col] = pd.to_numeric(manifest[col]).astype("Int64")
