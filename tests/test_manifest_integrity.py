@@ -238,6 +238,17 @@ def test_an_unreasonable_flight_count_is_refused_up_front(tmp_path, capsys):
         generate_dataset("quick", tmp_path / "ds", n_normal=10**12)
 
 
+def test_import_and_attack_check_their_numbers_up_front(tmp_path, capsys):
+    log = tmp_path / "flight.csv"
+    log.write_text("timestamp_us,attitude.roll\n0,0.1\n20000,0.2\n40000,0.1\n")
+    assert main(["import", str(log), "--out", str(tmp_path / "ds"), "--start", "nan"]) == 2
+    assert "--start nan: expected a finite number" in capsys.readouterr().err
+    assert main(["attack", "--input", str(log), "--scenario", str(log), "--out", str(tmp_path / "a"),
+                 "--seed", "-5"]) == 2
+    assert "--seed -5" in capsys.readouterr().err
+    assert not (tmp_path / "ds").exists() and not (tmp_path / "a").exists()
+
+
 def _no_space_for(name: str):
     def fail(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")  # as write() says it: no file name

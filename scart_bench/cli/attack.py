@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 import shutil
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, staged_dataset, topic_list
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, staged_dataset, topic_list
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
     from scart_bench.generator.logs.offline import attack_dataset, attack_file
 
+    check_seed(args.seed)
     if args.dataset is not None:
         if args.input or args.out or args.topics or args.overwrite:
             raise UsageError("--dataset adds copies to that dataset: --input, --out, --topics and --overwrite "

@@ -4,15 +4,20 @@ flights of a dataset."""
 from __future__ import annotations
 
 import argparse
+import math
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, staged_dataset, topic_list
+from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, staged_dataset, topic_list
 
 
 def cmd_import(args: argparse.Namespace) -> int:
     from scart_bench.generator.logs.offline import import_logs
 
+    for name, value in (("--start", args.start), ("--end", args.end)):
+        if value is not None and not math.isfinite(value):
+            raise UsageError(f"{name} {value}: expected a finite number of seconds")
     if (args.start is not None and args.start < 0) or (args.end is not None and args.end <= (args.start or 0.0)):
         raise UsageError(f"--start {args.start} / --end {args.end}: expected 0 <= start < end (seconds)")
+    check_seed(args.seed)
     from scart_bench.progress import Progress
 
     with staged_dataset(args.out) as out, Progress("import", "logs") as progress:  # at a URL: a local copy, uploaded
