@@ -323,6 +323,19 @@ def test_a_dead_generates_temp_staging_folder_is_removed_at_the_next_start(tmp_p
     (stale / ".owner").write_text(f"scart-bench pid {dead.pid}\n")
     assert main(["generate", "--out", str(tmp_path / "ds"), "--flights", "1", "--normal-only"]) == 0
     assert not stale.exists()
+    # a generate to a URL writes in a staging folder named by its pid and owned (flock) while it lives
+    import scart_bench.storage as storage
+
+    real, seen = storage.publish_dataset, []
+
+    def spy(local, url, **kwargs):
+        seen.append((Path(local).parent.name, (Path(local).parent / ".owner").is_file()))
+        return real(local, url, **kwargs)
+
+    monkeypatch.setattr(storage, "publish_dataset", spy)
+    assert main(["generate", "--out", "memory://bucket/staged", "--flights", "1", "--normal-only"]) == 0
+    assert seen and seen[0][0].startswith(f"scart-generate-{os.getpid()}-") and seen[0][1], seen
+    assert not any((tmp_path / "tmp").iterdir())
 
 
 def test_attack_input_reads_the_projects_own_compact_file(generated, tmp_path, capsys):
