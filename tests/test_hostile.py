@@ -414,6 +414,8 @@ def test_proxy_run_monitor_imports_nothing_a_run_folder_names(tmp_path, dataset)
     out = tmp_path / "run"
     assert main(["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(dataset), "--out", str(out)]) == 0
     shutil.copytree(out / "jobs" / "zscore_test", out / "jobs" / "evil_test")  # a job whose class is the file
+    for name in ("status.json", "scores.npz"):  # recorded as the run's own, to reach the plugin check
+        RunStore(out).seal(f"jobs/evil_test/{name}")
     config = json.loads((out / "config.json").read_text())
     config["plugins"] = [f"{evil}:Evil"]
     config["jobs"]["evil_test"] = {**config["jobs"]["zscore_test"], "source": f"{evil}:Evil"}
