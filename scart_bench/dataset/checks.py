@@ -135,8 +135,6 @@ def numeric_columns(manifest: pd.DataFrame) -> pd.DataFrame:
 def _flight_id(value: object, i: int, where) -> str:
     if _missing(value) or (isinstance(value, str) and not value.strip()):
         raise DatasetError(f"{where}: row {i + 1} has an empty flight_id; expected a flight id")
-    if _is_number(value) and float(value) == int(value):  # a CSV of numeric ids, read as numbers
-        value = str(int(value))
     try:
         return check_id(value, f"{where}: row {i + 1} field 'flight_id'")
     except IdError as exc:
