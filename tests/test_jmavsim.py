@@ -1,0 +1,184 @@
+"""jMAVSim in the loop (issue 52): the project's flight software flies jMAVSim through PX4's simulator
+MAVLink API (headless, lockstep), with the SCART layer at the sensor point.
+
+jMAVSim is built once per session from ``../shared/sim/jmavsim`` (or the checkout named by
+``SCART_JMAVSIM_SRC``) into a temporary folder; shared/ stays untouched. Without java, ant or the
+source the module skips with one line saying which.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scart_bench.generator.params import MissionParams
+
+SOURCE = Path(os.environ.get("SCART_JMAVSIM_SRC", Path(__file__).resolve().parents[2] / "shared/sim/jmavsim"))
+
+
+def _missing() -> str | None:
+    if shutil.which("java") is None:
+        return "jMAVSim tests need java (Debian: apt-get install default-jdk-headless)"
+    if shutil.which("ant") is None:
+        return "jMAVSim tests need ant to build jMAVSim (Debian: apt-get install ant)"
+    if not (SOURCE / "build.xml").is_file():
+        return f"no jMAVSim source at {SOURCE} (set SCART_JMAVSIM_SRC)"
+    try:
+        import pymavlink  # noqa: F401
+    except ImportError:
+        return "jMAVSim tests need pymavlink"
+    return None
+
+
+REASON = _missing()
+pytestmark = pytest.mark.skipif(REASON is not None, reason=REASON or "")
+
+#: a short mission for the attack: one 60 m leg north and back, 1 s of hover at the take-off point
+SHORT = MissionParams(corners=((60.0, 0.0),), takeoff_hold_s=1.0, jitter_m=0.0, jitter_speed=0.0,
+                      max_duration_s=90.0)
+#: a GPS position bias growing east at 0.8 m/s from 17 s to 33 s after boot, at the sensor point
+#: (position and velocity consistent, so the estimator's gates pass it and the estimate follows)
+DRIFT = {
+    "id": "gps-bias-east", "injection_point": "sensor",
+    "start": [{"condition": "time_window", "start_s": 17.0}],
+    "end": [{"condition": "time_window", "start_s": 33.0}],
+    "actions": [{"action": "drift", "target": ["gps.lat", "gps.lon", "gps.vn", "gps.ve"], "rate": 0.8,
+                 "direction_deg": 90.0}],
+}
+#: the same scenario with a window that never opens in a flight of at most 90 s
+NEVER = {**DRIFT, "id": "never", "start": [{"condition": "time_window", "start_s": 500.0}],
+         "end": [{"condition": "time_window", "start_s": 600.0}]}
+
+
+@pytest.fixture(scope="module")
+def jar(tmp_path_factory):
+    from scart_bench.generator.hil.jmavsim import build
+
+    return build(SOURCE, tmp_path_factory.mktemp("jmavsim"))
+
+
+@pytest.fixture(scope="module")
+def default_flight(jar):
+    from scart_bench.generator.hil.flights import fly_jmavsim
+
+    return fly_jmavsim(jar, seed=0)
+
+
+@pytest.fixture(scope="module")
+def spoofed_flight(jar):
+    from scart_bench.generator.hil.flights import fly_jmavsim
+    from scart_bench.generator.scart.scenario import scenario_from_dict
+
+    return fly_jmavsim(jar, seed=1, scenarios=[scenario_from_dict(DRIFT)], mission=SHORT)
+
+
+def _item_of(flight) -> tuple[np.ndarray, np.ndarray]:
+    """Navigator phase and mission item at each truth row."""
+    est = flight.estimate
+    idx = np.clip(np.searchsorted(est[:, 0], flight.truth[:, 10], side="right") - 1, 0, None)
+    return est[idx, 4].astype(int), est[idx, 5].astype(int)
+
+
+def _line_distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(along-track, signed cross-track) of points relative to the leg a -> b."""
+    u = (b - a) / np.linalg.norm(b - a)
+    n = np.array([-u[1], u[0]])
+    return (xy - a) @ u, (xy - a) @ n
+
+
+def test_default_mission_in_jmavsim(default_flight):
+    """Takes off, flies every leg within 3 m of its line outside turns, lands within 2 m of home."""
+    f = default_flight
+    assert f.status == "landed", f.status
+    wps = f.autopilot.waypoints
+    truth = f.truth
+    assert len(truth) > 1000  # HIL_STATE_QUATERNION at 50 Hz as asked
+    xy, z = truth[:, 1:3], truth[:, 3]
+    assert -z.min() > 0.9 * -wps[0, 2], f"climbed to {-z.min():.1f} m of {-wps[0, 2]:.1f}"
+    phase, item = _item_of(f)
+    for k in range(1, len(wps)):
+        a, b = wps[k - 1, :2], wps[k, :2]
+        length = float(np.linalg.norm(b - a))
+        along, cross = _line_distance(xy, a, b)
+        on = (phase == 2) & (item == k) & (along > 5.0) & (along < length - 5.0)
+        assert on.sum() > 20, f"leg {k}: {on.sum()} truth rows"
+        worst = float(np.abs(cross[on]).max())
+        assert worst < 3.0, f"leg {k}: {worst:.2f} m off its line"
+    assert np.linalg.norm(xy[-1]) < 2.0, f"landed {np.linalg.norm(xy[-1]):.2f} m from home"
+    assert abs(z[-1]) < 0.3
+    assert f.speed > 1.0, f"lockstep ran at {f.speed:.2f}x real time"
+
+
+def test_gps_bias_at_sensor_point(spoofed_flight):
+    """The true track leaves the mission by >= 10 m while the estimate follows the spoofed GPS."""
+    f = spoofed_flight
+    ap = f.autopilot
+    wps = ap.waypoints
+    xy = f.truth[:, 1:3]
+    t_s = f.truth[:, 10] * 0.004
+    _, cross = _line_distance(xy, wps[0, :2], wps[1, :2])
+    inside = (t_s >= 17.0) & (t_s < 33.0)
+    assert np.abs(cross[inside]).max() >= 10.0, f"true track {np.abs(cross[inside]).max():.1f} m off the mission"
+    # the estimate follows the spoof: estimate - truth is the injected offset (0.8 m/s east, 16 s)
+    est_at = f.estimate[np.clip(np.searchsorted(f.estimate[:, 0], f.truth[:, 10], side="right") - 1, 0, None)]
+    gap_east = est_at[:, 2] - xy[:, 1]
+    late = inside & (t_s > 30.0)
+    expected = 0.8 * (t_s[late] - 17.0)
+    assert np.abs(gap_east[late] - expected).max() < 2.0
+    assert np.abs(gap_east[t_s < 17.0]).max() < 1.0
+    # the labels cover exactly the attack window: every GPS fix inside it altered, none outside
+    windows = ap.layer.labelled_windows(0, ap.step_index * 4000)
+    assert [(s, e) for s, e, _, _ in windows] == [(17_000_000, 33_000_000)]
+    steps, before = ap.records.table("sensor_gps", after=False)
+    _, after = ap.records.table("sensor_gps", after=True)
+    changed = np.any(before != after, axis=1)
+    t_us = steps * 4000
+    in_window = (t_us >= 17_000_000) & (t_us < 33_000_000)
+    assert changed[in_window].all() and not changed[~in_window].any()
+    assert in_window.sum() > 200
+
+
+def test_layer_without_an_active_scenario_changes_nothing(spoofed_flight):
+    """Replayed without a layer, the flown sensor stream gives the same motor commands only when
+    the layer did nothing: so a layer whose scenario never starts is the same flight as no layer."""
+    from scart_bench.generator.hil.bridge import replay
+    from scart_bench.generator.hil.flights import autopilot_for
+    from scart_bench.generator.scart.scenario import scenario_from_dict
+
+    f = spoofed_flight
+    plain = replay(f.inputs, autopilot_for(1, None, SHORT))
+    idle = replay(f.inputs, autopilot_for(1, [scenario_from_dict(NEVER)], SHORT))
+    attacked = replay(f.inputs, autopilot_for(1, [scenario_from_dict(DRIFT)], SHORT))
+    assert np.array_equal(attacked, f.outputs)  # the replay is the flight, bit for bit
+    assert np.array_equal(idle, plain)
+    assert not np.array_equal(attacked, plain)
+    first = int(np.argmax(np.any(attacked != plain, axis=1)))
+    assert first * 0.004 >= 17.0  # nothing differs before the attack starts
+
+
+def test_missing_jar_and_silent_simulator(tmp_path, monkeypatch):
+    """One-line errors: no Java, no jar, and a simulator that never sends its first message."""
+    from scart_bench.generator.hil.errors import HilError
+    from scart_bench.generator.hil.jmavsim import ENV_VAR, find_jar, find_java, free_udp_port
+    from scart_bench.generator.hil.link import SimLink
+
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    with monkeypatch.context() as m:
+        m.setenv("PATH", str(tmp_path))
+        with pytest.raises(HilError, match="needs Java and none is on PATH"):
+            find_java()
+    with pytest.raises(HilError, match="no jMAVSim given"):
+        find_jar(None)
+    with pytest.raises(HilError, match="no jmavsim_run.jar at") as err:
+        find_jar(tmp_path)
+    assert "\n" not in str(err.value)
+    link = SimLink(("127.0.0.1", free_udp_port()))
+    try:
+        with pytest.raises(HilError, match="sent no message in 0.5 s"):
+            link.wait_first(0.5)
+    finally:
+        link.close()
