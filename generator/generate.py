@@ -24,8 +24,8 @@ from scart_bench.storage import is_url, local_path
 #: holds a seed and a split per flight (~50 bytes: 0.5 GB here) and the attack stage keeps the
 #: validation and csv-source flights; ten million quick-profile flights are also ~5 TB on disk.
 MAX_FLIGHTS = 10_000_000
-#: Most flights flown together: a batch is simulated in memory at once (the default 256 takes a few GB
-#: at most; 16 times that is the most a large machine holds).
+#: Most flights flown together: a batch is simulated in memory at once, about 2 MB a flight of the
+#: quick profile (the default 256: ~0.5 GB; this maximum: ~8 GB, what a large machine holds).
 MAX_BATCH_SIZE = 4096
 
 
