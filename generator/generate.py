@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from contextlib import AbstractContextManager
 from pathlib import Path
 
 from scart_bench.dataset import (
@@ -45,8 +44,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
                      config: FlightConfig | None = None, log: Callable[[str], None] | None = None,
                      scenarios: str | Path | None = None, layout: str | None = None,
                      uorb: bool | None = None, batch_size: int | None = None, executor: str = "local",
-                     scheduler: str | None = None, jobs: int = 1, progress: Progress | None = None,
-                     staging: Callable[[], AbstractContextManager[Path]] | None = None) -> Path | str:
+                     scheduler: str | None = None, jobs: int = 1, progress: Progress | None = None) -> Path | str:
     """Generate a complete dataset; returns its folder (or URL). The manifest is written last.
 
     ``out``: a folder, or an fsspec URL (``s3://bucket/prefix``; :mod:`scart_bench.storage`).
@@ -66,9 +64,8 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
     ``progress``: counts the flights written per kind (normal, simulation, csv) against the plan's
     totals, whichever executor flies them (:mod:`scart_bench.progress`).
 
-    ``staging``: makes the temp folder a dataset for a URL is written in (default
-    ``tempfile.TemporaryDirectory``); the command line passes one owned by its process, so that the
-    folder of a killed generate is removed by the next command.
+    A dataset for a URL is written in a temp folder this process owns (``scart-generate-<pid>-*``,
+    :func:`scart_bench.storage.owned_tempdir`): one a killed generate left is removed by the next command.
     """
     check_counts(n_normal, batch_size)
     plan = plan_generation(profile, seed, n_normal, with_attacks, config, scenarios, uorb, batch_size)
@@ -81,7 +78,7 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
             progress.expect(kind, total)
         advance = progress.add
     if is_url(out):
-        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log, advance, staging)
+        _generate_to_url(plan, str(out), fmt, layout, overwrite, executor, scheduler, jobs, log, advance)
         return out
     out = local_path(out)
     check_output_dir(out, overwrite=overwrite)
@@ -98,14 +95,18 @@ def generate_dataset(profile: str, out: str | Path, seed: int = 0, fmt: str = "p
 
 
 def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, overwrite: bool, executor: str,
-                     scheduler: str | None, jobs: int, log, advance: Callable[[str, int], None] | None = None,
-                     staging: Callable[[], AbstractContextManager[Path]] | None = None) -> None:
+                     scheduler: str | None, jobs: int, log, advance: Callable[[str, int], None] | None = None) -> None:
     """A dataset at an object-store URL (scart_bench.storage): written here and uploaded with its
     manifest last; with dask, the workers upload their flights and this process the manifest.
     An old dataset there is removed, manifest first, just before the new one is uploaded."""
-    import tempfile
-
-    from scart_bench.storage import check_writable, clear, has_manifest, has_objects, publish_dataset
+    from scart_bench.storage import (
+        check_writable,
+        clear,
+        has_manifest,
+        has_objects,
+        owned_tempdir,
+        publish_dataset,
+    )
 
     check_writable(url)
     old = has_manifest(url)
@@ -114,8 +115,7 @@ def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, over
     if not old and has_objects(url):
         raise DatasetError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
                            "choose a new prefix")
-    stage = staging() if staging is not None else tempfile.TemporaryDirectory(prefix="scart-generate-")
-    with stage as tmp:
+    with owned_tempdir("scart-generate-") as tmp:  # a killed generate's is removed by the next command
         local = Path(tmp) / "dataset"
         if executor == "dask":
             from scart_bench.generator.sharded import generate_sharded

@@ -11,7 +11,6 @@ from scart_bench.cli.common import (
     LAYOUTS,
     UsageError,
     check_seed,
-    owned_tempdir,
     remove_stale_temp,
 )
 from scart_bench.generator.profiles import PROFILES
@@ -67,8 +66,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
                              overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
                              scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
                              uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
-                             scheduler=args.scheduler, jobs=args.jobs, progress=progress,
-                             staging=lambda: owned_tempdir("scart-generate-"))
+                             scheduler=args.scheduler, jobs=args.jobs, progress=progress)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
