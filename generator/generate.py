@@ -112,9 +112,9 @@ def _generate_to_url(plan: GenerationPlan, url: str, fmt: str, layout: str, over
     old = has_manifest(url)
     if old and not overwrite:
         raise DatasetError(f"{url}: a dataset is already there; pass --overwrite to replace it")
-    if not old and has_objects(url):
+    if not old and not overwrite and has_objects(url):  # a half-uploaded dataset: replaced only when asked
         raise DatasetError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
-                           "choose a new prefix")
+                           "choose a new prefix, or pass --overwrite to replace them")
     with owned_tempdir("scart-generate-") as tmp:  # a killed generate's is removed by the next command
         local = Path(tmp) / "dataset"
         if executor == "dask":

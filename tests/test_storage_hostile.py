@@ -302,6 +302,25 @@ def test_half_uploaded_dataset_is_replaced_only_with_overwrite(s3, dataset, tmp_
     assert _keys(client, f"{prefix}2") == [f"{prefix}2/x"]
 
 
+def test_generate_to_a_half_uploaded_url_needs_overwrite_and_then_replaces_it(s3, tmp_path, monkeypatch, capsys):
+    from scart_bench.generator.attacks import SCENARIO_DIR
+
+    fs, client = s3
+    monkeypatch.setenv("SCART_BENCH_CACHE", str(tmp_path / "cache"))
+    prefix = "half-gen/ds"
+    client.put_object(Bucket=BUCKET, Key=f"{prefix}/flights/normal-0000/navigator.parquet", Body=b"cut short")
+    args = ["generate", "--profile", "quick", "--flights", "2", "--seed", "3",
+            "--scenarios", str(SCENARIO_DIR / "gps_spoof.toml"), "--out", f"s3://{BUCKET}/{prefix}"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds objects but no manifest" in err and "--overwrite" in err and len(err.splitlines()) == 1
+    assert main([*args, "--overwrite"]) == 0
+    keys = _keys(client, prefix)
+    assert f"{prefix}/manifest.parquet" in keys
+    body = client.get_object(Bucket=BUCKET, Key=f"{prefix}/flights/normal-0000/navigator.parquet")["Body"].read()
+    assert body != b"cut short"  # the stray object was replaced by the generated flight
+
+
 # -- --resume without --dataset -------------------------------------------------------------------
 
 def test_resume_without_dataset_reads_it_from_the_run_and_generates_nothing(dataset, tmp_path, monkeypatch,

@@ -26,7 +26,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
         return 0
     if not args.input or not args.out:
         raise UsageError("give --input LOG --out DIR (one log), or --dataset DATASET (its test flights)")
-    with staged_dataset(args.out) as out:  # at a URL: written in a local copy, uploaded once done
+    with staged_dataset(args.out, overwrite=args.overwrite) as out:  # at a URL: written in a local copy, uploaded once done
         existed = out.exists()
         try:
             attack_file(args.input, args.scenario, out, fmt=args.format, seed=args.seed, overwrite=args.overwrite,
