@@ -73,6 +73,9 @@ def _bound(x: float) -> str:
 
 
 def _shown(value: object) -> str:
+    """``value`` as a user wrote it (numpy scalars as plain numbers), cut to 60 characters."""
+    if isinstance(value, np.generic):
+        value = value.item()
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
