@@ -79,10 +79,10 @@ def load_run(path: str | Path, label: str | None = None) -> RunResults:
         config = store.read_config()
     except RunStoreError as exc:
         raise ReportError(str(exc)) from exc
-    store.verify()  # the labels and scores behind the tables are the ones the run wrote (ChecksumError)
     if not (path / "metrics.csv").is_file():
         raise ReportError(f"{path}: no metrics.csv; the run has not been scored "
                          f"(run `scart-bench score {path}` first)")
+    store.verify()  # the labels and scores behind the tables are the ones the run wrote (ChecksumError)
     metrics = read_table(path / "metrics.csv")
     for col in ("detector", "status"):
         if col not in metrics.columns:
