@@ -38,7 +38,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
-from scart_bench.benchmark.store import RunStore
+from scart_bench.benchmark.store import ChecksumError, RunStore
 from scart_bench.dataset import Dataset, is_dataset, open_dataset
 from scart_bench.errors import ReportError, ScartBenchError
 from scart_bench.reports.results import RunResults, load_run
@@ -338,6 +338,8 @@ def scored_detectors(run: RunResults | str | Path, fid: str) -> list[str]:
         try:
             if fid in run.store.read_scores(det):
                 out.append(det)
+        except ChecksumError:  # scores that changed since the run wrote them are refused, not skipped
+            raise
         except (OSError, ScartBenchError):  # no readable scores (or a name that cannot be a job folder)
             continue
     return out
