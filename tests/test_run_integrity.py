@@ -5,7 +5,6 @@
   rerun refuse a changed one (exit 2, one line naming the file) instead of scoring wrong labels;
 - a damaged or hostile config.json / status.json is one line naming the file, never a traceback;
 - parameters, burn-in and ``--features`` that could only fail inside a job are refused up front;
-- a transfer run keys flights by (dataset, flight id): two generated datasets may share ids;
 - a property test mutates a small real run and checks that every outcome is "works" or "exit 2 with one
   line naming the file", never a traceback and never exit 0 on data that changed.
 """
@@ -16,7 +15,6 @@ import json
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -274,39 +272,6 @@ def test_parameters_that_could_only_fail_in_the_job_are_refused_up_front(dataset
     line = one_line(capsys.readouterr().err)
     assert named in line and "expected" in line
     assert not (out / "jobs").exists()
-
-
-# -- transfer runs key flights by (dataset, flight id) --------------------------------------------
-
-def test_a_transfer_run_between_two_generated_datasets_with_the_same_ids_runs(dataset, tmp_path, capsys):
-    other = write_dataset(tmp_path / "other", seed=1)  # normal-000 ... in both, different flights
-    out = tmp_path / "run"
-    assert main(["run", "--train-dataset", str(dataset), "--dataset", str(other), "--detectors", "zscore_test",
-                 "--plugin", ZS, "--out", str(out)]) == 0
-    flights = pd.read_csv(out / "flights.csv")
-    train = flights[flights["role"].isin(["train", "validation"])]
-    assert set(train["dataset"]) == {str(dataset)} and train["flight_id"].str.startswith("train+").all()
-    assert set(train["dataset_flight_id"]) == {f"normal-{i:03d}" for i in range(7)}
-    test = flights[flights["role"].str.startswith("test")]
-    assert "normal-007" in set(test["flight_id"]) and set(test["dataset"]) == {str(other)}
-    # normal-004: a validation flight of the train dataset and a held-out normal flight of the test dataset
-    scores = np.load(out / "jobs/zscore_test/scores.npz")
-    assert {"train+normal-004", "normal-004"} <= set(scores.files)
-    truth = pd.read_parquet(out / "truth.parquet")
-    assert {"train+normal-004", "normal-004"} <= set(truth["flight_id"].astype(str))
-    assert main(["score", str(out)]) == 0
-
-
-@pytest.mark.parametrize("copy", [False, True])
-def test_the_same_dataset_in_both_roles_is_still_refused(dataset, tmp_path, capsys, copy):
-    test = dataset
-    if copy:
-        test = tmp_path / "copy"
-        shutil.copytree(dataset, test)
-    assert main(["run", "--train-dataset", str(dataset), "--dataset", str(test), "--detectors", "zscore_test",
-                 "--plugin", ZS, "--out", str(tmp_path / "run")]) == 2
-    line = one_line(capsys.readouterr().err)
-    assert "the same flight in both" in line and "normal-000" in line
 
 
 # -- property test: random damage to a real run ---------------------------------------------------

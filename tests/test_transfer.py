@@ -4,11 +4,13 @@ with attacked copies, from the command line (benchmark.transfer)."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from run_fixtures import plugin, write_dataset
 
 from scart_bench.benchmark.transfer import column_meanings, resample, shared_table
 from scart_bench.cli.main import main
@@ -18,6 +20,7 @@ ULOGS = sorted(SHARED.glob("*.ulg"))
 SCENARIOS = Path(__file__).parents[1] / "data" / "scenarios"
 TOPICS = ("vehicle_gps_position,vehicle_local_position,vehicle_attitude,sensor_combined,vehicle_air_data,"
           "vehicle_magnetometer,battery_status,actuator_armed,vehicle_status")
+ZS = plugin("ZScore")
 needs_ulogs = pytest.mark.skipif(len(ULOGS) < 4, reason=f"shared PX4 logs not found in {SHARED}")
 
 
@@ -149,3 +152,47 @@ def test_columns_map_by_meaning_and_units():
     lab[101] = 1
     r = resample(px4.assign(Is_Anomaly=lab), 20_000)
     assert len(r) == 100 and r["Is_Anomaly"].sum() == 1 and r["Timestamp"].iloc[1] == 20_000
+
+@pytest.fixture(scope="module")
+def small_dataset(tmp_path_factory) -> Path:
+    """The benchmark tests' small dataset (normal-000 ... normal-009 and six attacked flights)."""
+    return write_dataset(tmp_path_factory.mktemp("small") / "ds")
+
+
+def _one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+# -- flights are keyed by (dataset, flight id) -----------------------------------------------------
+
+def test_a_transfer_run_between_two_generated_datasets_with_the_same_ids_runs(small_dataset, tmp_path, capsys):
+    other = write_dataset(tmp_path / "other", seed=1)  # normal-000 ... in both, different flights
+    out = tmp_path / "run"
+    assert main(["run", "--train-dataset", str(small_dataset), "--dataset", str(other), "--detectors", "zscore_test",
+                 "--plugin", ZS, "--out", str(out)]) == 0
+    flights = pd.read_csv(out / "flights.csv")
+    train = flights[flights["role"].isin(["train", "validation"])]
+    assert set(train["dataset"]) == {str(small_dataset)} and train["flight_id"].str.startswith("train+").all()
+    assert set(train["dataset_flight_id"]) == {f"normal-{i:03d}" for i in range(7)}
+    test = flights[flights["role"].str.startswith("test")]
+    assert "normal-007" in set(test["flight_id"]) and set(test["dataset"]) == {str(other)}
+    # normal-004: a validation flight of the train dataset and a held-out normal flight of the test dataset
+    scores = np.load(out / "jobs/zscore_test/scores.npz")
+    assert {"train+normal-004", "normal-004"} <= set(scores.files)
+    truth = pd.read_parquet(out / "truth.parquet")
+    assert {"train+normal-004", "normal-004"} <= set(truth["flight_id"].astype(str))
+    assert main(["score", str(out)]) == 0
+
+
+@pytest.mark.parametrize("copy", [False, True])
+def test_the_same_dataset_in_both_roles_is_still_refused(small_dataset, tmp_path, capsys, copy):
+    test = small_dataset
+    if copy:
+        test = tmp_path / "copy"
+        shutil.copytree(small_dataset, test)
+    assert main(["run", "--train-dataset", str(small_dataset), "--dataset", str(test), "--detectors", "zscore_test",
+                 "--plugin", ZS, "--out", str(tmp_path / "run")]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "the same flight in both" in line and "normal-000" in line
