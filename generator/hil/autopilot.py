@@ -4,7 +4,7 @@ The step is the built-in engine's (:func:`scart_bench.generator.engine.simulate.
 for one flight, with the physics and sensors taken out: the simulator's samples come in, pass the
 SCART layer's ``sensor`` point (a firmware attacker between the sensors and the estimator), feed
 the estimator; its telemetry passes the ``link`` point to the navigator; the navigator's setpoint
-drives the cascade, whose mixer output goes back as motor commands.
+passes the ``command`` point and drives the cascade, whose mixer output goes back as motor commands.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scart_bench.dataset.schema import HOME_ALT, TELEMETRY_TOPICS, TOPICS
+from scart_bench.generator.flight_software.commander import exchange
 from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
 from scart_bench.generator.flight_software.navigator import Navigator
 from scart_bench.generator.geo import altitude_at, latlon_to_ned
@@ -32,7 +33,9 @@ from scart_bench.generator.sitl.plant import is_due
 from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, FCSnapshot, compose
 
 #: the points the bridge carries scenarios at
-HIL_POINTS = ("sensor", "link")
+HIL_POINTS = ("sensor", "link", "command")
+#: actions the bridge does not carry: a forged COMMAND_LONG needs the sitl's commander
+UNCARRIED_ACTIONS = ("inject_command",)
 
 
 @dataclass
@@ -77,21 +80,26 @@ class StartRule:
 
 @dataclass
 class Records:
-    """What one flight leaves behind: per topic, the steps and rows before and after the layer."""
+    """What one flight leaves behind: per topic, the steps, rows and delivered flags before and
+    after the layer (before: every message is delivered)."""
 
-    before: dict[str, tuple[list[int], list[np.ndarray]]] = field(default_factory=dict)
-    after: dict[str, tuple[list[int], list[np.ndarray]]] = field(default_factory=dict)
+    before: dict[str, tuple[list[int], list[np.ndarray], list[bool]]] = field(default_factory=dict)
+    after: dict[str, tuple[list[int], list[np.ndarray], list[bool]]] = field(default_factory=dict)
 
     @staticmethod
-    def add(where: dict, topic: str, step: int, row: np.ndarray) -> None:
-        steps, rows = where.setdefault(topic, ([], []))
+    def add(where: dict, topic: str, step: int, row: np.ndarray, delivered: bool = True) -> None:
+        steps, rows, ok = where.setdefault(topic, ([], [], []))
         steps.append(step)
         rows.append(np.asarray(row, dtype=float).reshape(-1).copy())
+        ok.append(bool(delivered))
 
     def table(self, topic: str, after: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(steps, rows) of ``topic`` as arrays (empty when never recorded)."""
-        steps, rows = (self.after if after else self.before).get(topic, ([], []))
+        steps, rows, _ = (self.after if after else self.before).get(topic, ([], [], []))
         return np.asarray(steps, dtype=np.int64), (np.vstack(rows) if rows else np.zeros((0, 0)))
+
+    def delivered(self, topic: str, after: bool = True) -> np.ndarray:
+        return np.asarray((self.after if after else self.before).get(topic, ([], [], []))[2], dtype=bool)
 
 
 class HilAutopilot:
@@ -113,6 +121,11 @@ class HilAutopilot:
         if bad or (layer is not None and layer.physical_groups):
             raise HilError(f"the simulator bridge runs scenarios at {', '.join(HIL_POINTS)}; "
                            f"not at {', '.join(bad) or 'environment/vehicle (the simulator owns the physics)'}")
+        forged = [a.name for g in (layer.groups if layer is not None else []) for a in g.actions
+                  if a.name in UNCARRIED_ACTIONS]
+        if forged:
+            raise HilError(f"action {forged[0]!r} is not carried by the simulator bridge (it forges a command "
+                           "for the sitl's commander); run it in simulation mode")
         self.ep = estimator or EstimatorParams()
         self.start = start or StartRule()
         delay = max(1, int(round(profile.gps_delay_s / DT)) + 1)  # +1: a fix is used at the next sample
@@ -173,7 +186,7 @@ class HilAutopilot:
             Records.add(self.records.before, topic, k, vals)
         ok = self._sensor_point(k, t_us, msgs) if "sensor" in self.points else {}
         for topic in msgs:
-            Records.add(self.records.after, topic, k, msgs[topic])
+            Records.add(self.records.after, topic, k, msgs[topic], ok.get(topic, True))
         accel, gyro = ok.pop("_imu", (accel, gyro))
         self._estimate(k, t, accel, gyro, mag_due, baro_due, gps is not None, ok)
         self._telemetry(k, t_us, accel, gyro)
@@ -236,8 +249,7 @@ class HilAutopilot:
         est.end_fusion(es, before)
 
     def _gps_row(self) -> np.ndarray:
-        steps, rows = self.records.after["sensor_gps"]
-        return rows[-1].reshape(1, -1)
+        return self.records.after["sensor_gps"][1][-1].reshape(1, -1)
 
     def _telemetry(self, k: int, t_us: int, accel, gyro) -> None:
         due = [tp for tp in TELEMETRY_TOPICS if is_due(TOPICS[tp].rate_hz, k)]
@@ -256,13 +268,19 @@ class HilAutopilot:
             altered = {tp: (vals, None) for tp, vals in msgs.items()}
         for tp, (vals, ok) in altered.items():
             delivered = np.ones(1, bool) if ok is None else ok
-            if delivered[0]:
-                Records.add(self.records.after, tp, k, vals)
+            Records.add(self.records.after, tp, k, vals, bool(delivered[0]))
             self.nav.receive(self.ns, tp, vals, delivered, TOPICS[tp].field_names)
 
     def _navigate(self, t: float) -> None:
+        k = self.step_index
         sp = self.nav.step(self.ns, t)
-        Records.add(self.records.before, "setpoint", self.step_index, sp)
+        Records.add(self.records.before, "setpoint", k, sp)
+        ok = True
+        if "command" in self.points:
+            vals, delivered, _, self.nav.wps = exchange(self.layer, k, k * STEP_US, sp, self.nav.wps)
+            ok = bool(delivered[0])
+            sp = vals if ok else self.setpoint
+        Records.add(self.records.after, "setpoint", k, sp, ok)
         self.setpoint = sp
         cs = self.cs
         cs.armed = (sp[:, 5] > 0.5) & ~cs.disarmed_after_flight

@@ -34,8 +34,8 @@ TAIL_S = 0.5
 class HilFlight:
     """One flight through the bridge.
 
-    ``truth``: (n, 11) ground truth from HIL_STATE_QUATERNION rows ``t_us, x, y, z, vx, vy, vz,
-    roll, pitch, yaw`` plus the step it arrived before; ``estimate``: (n, 6) step, x, y, z of the
+    ``truth``: (n, 12) ground truth from HIL_STATE_QUATERNION rows ``t_us, x, y, z, vx, vy, vz,
+    roll, pitch, yaw``, the step it arrived before and whether the motors were armed; ``estimate``: (n, 6) step, x, y, z of the
     estimator's output, the navigator's phase and item; ``inputs``: every sensor sample with the fix that came with it (for
     :func:`replay`); ``outputs``: (steps, 4) motor commands sent.
     """
@@ -128,7 +128,7 @@ class Bridge:
                 if kind == "HIL_GPS":
                     gps = gps_sample(m)
                 elif kind == "HIL_STATE_QUATERNION":
-                    truth.append(np.append(truth_row(m, ap.profile.truth_alt), ap.step_index))
+                    truth.append(np.append(truth_row(m, ap.profile.truth_alt), [ap.step_index, ap.armed]))
                 elif kind == "HIL_SENSOR":
                     s = sensor_sample(m)
                     controls = ap.step(s, gps)
@@ -150,7 +150,7 @@ class Bridge:
         wall = time.monotonic() - wall0
         est = np.vstack(ap.estimate) if ap.estimate else np.zeros((0, 6))
         return HilFlight(autopilot=ap, status=status, steps=ap.step_index, wall_s=wall,
-                         truth=np.vstack(truth) if truth else np.zeros((0, 11)), estimate=est, inputs=inputs,
+                         truth=np.vstack(truth) if truth else np.zeros((0, 12)), estimate=est, inputs=inputs,
                          outputs=np.vstack(outputs) if outputs else np.zeros((0, 4)))
 
 

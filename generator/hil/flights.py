@@ -8,6 +8,7 @@ from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.flight_software.navigator import mission_waypoints
 from scart_bench.generator.hil.autopilot import HilAutopilot
 from scart_bench.generator.hil.bridge import Bridge, HilFlight
+from scart_bench.generator.hil.errors import HilError
 from scart_bench.generator.hil.jmavsim import DEFAULT_SPEED, JMavSim
 from scart_bench.generator.hil.link import SimLink
 from scart_bench.generator.hil.profiles import JMAVSIM
@@ -51,5 +52,7 @@ def fly_jmavsim(jar=None, seed: int = 0, scenarios: list[Scenario] | None = None
         try:
             return Bridge(link, ap).fly(max_s=max_s or mp.max_duration_s, first_timeout_s=first_timeout_s,
                                         alive=sim.alive)
+        except HilError as exc:
+            raise HilError(f"{exc} (jMAVSim said: {sim.last_line()})") from None
         finally:
             link.close()

@@ -22,6 +22,8 @@ MAX_JOBS = 1024
 def cmd_generate(args: argparse.Namespace) -> int:
     from scart_bench.generator.generate import MAX_BATCH_SIZE, MAX_FLIGHTS, generate_dataset
 
+    if getattr(args, "physics", "builtin") == "jmavsim":
+        return _generate_jmavsim(args)
     if args.profile not in PROFILES:
         raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
     if args.flights is not None and not 1 <= args.flights <= MAX_FLIGHTS:
@@ -75,6 +77,32 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _generate_jmavsim(args: argparse.Namespace) -> int:
+    """``generate --physics jmavsim``: the flights flown in jMAVSim through the simulator bridge (docs/jmavsim.md)."""
+    from scart_bench.generator.hil.dataset import attack_configs, generate_jmavsim
+    from scart_bench.storage import local_path
+
+    if args.executor != "local" or args.uorb or args.layout:
+        raise UsageError("--physics jmavsim flies one jMAVSim flight at a time: --executor dask, --uorb and "
+                         "--layout are for the built-in engine")
+    check_seed(args.seed)
+    n = 8 if args.flights is None else args.flights
+    if not 1 <= n <= 1000:
+        raise UsageError(f"--flights {n}: expected 1 to 1000 jMAVSim flights")
+    configs = [] if args.normal_only else attack_configs(args.scenarios, n)
+    out = local_path(args.out)
+    existed = out.exists()
+    try:
+        generate_jmavsim(out, args.jmavsim, seed=args.seed, n_normal=n, configs=configs, fmt=args.format,
+                         overwrite=args.overwrite, log=lambda msg: print(msg, flush=True))
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    print(f"dataset written to {out}")
+    return 0
+
+
 def register(sub) -> None:
     g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
     g.add_argument("--profile", default="quick",
@@ -106,4 +134,10 @@ def register(sub) -> None:
     g.add_argument("--batch-size", type=int, default=None, help="flights flown together, and one dask shard "
                    "(default: the profile's, 256); the flights depend on it, so compare datasets made with the same")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
+    g.add_argument("--physics", choices=("builtin", "jmavsim"), default="builtin",
+                   help="builtin (default): the generator's engine; jmavsim: the flight software flies jMAVSim "
+                   "through PX4's simulator MAVLink API, headless and in lockstep (--flights normal and as many "
+                   "attacked flights; docs/jmavsim.md)")
+    g.add_argument("--jmavsim", default=None, metavar="PATH", help="with --physics jmavsim: jmavsim_run.jar or "
+                   "the jMAVSim checkout it was built in (default $SCART_JMAVSIM)")
     g.set_defaults(func=cmd_generate)

@@ -1,0 +1,111 @@
+"""Flights flown in jMAVSim written in the project's dataset format.
+
+A flight through the bridge becomes a one-flight :class:`~scart_bench.generator.engine.flight_batch.BatchResult`
+(the flight controller's telemetry before the layer as the simulator view, after it as the navigator
+view, jMAVSim's HIL_STATE_QUATERNION as the ``truth`` topic), so the built-in engine's record makers
+and the dataset writer take it unchanged: the same topics, labels, manifest and layout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from scart_bench.dataset import DatasetWriter
+from scart_bench.dataset.schema import TELEMETRY_TOPICS
+from scart_bench.generator.attack_effect import attack_effect
+from scart_bench.generator.engine.flight_batch import BatchResult
+from scart_bench.generator.hil.bridge import HilFlight
+from scart_bench.generator.hil.flights import fly_jmavsim
+from scart_bench.generator.modes import simulation_record
+from scart_bench.generator.plan import normal_seeds, splits, versions
+from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.generator.telemetry.tables import normal_record
+
+#: the topics of a dataset flight (the built-in engine's: telemetry, the navigator's setpoints)
+TOPICS = (*TELEMETRY_TOPICS, "setpoint")
+
+
+def as_batch(flight: HilFlight, seed: int) -> BatchResult:
+    """One flight through the bridge as a batch of one."""
+    rec = flight.autopilot.records
+    sim, nav = {}, {}
+    for topic in TOPICS:
+        if topic not in rec.before:
+            continue
+        steps, rows = rec.table(topic, after=False)
+        sim[topic] = (steps, rows[None], np.ones((1, len(steps)), dtype=bool))
+        steps, rows = rec.table(topic, after=True)
+        nav[topic] = (steps, rows[None], rec.delivered(topic)[None])
+    t = flight.truth
+    landed = (t[:, 3] > -0.05) & (np.abs(t[:, 6]) < 0.1)
+    truth = np.column_stack([t[:, 1:10], t[:, 11], landed.astype(float)])
+    sim["truth"] = (t[:, 10].astype(np.int64), truth[None], np.ones((1, len(t)), dtype=bool))
+    es = flight.autopilot.es
+    return BatchResult(
+        seeds=[int(seed)], simulator=sim, navigator=nav, exit_step=np.array([flight.steps - 1]),
+        status=[flight.status], waypoints=flight.autopilot.waypoints[None], wind=np.full((1, 3), np.nan),
+        gps_rejections=np.column_stack([es.gps_pos_rejected, es.gps_vel_rejected, es.baro_rejected]),
+        n_steps=flight.steps, timing="ideal")
+
+
+def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8,
+                     configs: list[list[Scenario]] | None = None, fmt: str = "parquet", overwrite: bool = False,
+                     log: Callable[[str], None] | None = None) -> Path:
+    """Fly ``n_normal`` normal flights and one simulation-mode flight per entry of ``configs`` in
+    jMAVSim and write them as a dataset at ``out``; returns it.
+
+    Normal flights split as train / validation / test (half, a quarter, the rest); attacked flights
+    are test flights. Each flight starts its own jMAVSim (a fresh vehicle on the ground at home).
+    """
+    from scart_bench.generator.hil.jmavsim import find_jar, find_java
+
+    find_java()
+    jar = find_jar(jar)  # what is missing is said before anything is flown or written
+    say = log or (lambda msg: None)
+    configs = configs or []
+    seeds = normal_seeds(seed, n_normal)
+    n_train, n_val = max(1, n_normal // 2), max(1, n_normal // 4)
+    split_of = splits(n_normal, n_train, min(n_val, n_normal - n_train))
+    info = {"profile": "jmavsim", "physics": "jmavsim", "seed": int(seed), "n_normal": n_normal,
+            "versions": versions(), "timing": "ideal"}
+    config = {"physics": "jmavsim", "simulator": "jMAVSim (PX4 simulator MAVLink API, lockstep)"}
+    writer = DatasetWriter(out, fmt=fmt, info=info, overwrite=overwrite)
+    try:
+        for i, s in enumerate(seeds):
+            say(f"jMAVSim: normal flight {i + 1} of {n_normal}")
+            flight = fly_jmavsim(jar, seed=s)
+            writer.write(normal_record(as_batch(flight, s), 0, f"normal-{i:04d}", split_of[i], config))
+        attack_seeds = normal_seeds(seed + 1_000_003, len(configs))
+        for i, (scs, s) in enumerate(zip(configs, attack_seeds)):
+            say(f"jMAVSim: attacked flight {i + 1} of {len(configs)} ({'+'.join(sc.id for sc in scs)})")
+            flight = fly_jmavsim(jar, seed=s, scenarios=scs)
+            layer = flight.autopilot.layer
+            record = simulation_record(as_batch(flight, s), layer, 0, f"sim-{i:04d}", scs, config)
+            record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, None,
+                                                 record.manifest["injection_point"]))
+            writer.write(record)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close()
+
+
+#: the attacks flown when none are given: a sensor-point GPS drift and jump, and the paper's GPS
+#: spoofing on the link (data/scenarios)
+DEFAULT_SCENARIOS = ("sensor_gps_drift.toml", "sensor_gps_jump.toml", "gps_spoof.toml")
+
+
+def attack_configs(scenarios: str | Path | None, count: int) -> list[list[Scenario]]:
+    """``count`` attacked flights' scenarios: the configurations of ``scenarios`` (a scenario, grid
+    or sweep file; default :data:`DEFAULT_SCENARIOS`) taken in turn."""
+    from scart_bench.generator.attacks import grid_path
+    from scart_bench.generator.scart.grid import load_configurations
+
+    if scenarios is not None:
+        base = load_configurations(scenarios)
+    else:
+        base = [load_configurations(grid_path(name))[0] for name in DEFAULT_SCENARIOS]
+    return [base[i % len(base)] for i in range(max(count, len(base)))] if count > 0 else []
