@@ -56,7 +56,6 @@ import re
 import tempfile
 import threading
 import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -175,7 +174,7 @@ def read_npz(path: Path, data: bytes | None = None) -> dict[str, np.ndarray]:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
+    except Exception as exc:  # a damaged zip raises zlib, zipfile, EOF, NotImplemented (method) and numpy errors
         # numpy's message for a pickled entry suggests allow_pickle=True: never, scores are plain arrays
         raise RunStoreError(f"{path}: not a valid scores file (a .npz of numeric arrays): "
                             f"{type(exc).__name__}") from None
@@ -222,8 +221,9 @@ def check_config(config: dict, path: Path) -> dict:
         "git": (dict,), "checksums": (str,),
     }
     names = {str: "a string", list: "a list", dict: "an object"}
+    nullable = ("format", "name", "profile", "created", "updated", "train_dataset", "transfer", "git", "checksums")
     for key, types in fields.items():
-        if config.get(key) is not None and not isinstance(config[key], types):
+        if key in config and not isinstance(config[key], types) and not (config[key] is None and key in nullable):
             raise bad(key, config[key], names[types[0]])
     for key in ("seed", "random_state"):
         if config.get(key) is not None and not _is_int(config[key]):
@@ -245,7 +245,7 @@ def check_config(config: dict, path: Path) -> dict:
         part = config.get(side) or {}
         for key, kind in (("path", str), ("fingerprint", str), ("flights", dict), ("info", dict),
                           ("no_effect", list)):
-            if part.get(key) is not None and not isinstance(part[key], kind):
+            if key in part and not isinstance(part[key], kind):
                 raise bad(f"{side}.{key}", part[key], names[kind])
         for role, n in (part.get("flights") or {}).items():
             if not (_is_int(n) and n >= 0):
