@@ -252,16 +252,21 @@ def fetch_folder(url: str, dest: str | Path) -> bool:
 
 
 def push_folder(local: str | Path, url: str, exclude: tuple[str, ...] = (),
-                since: dict[str, tuple[int, int, int]] | None = None) -> dict[str, tuple[int, int, int]]:
+                since: dict[str, tuple[int, int, int]] | None = None,
+                last: tuple[str, ...] = ()) -> dict[str, tuple[int, int, int]]:
     """Make ``url`` hold the files of ``local`` (objects no longer there are removed); with ``since``
     (the :func:`snapshot` of what ``url`` holds already) only new and changed files are uploaded.
-    Returns the snapshot of what was pushed, for the next call."""
+    Files named in ``last`` (a folder's commit markers, such as a job's ``status.json``) are uploaded
+    after every other file, so a kill mid-upload never leaves a marker whose files (or their
+    checksums) are not there yet. Returns the snapshot of what was pushed, for the next call."""
     fs, root = _fs(url)
     local = Path(local)
     now = snapshot(local, exclude)
     changed = [k for k, v in now.items() if since is None or since.get(k) != v]
-    if changed:
-        upload_folder(local, url, exclude, only=changed)
+    markers = [k for k in changed if k.rsplit("/", 1)[-1] in last]
+    for batch in ([k for k in changed if k not in markers], markers):
+        if batch:
+            upload_folder(local, url, exclude, only=batch)
     gone = [f"{root}/{r}" for r in _files(fs, root, url) if r not in now and r.split("/")[0] not in exclude]
     if gone:
         _call(url, fs.rm, gone)

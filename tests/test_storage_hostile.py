@@ -247,6 +247,35 @@ def test_killed_url_run_keeps_finished_jobs_and_its_staging_is_removed(s3, datas
     assert not any(p.exists() for p in jobs)
 
 
+def test_a_jobs_status_is_uploaded_after_its_scores_and_the_checksums(s3, tmp_path, monkeypatch):
+    """A job counts as done once its status.json is there: a kill mid-upload must not leave one whose
+    scores or recorded checksums are not uploaded yet (--resume from the URL would refuse the run)."""
+    from scart_bench import storage
+
+    run = tmp_path / "run"
+    for rel in ("config.json", "checksums.json", "jobs/a/status.json", "jobs/a/scores.npz", "jobs/b/alarms.npz",
+                "jobs/b/status.json"):
+        (run / rel).parent.mkdir(parents=True, exist_ok=True)
+        (run / rel).write_text(rel)
+    order: list[str] = []
+    real = storage.upload_folder
+
+    def recording(local, url, exclude=(), only=None):
+        order.extend(sorted(only))
+        return real(local, url, exclude, only=only)
+
+    monkeypatch.setattr(storage, "upload_folder", recording)
+    url = f"s3://{BUCKET}/order/run"
+    pushed = storage.push_folder(run, url, last=("status.json",))
+    assert order[-2:] == ["jobs/a/status.json", "jobs/b/status.json"] and len(order) == 6
+    (run / "jobs/a/scores.npz").write_text("new scores")
+    (run / "checksums.json").write_text("new checksums")
+    (run / "jobs/a/status.json").write_text("new status")
+    order.clear()
+    storage.push_folder(run, url, since=pushed, last=("status.json",))
+    assert order == ["checksums.json", "jobs/a/scores.npz", "jobs/a/status.json"]
+
+
 def test_stale_temp_folders_only_of_dead_owners_are_removed(tmp_path, monkeypatch):
     from scart_bench.cli.common import owned_tempdir, remove_stale_temp
 

@@ -68,11 +68,14 @@ class Staged:
         self._pushed = snapshot(self.path, self.exclude) if self.path.is_dir() else {}
 
     def sync(self) -> None:
-        """Make the URL hold the local folder's files (no-op for a local folder)."""
+        """Make the URL hold the local folder's files (no-op for a local folder). A job's
+        ``status.json`` goes up last: a job counts as done once it is there, so its scores and the
+        run's ``checksums.json`` must be there first."""
         from scart_bench.storage import push_folder
 
         if self.url is not None and self.path.is_dir():
-            self._pushed = push_folder(self.path, self.url, self.exclude, since=self._pushed)
+            self._pushed = push_folder(self.path, self.url, self.exclude, since=self._pushed,
+                                       last=("status.json",))
 
 
 @contextmanager
