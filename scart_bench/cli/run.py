@@ -84,17 +84,21 @@ def protocol_options(protocol, args: argparse.Namespace):
     from scart_bench.benchmark.protocol import ProtocolError
     from scart_bench.errors import RunError
 
+    option = None
     try:
         if getattr(args, "alpha", None) is not None:
+            option = f"--alpha {args.alpha:g}"
             protocol = dataclasses.replace(
                 protocol, flight_rule=dataclasses.replace(protocol.flight_rule, kind="conformal", alpha=args.alpha),
                 row_rule=dataclasses.replace(protocol.row_rule, kind="conformal", alpha=args.alpha))
         if getattr(args, "burn_in", None) is not None:
+            option = f"--burn-in {args.burn_in:g}"
             protocol = dataclasses.replace(protocol, burn_in_s=args.burn_in)
         if getattr(args, "threshold", None) is not None:
+            option = f"--threshold {args.threshold}"
             protocol = dataclasses.replace(protocol, alarm_rule=args.threshold)
-    except ProtocolError as exc:
-        raise RunError(f"--alpha / --burn-in / --threshold: {exc}") from None
+    except ProtocolError as exc:  # the option whose value was refused, with the protocol's reason
+        raise RunError(f"{option}: {exc}") from None
     return protocol
 
 
