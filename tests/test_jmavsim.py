@@ -182,3 +182,28 @@ def test_missing_jar_and_silent_simulator(tmp_path, monkeypatch):
             link.wait_first(0.5)
     finally:
         link.close()
+
+
+def test_generate_physics_jmavsim(jar, tmp_path):
+    """`generate --physics jmavsim` writes a dataset: one normal and one attacked jMAVSim flight, the
+    attacked one labelled over its window, jMAVSim's truth in the simulator view; no jar: exit 2."""
+    from scart_bench.cli.main import main
+    from scart_bench.dataset import open_dataset
+
+    out = tmp_path / "jms"
+    assert main(["generate", "--physics", "jmavsim", "--out", str(out), "--flights", "1", "--jmavsim",
+                 str(tmp_path / "nowhere")]) == 2
+    assert not out.exists()
+    grid = Path(__file__).resolve().parents[1] / "data/scenarios/sensor_gps_jump.toml"
+    assert main(["generate", "--physics", "jmavsim", "--jmavsim", str(jar), "--out", str(out), "--flights", "1",
+                 "--scenarios", str(grid), "--seed", "4"]) == 0
+    ds = open_dataset(out)
+    m = ds.manifest.set_index("flight_id")
+    assert list(m["mode"]) == ["normal", "simulation"]
+    assert "truth" in ds.topics("normal-0000", "simulator")
+    nav = ds.flight("sim-0000", "navigator", "all_sensors")
+    start, end = int(m.loc["sim-0000", "attack_start_us"]), int(m.loc["sim-0000", "attack_end_us"])
+    assert end - start == 10_000_000  # the scenario's 10 s
+    inside = (nav["Timestamp"] >= start) & (nav["Timestamp"] < end)
+    assert (nav["Is_Anomaly"] == inside.astype(int)).all()
+    assert ds.flight("normal-0000", "navigator", "all_sensors")["Is_Anomaly"].sum() == 0

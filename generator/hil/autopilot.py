@@ -28,7 +28,7 @@ from scart_bench.generator.params import (
     EstimatorParams,
     MissionParams,
 )
-from scart_bench.generator.physics.rotation import euler_from_quat, quat_to_rot
+from scart_bench.generator.physics.rotation import quat_to_rot
 from scart_bench.generator.sitl.plant import is_due
 from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, FCSnapshot, compose
 
@@ -107,7 +107,7 @@ class HilAutopilot:
 
     ``waypoints`` (K, 3) NED and ``cruise`` (m/s): the navigator's mission. ``layer``: a SCART
     :class:`~scart_bench.generator.scart.layer.AttackLayer` for one flight (its scenarios at the
-    ``sensor`` and ``link`` points), or None for no layer. :meth:`step` takes one sensor sample
+    ``sensor``, ``link`` and ``command`` points), or None for no layer. :meth:`step` takes one sensor sample
     (and the GPS fix that arrived since the last one) and returns the motor commands.
     """
 
@@ -305,9 +305,6 @@ class HilAutopilot:
         b[0, 2] = np.clip(b[0, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
         b[0, 0] = ocv - 0.05 * current
         b[0, 1] = current
-
-    def yaw(self) -> float:
-        return float(euler_from_quat(self.es.quat)[0, 2])
 
 
 def _no_gps() -> dict:
