@@ -26,13 +26,24 @@ ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
 class SimLink:
-    """A UDP socket talking MAVLink 2 to a simulator at ``address`` (it answers to our port)."""
+    """A UDP socket talking MAVLink 2 to a simulator.
 
-    def __init__(self, address: tuple[str, int]):
+    ``address``: the simulator listens there and answers to our port (jMAVSim's ``-udp PORT``).
+    ``listen``: instead, we listen there and answer whoever sends first (PX4's side of UDP 14560,
+    where Gazebo classic with ``use_tcp`` false and AirSim with ``"UseTcp": false`` send to).
+    """
+
+    def __init__(self, address: tuple[str, int] | None = None, listen: tuple[str, int] | None = None):
+        if (address is None) == (listen is None):
+            raise ValueError("SimLink needs either the simulator's address or a local address to listen on")
         self.address = address
+        self.listening = listen is not None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
-        self.sock.bind(("127.0.0.1" if address[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0))
+        if listen is not None:
+            self.sock.bind(listen)
+        else:
+            self.sock.bind(("127.0.0.1" if address[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0))
         self.sock.setblocking(False)
         self.mav = mavlink.MAVLink(None, srcSystem=SYSTEM, srcComponent=COMPONENT)
         self.mav.robust_parsing = True
@@ -41,6 +52,8 @@ class SimLink:
         self.last_heartbeat = 0.0
 
     def send(self, msg) -> None:
+        if self.address is None:  # listening, and nobody has spoken yet
+            return
         self.sock.sendto(msg.pack(self.mav), self.address)
         self.sent += 1
 
@@ -71,9 +84,11 @@ class SimLink:
             return out
         while True:
             try:
-                data = self.sock.recv(65536)
+                data, peer = self.sock.recvfrom(65536)
             except BlockingIOError:
                 break
+            if self.listening:
+                self.address = peer[:2]  # answer the simulator that sends
             msgs = self.mav.parse_buffer(data) or []
             out.extend(m for m in msgs if m.get_type() != "BAD_DATA")
         self.received += len(out)
@@ -91,10 +106,15 @@ class SimLink:
             if got:
                 return got
             if alive is not None and not alive():
-                raise HilError(f"the simulator at udp:{self.address[0]}:{self.address[1]} ended before "
-                               "its first message")
-        raise HilError(f"the simulator at udp:{self.address[0]}:{self.address[1]} sent no message in "
-                       f"{timeout_s:g} s (is it running, on this port?)")
+                raise HilError(f"the simulator ({self.where()}) ended before its first message")
+        raise HilError(f"the simulator ({self.where()}) sent no message in {timeout_s:g} s "
+                       "(is it running, on this port?)")
+
+    def where(self) -> str:
+        if self.listening:
+            host, port = self.sock.getsockname()[:2]
+            return f"expected on udp:{host}:{port}"
+        return f"udp:{self.address[0]}:{self.address[1]}"
 
     def close(self) -> None:
         self.sock.close()
