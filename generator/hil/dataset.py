@@ -53,37 +53,45 @@ def as_batch(flight: HilFlight, seed: int) -> BatchResult:
 
 def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8,
                      configs: list[list[Scenario]] | None = None, fmt: str = "parquet", overwrite: bool = False,
-                     log: Callable[[str], None] | None = None) -> Path:
+                     log: Callable[[str], None] | None = None, physics: str = "jmavsim") -> Path:
     """Fly ``n_normal`` normal flights and one simulation-mode flight per entry of ``configs`` in
     jMAVSim and write them as a dataset at ``out``; returns it.
 
     Normal flights split as train / validation / test (half, a quarter, the rest); attacked flights
     are test flights. Each flight starts its own jMAVSim (a fresh vehicle on the ground at home).
+    ``physics="builtin"`` flies the same seeds and scenarios with the built-in engine instead (one
+    flight at a time, ideal timing), for the comparison of docs/jmavsim.md.
     """
-    from scart_bench.generator.hil.jmavsim import find_jar, find_java
+    if physics == "jmavsim":
+        from scart_bench.generator.hil.jmavsim import find_jar, find_java
 
-    find_java()
-    jar = find_jar(jar)  # what is missing is said before anything is flown or written
+        find_java()
+        jar = find_jar(jar)  # what is missing is said before anything is flown or written
+        fly = _jmavsim_flyer(jar)
+    elif physics == "builtin":
+        fly = _builtin_flyer
+    else:
+        raise ValueError(f"physics {physics!r}: expected jmavsim or builtin")
     say = log or (lambda msg: None)
     configs = configs or []
     seeds = normal_seeds(seed, n_normal)
     n_train, n_val = max(1, n_normal // 2), max(1, n_normal // 4)
     split_of = splits(n_normal, n_train, min(n_val, n_normal - n_train))
-    info = {"profile": "jmavsim", "physics": "jmavsim", "seed": int(seed), "n_normal": n_normal,
+    info = {"profile": physics, "physics": physics, "seed": int(seed), "n_normal": n_normal,
             "versions": versions(), "timing": "ideal"}
-    config = {"physics": "jmavsim", "simulator": "jMAVSim (PX4 simulator MAVLink API, lockstep)"}
+    config = {"physics": physics, "simulator": "jMAVSim (PX4 simulator MAVLink API, lockstep)"
+              if physics == "jmavsim" else "the built-in engine"}
     writer = DatasetWriter(out, fmt=fmt, info=info, overwrite=overwrite)
     try:
         for i, s in enumerate(seeds):
-            say(f"jMAVSim: normal flight {i + 1} of {n_normal}")
-            flight = fly_jmavsim(jar, seed=s)
-            writer.write(normal_record(as_batch(flight, s), 0, f"normal-{i:04d}", split_of[i], config))
+            say(f"{physics}: normal flight {i + 1} of {n_normal}")
+            batch, _ = fly(s, None)
+            writer.write(normal_record(batch, 0, f"normal-{i:04d}", split_of[i], config))
         attack_seeds = normal_seeds(seed + 1_000_003, len(configs))
         for i, (scs, s) in enumerate(zip(configs, attack_seeds)):
-            say(f"jMAVSim: attacked flight {i + 1} of {len(configs)} ({'+'.join(sc.id for sc in scs)})")
-            flight = fly_jmavsim(jar, seed=s, scenarios=scs)
-            layer = flight.autopilot.layer
-            record = simulation_record(as_batch(flight, s), layer, 0, f"sim-{i:04d}", scs, config)
+            say(f"{physics}: attacked flight {i + 1} of {len(configs)} ({'+'.join(sc.id for sc in scs)})")
+            batch, layer = fly(s, scs)
+            record = simulation_record(batch, layer, 0, f"sim-{i:04d}", scs, config)
             record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, None,
                                                  record.manifest["injection_point"]))
             writer.write(record)
@@ -91,6 +99,23 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
         writer.abort()
         raise
     return writer.close()
+
+
+def _jmavsim_flyer(jar):
+    def fly(seed: int, scenarios: list[Scenario] | None):
+        flight = fly_jmavsim(jar, seed=seed, scenarios=scenarios)
+        return as_batch(flight, seed), flight.autopilot.layer
+    return fly
+
+
+def _builtin_flyer(seed: int, scenarios: list[Scenario] | None):
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
+    from scart_bench.generator.modes import simulation_mode
+
+    cfg = FlightConfig(timing="ideal")
+    if not scenarios:
+        return simulate([seed], cfg), None
+    return simulation_mode([seed], [list(scenarios)], cfg)
 
 
 #: the attacks flown when none are given: a sensor-point GPS drift and jump, and the paper's GPS
