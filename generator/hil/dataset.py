@@ -16,10 +16,11 @@ import numpy as np
 from scart_bench.dataset import DatasetWriter
 from scart_bench.dataset.schema import TELEMETRY_TOPICS
 from scart_bench.generator.attack_effect import attack_effect
+from scart_bench.generator.attacks import csv_applicable, strip_labels
 from scart_bench.generator.engine.flight_batch import BatchResult
 from scart_bench.generator.hil.bridge import HilFlight
 from scart_bench.generator.hil.flights import fly_jmavsim
-from scart_bench.generator.modes import simulation_record
+from scart_bench.generator.modes import csv_mode, csv_record, simulation_record
 from scart_bench.generator.plan import normal_seeds, splits, versions
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.telemetry.tables import normal_record
@@ -53,12 +54,15 @@ def as_batch(flight: HilFlight, seed: int) -> BatchResult:
 
 def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8,
                      configs: list[list[Scenario]] | None = None, fmt: str = "parquet", overwrite: bool = False,
-                     log: Callable[[str], None] | None = None, physics: str = "jmavsim") -> Path:
+                     log: Callable[[str], None] | None = None, physics: str = "jmavsim",
+                     csv_configs: list[list[Scenario]] | None = None) -> Path:
     """Fly ``n_normal`` normal flights and one simulation-mode flight per entry of ``configs`` in
     jMAVSim and write them as a dataset at ``out``; returns it.
 
     Normal flights split as train / validation / test (half, a quarter, the rest); attacked flights
     are test flights. Each flight starts its own jMAVSim (a fresh vehicle on the ground at home).
+    ``csv_configs``: one csv-mode copy each (link scenarios), replayed in turn on two more normal
+    flights reserved for it (split csv_source), as the built-in generator does.
     ``physics="builtin"`` flies the same seeds and scenarios with the built-in engine instead (one
     flight at a time, ideal timing), for the comparison of docs/jmavsim.md.
     """
@@ -74,9 +78,12 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
         raise ValueError(f"physics {physics!r}: expected jmavsim or builtin")
     say = log or (lambda msg: None)
     configs = configs or []
-    seeds = normal_seeds(seed, n_normal)
+    csv_configs = csv_configs or []
+    n_src = 2 if csv_configs else 0
+    seeds = normal_seeds(seed, n_normal + n_src)
     n_train, n_val = max(1, n_normal // 2), max(1, n_normal // 4)
-    split_of = splits(n_normal, n_train, min(n_val, n_normal - n_train))
+    split_of = splits(n_normal + n_src, n_train, min(n_val, n_normal - n_train), n_src)
+    sources: list[tuple[str, dict, int]] = []
     info = {"profile": physics, "physics": physics, "seed": int(seed), "n_normal": n_normal,
             "versions": versions(), "timing": "ideal"}
     config = {"physics": physics, "simulator": "jMAVSim (PX4 simulator MAVLink API, lockstep)"
@@ -84,9 +91,12 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
     writer = DatasetWriter(out, fmt=fmt, info=info, overwrite=overwrite)
     try:
         for i, s in enumerate(seeds):
-            say(f"{physics}: normal flight {i + 1} of {n_normal}")
+            say(f"{physics}: normal flight {i + 1} of {len(seeds)}")
             batch, _ = fly(s, None)
-            writer.write(normal_record(batch, 0, f"normal-{i:04d}", split_of[i], config))
+            record = normal_record(batch, 0, f"normal-{i:04d}", split_of[i], config)
+            writer.write(record)
+            if split_of[i] == "csv_source":
+                sources.append((record.flight_id, strip_labels(record.navigator), s))
         attack_seeds = normal_seeds(seed + 1_000_003, len(configs))
         for i, (scs, s) in enumerate(zip(configs, attack_seeds)):
             say(f"{physics}: attacked flight {i + 1} of {len(configs)} ({'+'.join(sc.id for sc in scs)})")
@@ -95,6 +105,13 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
             record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, None,
                                                  record.manifest["injection_point"]))
             writer.write(record)
+        for i, scs in enumerate(csv_configs):
+            sid, topics, sseed = sources[i % len(sources)]
+            say(f"csv mode: copy {i + 1} of {len(csv_configs)} ({'+'.join(sc.id for sc in scs)} on {sid})")
+            link = {t: df for t, df in topics.items() if t != "truth"}
+            result = csv_mode([link], [scs], [sseed])[0]
+            writer.write(csv_record(f"csv-{i:04d}", topics, result, scs, sseed, sid,
+                                    {**config, "source_flight": sid}))
     except BaseException:
         writer.abort()
         raise
@@ -118,19 +135,29 @@ def _builtin_flyer(seed: int, scenarios: list[Scenario] | None):
     return simulation_mode([seed], [list(scenarios)], cfg)
 
 
-#: the attacks flown when none are given: a sensor-point GPS drift and jump, and the paper's GPS
-#: spoofing on the link (data/scenarios)
-DEFAULT_SCENARIOS = ("sensor_gps_drift.toml", "sensor_gps_jump.toml", "gps_spoof.toml")
+#: the attacks flown when none are given: a sensor-point GPS drift and jump (data/scenarios), and
+#: the quick profile's grid of link attacks (position and attitude; noise, bias, drift, replay,
+#: sinusoid, GPS spoofing), evenly spaced over the grid
+DEFAULT_SCENARIOS = ("sensor_gps_drift.toml", "sensor_gps_jump.toml")
+DEFAULT_GRID = "quick.toml"
 
 
-def attack_configs(scenarios: str | Path | None, count: int) -> list[list[Scenario]]:
+def attack_configs(scenarios: str | Path | None, count: int, link_only: bool = False) -> list[list[Scenario]]:
     """``count`` attacked flights' scenarios: the configurations of ``scenarios`` (a scenario, grid
-    or sweep file; default :data:`DEFAULT_SCENARIOS`) taken in turn."""
+    or sweep file) in turn, or by default the two sensor attacks of :data:`DEFAULT_SCENARIOS` and
+    link attacks spread over :data:`DEFAULT_GRID`. ``link_only``: only configurations a recording
+    can replay (csv mode)."""
     from scart_bench.generator.attacks import grid_path
     from scart_bench.generator.scart.grid import load_configurations
 
+    if count <= 0:
+        return []
     if scenarios is not None:
-        base = load_configurations(scenarios)
-    else:
-        base = [load_configurations(grid_path(name))[0] for name in DEFAULT_SCENARIOS]
-    return [base[i % len(base)] for i in range(max(count, len(base)))] if count > 0 else []
+        base = [c for c in load_configurations(scenarios) if csv_applicable(c) or not link_only]
+        return [base[i % len(base)] for i in range(count)] if base else []
+    sensor = [] if link_only else [load_configurations(grid_path(name))[0] for name in DEFAULT_SCENARIOS]
+    grid = load_configurations(grid_path(DEFAULT_GRID))
+    k = max(count - len(sensor), 1)
+    link = [grid[int(j)] for j in np.linspace(0, len(grid) - 1, min(k, len(grid))).round()]
+    base = sensor + link
+    return [base[i % len(base)] for i in range(count)]

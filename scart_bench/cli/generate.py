@@ -90,11 +90,12 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     if not 1 <= n <= 1000:
         raise UsageError(f"--flights {n}: expected 1 to 1000 jMAVSim flights")
     configs = [] if args.normal_only else attack_configs(args.scenarios, n)
+    csv_configs = [] if args.normal_only else attack_configs(args.scenarios, n, link_only=True)
     out = local_path(args.out)
     existed = out.exists()
     try:
         generate_jmavsim(out, args.jmavsim, seed=args.seed, n_normal=n, configs=configs, fmt=args.format,
-                         overwrite=args.overwrite, log=lambda msg: print(msg, flush=True))
+                         overwrite=args.overwrite, log=lambda msg: print(msg, flush=True), csv_configs=csv_configs)
     except BaseException:
         if not existed:
             shutil.rmtree(out, ignore_errors=True)
@@ -136,8 +137,8 @@ def register(sub) -> None:
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.add_argument("--physics", choices=("builtin", "jmavsim"), default="builtin",
                    help="builtin (default): the generator's engine; jmavsim: the flight software flies jMAVSim "
-                   "through PX4's simulator MAVLink API, headless and in lockstep (--flights normal and as many "
-                   "attacked flights; docs/jmavsim.md)")
+                   "through PX4's simulator MAVLink API, headless and in lockstep (--flights normal flights and as many "
+                   "attacked flights per mode; docs/jmavsim.md)")
     g.add_argument("--jmavsim", default=None, metavar="PATH", help="with --physics jmavsim: jmavsim_run.jar or "
                    "the jMAVSim checkout it was built in (default $SCART_JMAVSIM)")
     g.set_defaults(func=cmd_generate)
