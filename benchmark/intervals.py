@@ -4,7 +4,7 @@
   stays inside [0, 1] and is sensible for the small counts of a benchmark table (11 attacked
   flights make a rate move in 9 % steps); the normal-approximation interval is not.
 - :func:`design_interval` with :func:`cluster_weights`: the interval of a rate under clustering and
-  the threshold's own uncertainty (see :mod:`scart_bench.benchmark.scoring`'s ``PaperTable``).
+  the threshold's own uncertainty (see :mod:`scart_bench.benchmark.metrics`'s ``PaperTable``).
 - :func:`bootstrap_auc`: a percentile bootstrap interval of a two-sample score (ROC-AUC, AUC-PR)
   over flights: normal and attacked flights are resampled with replacement separately, so every
   resample has both classes. Seeded, so the same scores always give the same interval.

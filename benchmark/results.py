@@ -11,24 +11,20 @@ from pathlib import Path
 
 import pandas as pd
 
+from scart_bench.benchmark.evaluation import ScoreError, build_evaluation, calibration_table
+from scart_bench.benchmark.metrics import DEFAULT_METRICS, NEAR_ARMING_S, compute_metrics
 from scart_bench.benchmark.protocol import Protocol
-from scart_bench.benchmark.scoring import (
+from scart_bench.benchmark.store import RunStore
+from scart_bench.benchmark.tables import (
     BREAKDOWN_COLUMNS,
-    DEFAULT_METRICS,
     DETECTION_RULE,
     EXTRA_COLUMNS,
     INTERVAL_METHOD,
-    NEAR_ARMING_S,
     PAPER_COLUMNS,
-    ScoreError,
     breakdown,
-    build_evaluation,
-    calibration_table,
-    compute_metrics,
     markdown_table,
     rate_summary,
 )
-from scart_bench.benchmark.store import RunStore
 
 _RESULT_COLUMNS = ("detector", "status", "message", "fit_s", "score_s", "rows", "latency_us_per_row",
                    "n_train_flights", "n_scored_flights", "max_rss_mb", "wall_s", "source", "finished")

@@ -49,7 +49,7 @@ PAPER: dict[str, tuple[float, float, float]] = {
     "neutral": (100.0, 100.0, 100.0),
 }
 CLASSICAL = ("telemanom", "tsbitmaps", "statistical")
-#: benchmark.scoring.detectability_bins's labels, weakest first
+#: benchmark.tables.detectability_bins's labels, weakest first
 DETECTABILITY_ORDER = ("<1 sd", "1-3 sd", "3-10 sd", ">=10 sd")
 DEEPOD = ("deepsvdd", "rdp", "rca", "goad", "neutral")
 

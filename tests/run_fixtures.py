@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.scoring import TIMING_COLUMNS
+from scart_bench.benchmark.metrics import TIMING_COLUMNS
 from scart_bench.dataset import DatasetWriter, FlightRecord
 from scart_bench.detectors.base import Detector
 

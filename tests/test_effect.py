@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from scart_bench.benchmark.protocol import ProtocolError, Splits, assign_roles
-from scart_bench.benchmark.scoring import rate_summary
+from scart_bench.benchmark.tables import rate_summary
 from scart_bench.dataset import open_dataset
 from scart_bench.generator.attack_effect import attack_effect, field_stds
 from scart_bench.generator.attacks import csv_applicable, csv_flights

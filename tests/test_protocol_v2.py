@@ -9,7 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from scart_bench.benchmark.evaluation import build_evaluation, flight_clusters
 from scart_bench.benchmark.intervals import wilson
+from scart_bench.benchmark.metrics import PaperTable
 from scart_bench.benchmark.protocol import (
     Protocol,
     ProtocolError,
@@ -18,7 +20,6 @@ from scart_bench.benchmark.protocol import (
     conformal_rank,
     counted_rows,
 )
-from scart_bench.benchmark.scoring import PaperTable, build_evaluation, flight_clusters
 from scart_bench.detectors.base import feature_columns
 
 US = 1_000_000

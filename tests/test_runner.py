@@ -19,7 +19,7 @@ import pytest
 from run_fixtures import ATTACKS, plugin, quality, write_dataset
 from sklearn.metrics import roc_auc_score
 
-from scart_bench.benchmark.scoring import DEFAULT_METRICS
+from scart_bench.benchmark.metrics import DEFAULT_METRICS
 from scart_bench.benchmark.store import RunStore, read_npz
 from scart_bench.cli.main import main
 

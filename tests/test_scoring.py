@@ -7,35 +7,34 @@ import pandas as pd
 import pytest
 from sklearn.metrics import roc_auc_score
 
+from scart_bench.benchmark.evaluation import Evaluation, ScoreError, build_evaluation, flight_outcomes
 from scart_bench.benchmark.intervals import bootstrap_auc, wilson
-from scart_bench.benchmark.protocol import Protocol, ProtocolError, Splits, ThresholdRule, assign_roles
-from scart_bench.benchmark.scoring import (
+from scart_bench.benchmark.metrics import (
     DEFAULT_METRICS,
-    PAPER_COLUMNS,
     DetectionDelay,
-    Evaluation,
     FalseAlarmRate,
     FlightROCAUC,
     PaperTable,
     PointwisePRF,
     RangePRF,
-    ScoreError,
     ScoringLatency,
     TatbulZeroPRF,
     alarm_events,
-    breakdown,
-    build_evaluation,
     compute_metrics,
-    detectability_bins,
     detection_delay,
-    flight_outcomes,
-    format_value,
-    markdown_table,
     point_prf,
     range_prf,
     range_scores,
     roc_auc,
     runs,
+)
+from scart_bench.benchmark.protocol import Protocol, ProtocolError, Splits, ThresholdRule, assign_roles
+from scart_bench.benchmark.tables import (
+    PAPER_COLUMNS,
+    breakdown,
+    detectability_bins,
+    format_value,
+    markdown_table,
 )
 
 # -- array-level metrics ----------------------------------------------------------------------
@@ -68,7 +67,7 @@ def test_roc_auc_equals_sklearn_with_ties(seed):
 def test_average_precision_equals_sklearn_with_ties(seed):
     from sklearn.metrics import average_precision_score
 
-    from scart_bench.benchmark.scoring import average_precision
+    from scart_bench.benchmark.vus import average_precision
 
     rng = np.random.default_rng(seed)
     n = int(rng.integers(2, 300))
@@ -398,3 +397,17 @@ def test_row_metrics_from_one_sort_equal_the_separate_definitions(seed):
     assert got["auc_pr"] == pytest.approx(average_precision_score(y, s), abs=1e-12)
     assert (got["vus_roc"], got["vus_pr"]) == vus(y, s)
     assert np.isnan(row_metrics(np.zeros(50), rng.random(50))["vus_pr"])
+
+
+def test_scoring_module_reexports_the_split_modules():
+    """benchmark.scoring stays importable as before the split (issue 46): every name it exports is the object
+    of the module that now holds it."""
+    from scart_bench.benchmark import evaluation, metrics, scoring, tables
+
+    homes = (evaluation, metrics, tables)
+    for name in scoring.__all__:
+        obj = getattr(scoring, name)
+        held = [m for m in homes if name in vars(m)]
+        assert held, name
+        assert all(vars(m)[name] is obj for m in held), name
+    assert {"build_evaluation", "PaperTable", "markdown_table", "rate_summary", "TIMING_COLUMNS"} <= set(scoring.__all__)

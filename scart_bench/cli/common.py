@@ -116,8 +116,8 @@ def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), w
 def print_tables(path: Path, metrics, shown: str | None = None) -> None:
     """The paper table and the operating-point lines of a run (stdout); failed jobs and the folder (stderr)."""
     from scart_bench.benchmark.results import paper_table, transfer_summary
-    from scart_bench.benchmark.scoring import rate_summary
     from scart_bench.benchmark.store import RunStore
+    from scart_bench.benchmark.tables import rate_summary
 
     config = RunStore(path).read_config()
     train = (config.get("train_dataset") or {}).get("path")
