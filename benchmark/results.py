@@ -3,10 +3,12 @@ the Markdown tables. Nothing here runs a detector, so a run can be re-scored at 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pandas as pd
@@ -14,7 +16,7 @@ import pandas as pd
 from scart_bench.benchmark.evaluation import ScoreError, build_evaluation, calibration_table
 from scart_bench.benchmark.metrics import DEFAULT_METRICS, NEAR_ARMING_S, compute_metrics
 from scart_bench.benchmark.protocol import Protocol
-from scart_bench.benchmark.store import RunStore
+from scart_bench.benchmark.store import RunStore, atomic_write_json
 from scart_bench.benchmark.tables import (
     BREAKDOWN_COLUMNS,
     DETECTION_RULE,
@@ -66,11 +68,13 @@ def write_results(store: RunStore) -> pd.DataFrame:
 
 
 class _RunScores:
-    """What every detector's metrics need from a run folder, read once per process."""
+    """What every detector's metrics need from a run folder, read once per process. ``protocol``
+    (rules as plain data, :meth:`Protocol.rules`): another operating point than the run's own."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, protocol: dict | None = None):
         self.store = RunStore(path)
-        self.protocol = Protocol.from_dict(self.store.read_config()["identity"]["protocol"])
+        self.protocol = Protocol.from_dict(protocol if protocol is not None
+                                           else self.store.read_config()["identity"]["protocol"])
         self.flights = self.store.read_flights()
         self.truth = self.store.read_truth()
 
@@ -102,9 +106,9 @@ class _RunScores:
 _WORKER_RUN: _RunScores | None = None
 
 
-def _worker_start(path: str) -> None:
+def _worker_start(path: str, protocol: dict | None = None) -> None:
     global _WORKER_RUN
-    _WORKER_RUN = _RunScores(path)
+    _WORKER_RUN = _RunScores(path, protocol)
 
 
 def _worker_detector(res: dict) -> tuple[dict, pd.DataFrame | None, pd.DataFrame | None, pd.DataFrame | None]:
@@ -119,6 +123,49 @@ def _default_processes(config: dict) -> int:
     return max(1, min(jobs, os.cpu_count() or 1))
 
 
+def _score_detectors(store: RunStore, todo: list[dict], processes: int,
+                     protocol: dict | None = None) -> list[tuple]:
+    """Every job's (metrics row, breakdown, flight scores, calibration) from its saved scores, at the
+    run's operating point or at ``protocol``'s, ``processes`` detectors at a time."""
+    n_ok = sum(r["status"] == "OK" for r in todo)
+    if processes > 1 and n_ok > 1:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(processes, n_ok), mp_context=ctx, initializer=_worker_start,
+                                 initargs=(str(store.path), protocol)) as pool:
+            return list(pool.map(_worker_detector, todo))
+    run = _RunScores(store.path, protocol)
+    return [run.detector(r) for r in todo]
+
+
+def _write_tables(store: RunStore, config: dict, done: list[tuple], prefix: str = "",
+                  evaluation: dict | None = None) -> pd.DataFrame:
+    """The metrics table of ``done`` (:func:`_score_detectors`), written as metrics.csv, metrics.md,
+    breakdown.csv, flight_scores.csv and calibration.csv under ``prefix`` in the run folder."""
+    breakdowns = [bd for _, bd, _, _ in done if bd is not None]
+    flight_scores = [fs for _, _, fs, _ in done if fs is not None]
+    calibrations = [cal for _, _, _, cal in done if cal is not None]
+    metrics = _metrics_of(done)
+    store.write_table(f"{prefix}metrics.csv", metrics)
+    store.write_text(f"{prefix}metrics.md", metrics_markdown(config, metrics, evaluation))
+    bd = pd.concat(breakdowns, ignore_index=True) if breakdowns else breakdown_columns()
+    store.write_table(f"{prefix}breakdown.csv", bd)
+    fs = pd.concat(flight_scores, ignore_index=True) if flight_scores else pd.DataFrame(
+        columns=["detector", *FLIGHT_SCORE_COLUMNS])
+    store.write_table(f"{prefix}flight_scores.csv", fs)
+    cal = pd.concat(calibrations, ignore_index=True) if calibrations else pd.DataFrame(
+        columns=["detector", "flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
+                 "sets_threshold"])
+    store.write_table(f"{prefix}calibration.csv", cal)
+    return metrics
+
+
+def _metrics_of(done: list[tuple]) -> pd.DataFrame:
+    """The metrics table (one row per job, metrics.csv's columns) of :func:`_score_detectors`'s result."""
+    columns = ["detector", "status", "message", *(c for m in DEFAULT_METRICS for c in m.columns),
+               "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
+    return pd.DataFrame([row for row, _, _, _ in done], columns=columns)
+
+
 def score_run(path: str | Path, write: bool = True, processes: int | None = None) -> pd.DataFrame:
     """Recompute every metric of a run from its saved scores (no detector runs).
 
@@ -131,37 +178,59 @@ def score_run(path: str | Path, write: bool = True, processes: int | None = None
     config = store.read_config()
     results = write_results(store) if write else pd.DataFrame(
         [_result_row(store, config, n) for n in _job_order(store, config)], columns=list(_RESULT_COLUMNS))
-    todo = results.to_dict("records")
-    n_ok = sum(r["status"] == "OK" for r in todo)
     processes = _default_processes(config) if processes is None else max(1, int(processes))
-    if processes > 1 and n_ok > 1:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(processes, n_ok), mp_context=ctx, initializer=_worker_start,
-                                 initargs=(str(store.path),)) as pool:
-            done = list(pool.map(_worker_detector, todo))
-    else:
-        run = _RunScores(store.path)
-        done = [run.detector(r) for r in todo]
-    metric_rows = [row for row, _, _, _ in done]
-    breakdowns = [bd for _, bd, _, _ in done if bd is not None]
-    flight_scores = [fs for _, _, fs, _ in done if fs is not None]
-    calibrations = [cal for _, _, _, cal in done if cal is not None]
-    columns = ["detector", "status", "message", *(c for m in DEFAULT_METRICS for c in m.columns),
-               "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
-    metrics = pd.DataFrame(metric_rows, columns=columns)
-    if write:
-        store.write_table("metrics.csv", metrics)
-        store.write_text("metrics.md", metrics_markdown(config, metrics))
-        bd = pd.concat(breakdowns, ignore_index=True) if breakdowns else breakdown_columns()
-        store.write_table("breakdown.csv", bd)
-        fs = pd.concat(flight_scores, ignore_index=True) if flight_scores else pd.DataFrame(
-            columns=["detector", *FLIGHT_SCORE_COLUMNS])
-        store.write_table("flight_scores.csv", fs)
-        cal = pd.concat(calibrations, ignore_index=True) if calibrations else pd.DataFrame(
-            columns=["detector", "flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
-                     "sets_threshold"])
-        store.write_table("calibration.csv", cal)
-    return metrics
+    done = _score_detectors(store, results.to_dict("records"), processes)
+    return _write_tables(store, config, done) if write else _metrics_of(done)
+
+
+#: The folder of a run holding the evaluations made after it (``scart-bench score RUN --alpha``).
+EVALUATIONS_DIR = "evaluations"
+EVALUATION_FORMAT = "scart-bench-evaluation/1"
+
+
+def evaluation_name(alpha: float | None = None, burn_in_s: float | None = None) -> str:
+    """The folder name of an evaluation at another operating point: ``alpha-0.01``,
+    ``alpha-0.01-burnin-12``, ``burnin-12``."""
+    parts = ([f"alpha-{alpha:g}"] if alpha is not None else []) + (
+        [f"burnin-{burn_in_s:g}"] if burn_in_s is not None else [])
+    if not parts:
+        raise ValueError("an evaluation needs an alpha or a burn-in")
+    return "-".join(parts)
+
+
+def evaluate_run(path: str | Path, protocol: Protocol, name: str,
+                 processes: int | None = None) -> tuple[Path, pd.DataFrame]:
+    """The run's saved scores evaluated at another operating point, without running a job.
+
+    The thresholds are recalibrated on the saved validation flights' scores under ``protocol``
+    (another alpha or burn-in; the scores do not depend on either), and the tables are written into
+    ``<run>/evaluations/<name>/`` (metrics.csv, metrics.md, breakdown.csv, flight_scores.csv,
+    calibration.csv and evaluation.json, which records both protocols and the sha256 of the scores
+    it was made from). The saved scores and the run's own tables are left as they are. Returns the
+    evaluation's folder and its metrics table.
+    """
+    store = RunStore(path)
+    config = store.read_config()
+    results = pd.DataFrame([_result_row(store, config, n) for n in _job_order(store, config)],
+                           columns=list(_RESULT_COLUMNS))
+    processes = _default_processes(config) if processes is None else max(1, int(processes))
+    done = _score_detectors(store, results.to_dict("records"), processes, protocol.rules())
+    folder = store.path / EVALUATIONS_DIR / name
+    folder.mkdir(parents=True, exist_ok=True)
+    run_protocol = Protocol.from_dict(config["identity"]["protocol"])
+    scores = {}
+    for det in results.loc[results["status"] == "OK", "detector"].astype(str):
+        with open(store.job_dir(det) / "scores.npz", "rb") as fh:
+            scores[det] = hashlib.file_digest(fh, "sha256").hexdigest()
+    record = {"format": EVALUATION_FORMAT, "name": name, "run": config.get("name"),
+              "alpha": protocol.alpha, "burn_in_s": protocol.burn_in_s,
+              "protocol": protocol.rules(), "run_protocol": run_protocol.rules(),
+              "scores_sha256": scores, "created": datetime.now(UTC).isoformat(timespec="seconds")}
+    ev_config = {**config, "protocol": protocol.to_dict()}
+    metrics = _write_tables(store, ev_config, done, f"{EVALUATIONS_DIR}/{name}/",
+                            {**record, "run_alpha": run_protocol.alpha, "run_burn_in_s": run_protocol.burn_in_s})
+    atomic_write_json(folder / "evaluation.json", record)
+    return folder, metrics
 
 
 #: Columns of flight_scores.csv after ``detector``.
@@ -173,12 +242,27 @@ def breakdown_columns() -> pd.DataFrame:
     return pd.DataFrame(columns=BREAKDOWN_COLUMNS)
 
 
-def metrics_markdown(config: dict, metrics: pd.DataFrame) -> str:
-    """metrics.md: the paper's table, the extra metrics, failures and the protocol used."""
+def _evaluation_lines(evaluation: dict | None) -> list[str]:
+    """metrics.md's note on an evaluation made after the run (:func:`evaluate_run`)."""
+    if not evaluation:
+        return []
+
+    def rate(a) -> str:
+        return "its own alarm rules" if a is None else f"alpha {a:g}"
+
+    return [f"Evaluation `{evaluation['name']}`, made after the run from its saved scores (no job was run): "
+            f"thresholds recalibrated on the saved validation scores at {rate(evaluation['alpha'])}, burn-in "
+            f"{evaluation['burn_in_s']:g} s (the run: {rate(evaluation.get('run_alpha'))}, burn-in "
+            f"{evaluation.get('run_burn_in_s', 0.0):g} s). The run's own tables are in the run folder.", ""]
+
+
+def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | None = None) -> str:
+    """metrics.md: the paper's table, the extra metrics, failures and the protocol used
+    (``evaluation``: the record of an evaluation made after the run, said under the title)."""
     ds = config.get("dataset", {})
     proto = config.get("protocol", {})
     train = config.get("train_dataset") or {}
-    lines = [f"# Run {config.get('name', '')}", "",
+    lines = [f"# Run {config.get('name', '')}", "", *_evaluation_lines(evaluation),
              *([f"Trained and calibrated on `{train.get('path')}` (fingerprint {str(train.get('fingerprint'))[:12]}); "
                 "tested on:", ""] if train else []),
              f"Dataset `{ds.get('path')}` (fingerprint {str(ds.get('fingerprint', ''))[:12]}), "

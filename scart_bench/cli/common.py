@@ -113,8 +113,9 @@ def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), w
         yield staged.path
 
 
-def print_tables(path: Path, metrics, shown: str | None = None) -> None:
-    """The paper table and the operating-point lines of a run (stdout); failed jobs and the folder (stderr)."""
+def print_tables(path: Path, metrics, shown: str | None = None, label: str = "run folder") -> None:
+    """The paper table and the operating-point lines of a run (stdout); failed jobs and the folder (stderr,
+    ``shown`` as ``label``: an evaluation made after the run names its own folder)."""
     from scart_bench.benchmark.results import paper_table, transfer_summary
     from scart_bench.benchmark.store import RunStore
     from scart_bench.benchmark.tables import rate_summary
@@ -131,7 +132,7 @@ def print_tables(path: Path, metrics, shown: str | None = None) -> None:
     failed = metrics[metrics["status"] != "OK"]
     for _, r in failed.iterrows():
         print(f"{r['detector']}: {r['status']}: {r['message']}", file=sys.stderr)
-    print(f"\nrun folder: {shown or path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
+    print(f"\n{label}: {shown or path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
 
 
 def name_failed(command: str, failed, what: str, hint: str) -> int:

@@ -1,4 +1,6 @@
-"""``scart-bench score RUN``: recompute every metric of a run folder from its saved scores."""
+"""``scart-bench score RUN``: recompute every metric of a run folder from its saved scores; with
+``--alpha`` / ``--burn-in``, evaluate the saved scores at another operating point instead (into
+``RUN/evaluations/<name>/``, no job run, the run's own tables untouched)."""
 
 from __future__ import annotations
 
@@ -7,8 +9,21 @@ import argparse
 from scart_bench.cli.common import UsageError, name_failed, print_tables, staged_folder
 
 
+def _operating_point(run, args: argparse.Namespace):
+    """The run's protocol with ``--alpha`` and ``--burn-in`` applied (RunError naming a refused value)."""
+    from scart_bench.benchmark.protocol import Protocol
+    from scart_bench.benchmark.store import RunStore
+    from scart_bench.cli.run import protocol_options
+
+    run_protocol = Protocol.from_dict(RunStore(run).read_config()["identity"]["protocol"])
+    if args.alpha is not None and run_protocol.alarm_rule == "own":
+        raise UsageError(f"scart-bench score --alpha {args.alpha:g}: {args.run} uses each detector's own alarm "
+                         "rule (--threshold own), which states no alpha; expected a run with calibrated thresholds")
+    return protocol_options(run_protocol, args)
+
+
 def cmd_score(args: argparse.Namespace) -> int:
-    from scart_bench.benchmark.runner import score_run
+    from scart_bench.benchmark.results import evaluate_run, evaluation_name, score_run
     from scart_bench.benchmark.store import RunStore
 
     if args.jobs is not None and args.jobs < 1:
@@ -16,17 +31,32 @@ def cmd_score(args: argparse.Namespace) -> int:
     with staged_folder(args.run) as run:  # a run folder at a URL: scored in a local copy, uploaded back
         RunStore(run).read_config()  # a damaged config.json is named before anything else
         RunStore(run).verify()  # labels and scores as the run wrote them, or refused (one line naming the file)
-        metrics = score_run(run, processes=args.jobs)
-        print_tables(run, metrics, shown=str(args.run))
+        if args.alpha is None and args.burn_in is None:
+            metrics = score_run(run, processes=args.jobs)
+            print_tables(run, metrics, shown=str(args.run))
+        else:
+            protocol = _operating_point(run, args)
+            name = evaluation_name(args.alpha, args.burn_in)
+            _, metrics = evaluate_run(run, protocol, name, processes=args.jobs)
+            print_tables(run, metrics, shown=f"{str(args.run).rstrip('/')}/evaluations/{name}",
+                         label="evaluation folder")
     # as `run` does: tables that look complete must not hide a job without scores
     return name_failed("score", metrics[metrics["status"] != "OK"], "have no usable scores",
                        "their rows show the status (rerun the run with --resume to finish them)")
 
 
 def register(sub) -> None:
-    s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores")
+    s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores, or evaluate "
+                                     "them at another operating point (--alpha, --burn-in)")
     s.add_argument("run", metavar="RUN", help="a run folder (runs/<name>) or its fsspec URL")
     s.add_argument("--jobs", type=int, metavar="N",
                    help="detectors scored at a time, each in its own process (default: the run's --jobs); "
                         "the tables are the same for any N")
+    s.add_argument("--alpha", type=float, metavar="RATE",
+                   help="evaluate the saved scores at this target per-flight false-alarm rate: thresholds "
+                        "recalibrated on the saved validation scores, tables written into "
+                        "RUN/evaluations/alpha-RATE/ (no job is run; the run's own tables stay as they are)")
+    s.add_argument("--burn-in", type=float, metavar="SECONDS", dest="burn_in",
+                   help="with or without --alpha: evaluate with this burn-in after arming instead of the run's "
+                        "(folder RUN/evaluations/[alpha-RATE-]burnin-SECONDS/)")
     s.set_defaults(func=cmd_score)
