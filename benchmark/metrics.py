@@ -542,3 +542,56 @@ def compute_metrics(ev: Evaluation, metrics: tuple[Metric, ...] = DEFAULT_METRIC
     out["flight_threshold"] = ev.flight_threshold
     out["row_threshold"] = ev.row_threshold
     return out
+
+
+# -- the operating characteristic -------------------------------------------------------------
+
+#: Target alphas of the operating characteristic (``scart-bench report``'s figure per detector).
+OC_ALPHAS = (0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3)
+OC_COLUMNS = ("detector", "alpha", "n_validation", "k", "attainable", "threshold", "tp_simulation", "tp_csv",
+              "n_simulation", "n_csv", "far_no_attack", "n_no_attack", "far_expected", "far_lo", "far_hi")
+
+
+def realised_rate_spread(n: int, alpha: float, level: float = 0.95) -> tuple[int, float, float, float]:
+    """The rank ``k`` of the conformal threshold among ``n`` validation flights at ``alpha`` (the largest
+    when no order statistic reaches it) and the spread of the false-alarm rate a threshold so calibrated
+    realises on new exchangeable normal flights: it is Beta(n + 1 - k, k) distributed over validation sets
+    (the complement of the k-th order statistic's coverage, Beta(k, n + 1 - k)); returns (k, its mean
+    (n + 1 - k) / (n + 1), and its ``level`` central interval). One validation set's threshold is one
+    draw: for 60 flights at 5 % (k = 58, Beta(3, 58)) about 1-11 %."""
+    from scipy.stats import beta
+
+    from scart_bench.benchmark.protocol import conformal_rank
+
+    if n < 1:
+        raise ValueError(f"realised_rate_spread: n = {n} validation flights; expected at least 1")
+    k = min(conformal_rank(n, alpha), n)
+    a, b = n + 1 - k, k
+    tail = (1.0 - level) / 2.0
+    return k, a / (n + 1), float(beta.ppf(tail, a, b)), float(beta.ppf(1.0 - tail, a, b))
+
+
+def operating_characteristic(ev: Evaluation, alphas: tuple[float, ...] = OC_ALPHAS) -> pd.DataFrame:
+    """One detector's flight-level operating characteristic from its scores: for each target ``alpha``,
+    the conformal threshold on the validation flight scores, the TP in window per mode (an attacked
+    flight whose largest counted score inside the attack window is above it; rows alarm at the flight
+    threshold, as under protocol v2) and the false-alarm rate on the held-out normal flights, with the
+    spread of the realised rate for the run's number of validation flights
+    (:func:`realised_rate_spread`). One row per alpha, columns :data:`OC_COLUMNS`."""
+    from scart_bench.benchmark.protocol import ThresholdRule
+
+    val = ev.flights.loc[ev.flights["role"] == "validation", "score"].to_numpy(np.float64)
+    normal = ev.test("test_normal")["score"].to_numpy(np.float64)
+    window = {m: ev.test("test_attacked", m)["window_max"].to_numpy(np.float64) for m in ATTACK_MODES}
+    rows = []
+    for alpha in alphas:
+        t = ThresholdRule("conformal", alpha=float(alpha)).calibrate(val)
+        k, expected, lo, hi = realised_rate_spread(val.size, float(alpha))
+        rows.append({"detector": ev.detector, "alpha": float(alpha), "n_validation": val.size, "k": k,
+                     "attainable": ThresholdRule("conformal", alpha=float(alpha)).attainable(val.size),
+                     "threshold": t,
+                     **{f"tp_{m}": float((w > t).mean()) if w.size else float("nan") for m, w in window.items()},
+                     **{f"n_{m}": w.size for m, w in window.items()},
+                     "far_no_attack": float((normal > t).mean()) if normal.size else float("nan"),
+                     "n_no_attack": normal.size, "far_expected": expected, "far_lo": lo, "far_hi": hi})
+    return pd.DataFrame(rows, columns=list(OC_COLUMNS))

@@ -3,6 +3,7 @@ the Markdown tables. Nothing here runs a detector, so a run can be re-scored at 
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import multiprocessing
@@ -14,7 +15,14 @@ from pathlib import Path
 import pandas as pd
 
 from scart_bench.benchmark.evaluation import ScoreError, build_evaluation, calibration_table
-from scart_bench.benchmark.metrics import DEFAULT_METRICS, NEAR_ARMING_S, compute_metrics
+from scart_bench.benchmark.metrics import (
+    DEFAULT_METRICS,
+    NEAR_ARMING_S,
+    OC_ALPHAS,
+    OC_COLUMNS,
+    compute_metrics,
+    operating_characteristic,
+)
 from scart_bench.benchmark.protocol import Protocol
 from scart_bench.benchmark.store import RunStore, atomic_write_json
 from scart_bench.benchmark.tables import (
@@ -181,6 +189,26 @@ def score_run(path: str | Path, write: bool = True, processes: int | None = None
     processes = _default_processes(config) if processes is None else max(1, int(processes))
     done = _score_detectors(store, results.to_dict("records"), processes)
     return _write_tables(store, config, done) if write else _metrics_of(done)
+
+
+def operating_characteristics(path: str | Path, detectors: list[str] | None = None,
+                              alphas: tuple[float, ...] = OC_ALPHAS) -> pd.DataFrame:
+    """Each OK detector's flight-level operating characteristic (:func:`benchmark.metrics.operating_characteristic`)
+    from the run's saved scores, at the run's burn-in and with calibrated thresholds (a run with
+    ``--threshold own`` too: the characteristic is its scores'); ``detectors``: only these. No job is run.
+    ScoreError / RunStoreError naming the file when a detector's saved scores are unusable."""
+    store = RunStore(path)
+    config = store.read_config()
+    protocol = dataclasses.replace(Protocol.from_dict(config["identity"]["protocol"]), alarm_rule="calibrated")
+    run = _RunScores(store.path, protocol.rules())
+    frames = []
+    for name in _job_order(store, config):
+        status = store.read_status(name) or {}
+        if status.get("status") != "OK" or (detectors is not None and name not in detectors):
+            continue
+        ev = build_evaluation(name, run.flights, run.truth, store.read_scores(name), protocol)
+        frames.append(operating_characteristic(ev, alphas))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=list(OC_COLUMNS))
 
 
 #: The folder of a run holding the evaluations made after it (``scart-bench score RUN --alpha``).

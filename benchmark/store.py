@@ -25,6 +25,10 @@
 <run>/calibration.csv          per detector and validation flight: its score, when its maximum
                                occurred (after arming, with and without the burn-in) and whether
                                it sets the threshold
+<run>/evaluations/<name>/      the tables (metrics.csv, metrics.md, breakdown.csv, flight_scores.csv,
+                               calibration.csv) and evaluation.json of the saved scores at another
+                               operating point (``scart-bench score RUN --alpha A``; no job run);
+                               never read back by the run, ``score`` or ``--resume``
 <run>/cache/flights/           the run's flight cache (benchmark.flight_cache): every flight read
                                once, shared by the jobs; removed when every job of the invocation
                                finished OK, kept (and reused) while one is left to --resume

@@ -485,3 +485,57 @@ def headline_bars(board: pd.DataFrame, out_dir: str | Path) -> Path:
     ax.grid(True, axis="x", color="#eeeeee")
     fig.tight_layout()
     return _save(fig, Path(out_dir) / "headline.png")
+
+
+#: Markers of the operating characteristic: simulation and csv mode, the paper's reported point.
+OC_MODES = (("simulation", "o", NAVIGATOR_COLOUR), ("csv", "s", SIMULATOR_COLOUR))
+PAPER_COLOUR = "#d62728"
+
+
+def operating_characteristic(oc: pd.DataFrame, detector: str, run_label: str, out_dir: str | Path,
+                             run_alpha: float | None = None,
+                             paper: tuple[float, float, float] | None = None) -> Path:
+    """One detector's flight-level operating characteristic (:func:`benchmark.results.operating_characteristics`'s
+    rows of ``detector``): TP in window per mode against the false-alarm rate measured on the held-out
+    normal flights, one point per target alpha (labelled), the run's own alpha circled; a horizontal bar at
+    each simulation-mode point spans the 95 % spread of the false-alarm rate a threshold calibrated on the
+    run's number of validation flights realises (Beta(n + 1 - k, k)); ``paper``: the paper's (TP simulation,
+    TP csv, TN) in percent, marked at its false-alarm rate 100 - TN."""
+    d = oc[oc["detector"] == detector].sort_values("alpha")
+    if d.empty:
+        raise ReportError(f"no operating characteristic for detector {detector!r} in run {run_label}")
+    fig = Figure(figsize=(6.4, 5.0), dpi=DPI)
+    ax = fig.add_subplot()
+    far = 100 * d["far_no_attack"].to_numpy(float)
+    lo, hi = 100 * d["far_lo"].to_numpy(float), 100 * d["far_hi"].to_numpy(float)
+    for mode, marker, colour in OC_MODES:
+        tp = 100 * d[f"tp_{mode}"].to_numpy(float)
+        if not np.isfinite(tp).any():
+            continue
+        n = int(d[f"n_{mode}"].iloc[0])
+        ax.plot(far, tp, marker=marker, color=colour, lw=1.2, ms=5, label=f"TP in window, {mode} ({n} flights)")
+        if mode == "simulation":
+            ax.hlines(tp, lo, hi, color=colour, alpha=0.3, lw=3,
+                      label=f"spread of the realised rate ({int(d['n_validation'].iloc[0])} validation flights)")
+            same: dict[tuple[float, float], list[float]] = {}  # one label per point: alphas that share it
+            for x, y, a in zip(far, tp, d["alpha"].to_numpy(float)):
+                same.setdefault((float(x), float(y)), []).append(100 * a)
+            for (x, y), a in same.items():
+                text = f"{a[0]:g}%" if len(a) == 1 else f"{a[0]:g}-{a[-1]:g}%"
+                ax.annotate(text, (x, y), textcoords="offset points", xytext=(4, -10), fontsize=7)
+        if run_alpha is not None and np.isclose(d["alpha"], run_alpha).any():
+            i = int(np.flatnonzero(np.isclose(d["alpha"].to_numpy(float), run_alpha))[0])
+            ax.plot(far[i], tp[i], marker="o", ms=12, mfc="none", mec=THRESHOLD_COLOUR, lw=0)
+    if paper is not None:
+        for (mode, _, colour), value in zip(OC_MODES, paper[:2]):
+            ax.plot(100 - paper[2], value, marker="*", ms=14, color=colour, mec=PAPER_COLOUR, mew=1.2, lw=0,
+                    label=f"the paper, {mode}")
+    ax.set_xlim(-1, max(35.0, float(np.nanmax(hi)) + 2 if np.isfinite(hi).any() else 35.0))
+    ax.set_ylim(-2, 102)
+    ax.set_xlabel(f"false alarms on held-out normal flights (%, {int(d['n_no_attack'].iloc[0])} flights)")
+    ax.set_ylabel("attacked flights detected in the attack window (%)")
+    ax.set_title(plain(f"operating characteristic: {detector} ({run_label})", 100), fontsize=10)
+    ax.grid(True, color="#eeeeee")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return _save(fig, Path(out_dir) / f"oc_{safe_name(run_label)}_{safe_name(detector)}.png")

@@ -1,7 +1,10 @@
 """``scart-bench report``: the leaderboard of one or many runs as Markdown, CSV and a self-contained
 HTML page, with the figures (``<out>/figures/*.png``, also embedded in the HTML).
 
-Figures: the headline score per detector; per run, flight-level ROC curves and the TP-rate heatmap;
+Figures: the headline score per detector; per run, flight-level ROC curves, the TP-rate heatmap and
+each detector's operating characteristic (TP in window against false alarms on held-out normal flights
+over a range of alpha, from the saved scores, with the spread of the realised false-alarm rate and the
+paper's point);
 for the first run, one example attacked flight (flagged by the top-ranked detector when possible,
 simulation mode first): its path, a sensor trace and that detector's score. The flight's path and
 trace need the run's dataset (``config.json`` ``dataset.path``); when it is gone they are skipped
@@ -16,12 +19,16 @@ from pathlib import Path
 
 import pandas as pd
 
+from scart_bench.benchmark.metrics import OC_ALPHAS
+from scart_bench.benchmark.protocol import Protocol
+from scart_bench.benchmark.results import operating_characteristics
 from scart_bench.benchmark.store import atomic_write_text
 from scart_bench.dataset import is_dataset, open_dataset
-from scart_bench.errors import ReportError
+from scart_bench.errors import ReportError, ScartBenchError
 from scart_bench.reports import figures as fg
 from scart_bench.reports import html as html_page
 from scart_bench.reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown
+from scart_bench.reports.reference import PAPER
 from scart_bench.reports.results import RunResults, load_runs
 
 
@@ -74,6 +81,27 @@ def _flight_figures(run: RunResults, board: pd.DataFrame, out: Path) -> tuple[li
     return figs, notes
 
 
+def _oc_figures(run: RunResults, out: Path) -> tuple[list[tuple[str, Path]], list[str]]:
+    """Each OK detector's operating characteristic, from the run's saved scores (notes for what is skipped)."""
+    try:
+        oc = operating_characteristics(run.path)
+    except (ScartBenchError, ValueError, OSError) as exc:  # e.g. the job folders were removed: the tables still report
+        return [], [f"{run.label}: operating characteristics skipped: {exc}"]
+    run_alpha = Protocol.from_dict(run.config["identity"]["protocol"]).alpha
+    figs, notes = [], []
+    for det in run.metrics.loc[run.metrics["status"] == "OK", "detector"].astype(str):
+        if not (oc["detector"] == det).any():
+            notes.append(f"{run.label}: no saved scores of {det}; its operating characteristic is skipped")
+            continue
+        n_val = int(oc.loc[oc["detector"] == det, "n_validation"].iloc[0])
+        figs.append((f"Operating characteristic of {det} ({run.label}): TP in window against false alarms on "
+                     f"held-out normal flights for target alpha {', '.join(f'{100 * a:g}' for a in OC_ALPHAS)} %"
+                     f" (the run's alpha circled, the paper's point starred where it reports one); bars: 95 % "
+                     f"spread of the false-alarm rate realised with {n_val} validation flights",
+                     fg.operating_characteristic(oc, det, run.label, out, run_alpha, PAPER.get(det))))
+    return figs, notes
+
+
 def draw_figures(board: pd.DataFrame, runs: list[RunResults], out: Path) -> tuple[list[tuple[str, Path]], list[str]]:
     """Every report figure as (caption, PNG path), and notes on what was skipped."""
     figs: list[tuple[str, Path]] = []
@@ -86,6 +114,9 @@ def draw_figures(board: pd.DataFrame, runs: list[RunResults], out: Path) -> tupl
             continue
         figs.append((f"Flight-level ROC curves: {run.label}", fg.roc_curves(run, out)))
         figs.append((f"TP rate by action x target: {run.label}", fg.tp_heatmap(run, out)))
+        more, why = _oc_figures(run, out)
+        figs += more
+        notes += why
     more, why = _flight_figures(runs[0], board, out)
     return figs + more, notes + why
 

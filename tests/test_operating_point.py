@@ -92,3 +92,41 @@ def test_a_refused_operating_point_names_its_option(run, capsys, option, value):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{option} " in err[0], err
     assert snapshot(run) == before
+
+
+def test_the_operating_characteristic_recounts_the_tables(run):
+    """At the run's alpha and at an evaluation's, the characteristic from the saved scores is the tables' TP
+    and false-alarm rate."""
+    from scart_bench.benchmark.results import operating_characteristics
+
+    assert main(["score", str(run), "--alpha", "0.01", "--jobs", "1"]) == 0
+    oc = operating_characteristics(run, alphas=(0.5, 0.01)).set_index(["detector", "alpha"])
+    for alpha, table in ((0.5, run / "metrics.csv"), (0.01, run / "evaluations" / "alpha-0.01" / "metrics.csv")):
+        m = pd.read_csv(table).set_index("detector")
+        for det in ("zscore_test", "diff_test"):
+            for col in ("tp_simulation", "tp_csv", "far_no_attack", "flight_threshold"):
+                got = oc.loc[(det, alpha), "threshold" if col == "flight_threshold" else col]
+                assert got == pytest.approx(m.loc[det, col]), (alpha, det, col)
+
+
+def test_the_realised_rate_spread_is_the_beta_law_of_the_order_statistic():
+    from scart_bench.benchmark.metrics import realised_rate_spread
+
+    k, mean, lo, hi = realised_rate_spread(60, 0.05)  # the quick profile: the 58th of 60, Beta(3, 58)
+    assert k == 58 and mean == pytest.approx(3 / 61)
+    assert 0.009 < lo < 0.012 and 0.11 < hi < 0.12
+    assert realised_rate_spread(3, 0.01)[0] == 3  # not attainable: the largest, Beta(1, 3)
+    with pytest.raises(ValueError, match="n = 0"):
+        realised_rate_spread(0, 0.05)
+
+
+def test_the_report_has_an_operating_characteristic_for_every_detector(run, tmp_path):
+    out = tmp_path / "report"
+    assert main(["report", str(run), "--out", str(out)]) == 0
+    ok = pd.read_csv(run / "metrics.csv").query("status == 'OK'")["detector"].tolist()
+    assert ok == ["zscore_test", "diff_test"]
+    md = (out / "leaderboard.md").read_text()
+    for det in ok:
+        png = out / "figures" / f"oc_run_{det}.png"
+        assert png.is_file() and png.stat().st_size > 10_000, det
+        assert f"figures/oc_run_{det}.png" in md and f"Operating characteristic of {det}" in md
