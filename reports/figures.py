@@ -536,6 +536,6 @@ def operating_characteristic(oc: pd.DataFrame, detector: str, run_label: str, ou
     ax.set_ylabel("attacked flights detected in the attack window (%)")
     ax.set_title(plain(f"operating characteristic: {detector} ({run_label})", 100), fontsize=10)
     ax.grid(True, color="#eeeeee")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     return _save(fig, Path(out_dir) / f"oc_{safe_name(run_label)}_{safe_name(detector)}.png")
