@@ -102,6 +102,12 @@ def test_dataset_generated_to_run_from_and_reported_from_s3(s3, cluster, tmp_pat
 
     # score and report from the URL
     assert main(["score", run]) == 0
+    # an evaluation at another alpha (issue 46): uploaded beside the saved scores, the run's own tables kept
+    own = s3.cat(f"{BUCKET}/runs/r1/metrics.csv")
+    assert main(["score", run, "--alpha", "0.01"]) == 0
+    s3.invalidate_cache()
+    evaluation = pd.read_csv(s3.open(f"{BUCKET}/runs/r1/evaluations/alpha-0.01/metrics.csv"))
+    assert evaluation.loc[0, "alpha"] == 0.01 and s3.cat(f"{BUCKET}/runs/r1/metrics.csv") == own
     assert main(["report", run, "--out", report, "--no-figures"]) == 0
     printed = capsys.readouterr().out
     assert f"{report}/" in printed
