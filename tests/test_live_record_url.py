@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import os
 import socket
 import threading
 import time
@@ -19,7 +18,9 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="live recording needs pymavlink (pip install scart-bench[mavlink])")
 pytest.importorskip("s3fs")
-moto_server = pytest.importorskip("moto.server")
+pytest.importorskip("moto.server")
+
+from moto_s3 import moto_s3  # noqa: E402
 
 from scart_bench.cli.main import main  # noqa: E402
 from scart_bench.dataset import open_dataset  # noqa: E402
@@ -39,26 +40,8 @@ def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
 @pytest.fixture(scope="module")
 def s3():
     """A moto S3 server on a free port, the environment pointing at it, and a fresh bucket."""
-    import s3fs
-
-    port = _free_port(socket.SOCK_STREAM)
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    env = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
-           "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_EC2_METADATA_DISABLED": "true"}
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    s3fs.S3FileSystem.clear_instance_cache()
-    fs = s3fs.S3FileSystem()
-    fs.mkdir(BUCKET)
-    yield fs
-    for k, v in old.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
-    s3fs.S3FileSystem.clear_instance_cache()
-    server.stop()
+    with moto_s3(BUCKET) as (fs, _):
+        yield fs
 
 
 @pytest.fixture

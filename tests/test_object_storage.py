@@ -5,52 +5,27 @@ folders of their own (no shared path); bad URLs and missing credentials are one 
 from __future__ import annotations
 
 import logging
-import socket
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from moto_s3 import moto_s3
 
 from scart_bench.cli.main import main
 from scart_bench.generator.attacks import SCENARIO_DIR
 
 pytest.importorskip("s3fs")
-moto_server = pytest.importorskip("moto.server")
+pytest.importorskip("moto.server")
 
 BUCKET = "scart-lab"
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
 def s3(tmp_path_factory):
     """A moto S3 server on a free port, the environment pointing at it, and a fresh bucket."""
-    import os
-
-    import s3fs
-
-    port = _free_port()
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    env = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
-           "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_EC2_METADATA_DISABLED": "true"}
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    s3fs.S3FileSystem.clear_instance_cache()
-    fs = s3fs.S3FileSystem()
-    fs.mkdir(BUCKET)
-    yield fs
-    for k, v in old.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
-    s3fs.S3FileSystem.clear_instance_cache()
-    server.stop()
+    with moto_s3(BUCKET) as (fs, _):
+        yield fs
 
 
 @pytest.fixture(scope="module")

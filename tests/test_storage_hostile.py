@@ -18,7 +18,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -26,49 +25,28 @@ import time
 from pathlib import Path
 
 import pytest
+from moto_s3 import moto_s3
 from run_fixtures import plugin, write_dataset
 
 from scart_bench.cli.main import main
 from scart_bench.names import IdError, join_inside, relative_parts
 
 pytest.importorskip("s3fs")
-moto_server = pytest.importorskip("moto.server")
+pytest.importorskip("moto.server")
 
 BUCKET = "scart-hostile"
 ZS = plugin("ZScore")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 @pytest.fixture(scope="module")
 def s3():
-    """A moto S3 server on a free port, the environment pointing at it, a fresh bucket; yields
-    (s3fs filesystem, boto3 client) - the client puts raw keys that s3fs might normalise."""
+    """A moto S3 server with a fresh bucket; yields (s3fs filesystem, boto3 client) - the client puts
+    raw keys that s3fs might normalise."""
     import boto3
-    import s3fs
 
-    port = _free_port()
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    env = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
-           "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_EC2_METADATA_DISABLED": "true"}
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    s3fs.S3FileSystem.clear_instance_cache()
-    fs = s3fs.S3FileSystem()
-    fs.mkdir(BUCKET)
-    yield fs, boto3.client("s3", endpoint_url=env["AWS_ENDPOINT_URL"])
-    for k, v in old.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
-    s3fs.S3FileSystem.clear_instance_cache()
-    server.stop()
+    with moto_s3(BUCKET) as (fs, endpoint):
+        yield fs, boto3.client("s3", endpoint_url=endpoint)
 
 
 @pytest.fixture(scope="module")
