@@ -101,6 +101,7 @@ class Bridge:
         """Run until the vehicle has landed (and ``TAIL_S`` more), crashed, or ``max_s`` of simulated time."""
         ap, link = self.ap, self.link
         pending = link.wait_first(first_timeout_s, alive)
+        link.heartbeat(ap.armed)  # the simulator has spoken: it hears the flight controller at once
         if self.truth_interval_us > 0:
             link.request_truth(self.truth_interval_us)
         wall0 = time.monotonic()

@@ -51,18 +51,20 @@ class SimLink:
         self.received = 0
         self.last_heartbeat = 0.0
 
-    def send(self, msg) -> None:
-        if self.address is None:  # listening, and nobody has spoken yet
-            return
+    def send(self, msg) -> bool:
+        """Send ``msg``; False when listening and no simulator has spoken yet (nowhere to send)."""
+        if self.address is None:
+            return False
         self.sock.sendto(msg.pack(self.mav), self.address)
         self.sent += 1
+        return True
 
     def heartbeat(self, armed: bool) -> None:
         """A PX4 quadrotor's HEARTBEAT (HIL enabled; the armed flag as the motors are)."""
         mode = MODE_HIL | (ARMED if armed else 0)
-        self.send(self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, mode, 0,
-                                            mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY))
-        self.last_heartbeat = time.monotonic()
+        if self.send(self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, mode, 0,
+                                               mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY)):
+            self.last_heartbeat = time.monotonic()
 
     def request_truth(self, interval_us: int) -> None:
         """Ask for HIL_STATE_QUATERNION every ``interval_us`` (MAV_CMD_SET_MESSAGE_INTERVAL)."""
