@@ -240,6 +240,54 @@ def publish_dataset(local: str | Path, url: str, flights_uploaded: bool = False)
     _call(url, fs.put_file, str(local / names[0]), f"{root}/{names[0]}")
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    import filecmp
+
+    return b.is_file() and filecmp.cmp(a, b, shallow=False)
+
+
+def update_dataset(local: str | Path, url: str, base: str | Path) -> None:
+    """Make the dataset at ``url``, of which ``base`` is the local copy as fetched, hold the dataset
+    ``local`` (a command added flights to it), uploading only what changed. New files go up first;
+    when files the old manifest names change or go, the old manifest is removed before them and,
+    should an upload fail, the old files and manifest are put back, so a failure never costs the
+    flights that were already there (a clear and full re-upload could leave them without a manifest)."""
+    local, base = Path(local), Path(base)
+    names = [n for n in MANIFESTS if (local / n).exists()]
+    if not names:
+        raise StorageError(f"{local}: no manifest; only a complete dataset is uploaded to {url}")
+    fs, root = _fs(url)
+    now = {k: p for k, p in _local_files(local, MANIFESTS).items()}
+    before = {k: p for k, p in _local_files(base, MANIFESTS).items()}
+    new = [k for k in now if k not in before]
+    changed = [k for k in now if k in before and not _same_file(now[k], before[k])]
+    gone = [k for k in before if k not in now]
+    if new:
+        upload_folder(local, url, MANIFESTS, only=new)  # not named by the old manifest: harmless until it moves
+    if changed or gone:
+        old_manifests = [n for n in MANIFESTS if (base / n).is_file()]
+        for n in MANIFESTS:
+            if _call(url, fs.exists, f"{root}/{n}"):
+                _call(url, fs.rm_file, f"{root}/{n}")
+        try:
+            if changed:
+                upload_folder(local, url, MANIFESTS, only=changed)
+            if gone:
+                _call(url, fs.rm, [f"{root}/{k}" for k in gone])
+        except BaseException:
+            try:  # the dataset as it was: its files, then its manifest
+                upload_folder(base, url, MANIFESTS, only=changed + gone)
+                for n in old_manifests:
+                    _call(url, fs.put_file, str(base / n), f"{root}/{n}")
+            except Exception:  # noqa: S110 - the first error is the one to report
+                pass
+            raise
+    for n in MANIFESTS:  # the other manifest format, if the dataset changed format
+        if n != names[0] and _call(url, fs.exists, f"{root}/{n}"):
+            _call(url, fs.rm_file, f"{root}/{n}")
+    _call(url, fs.put_file, str(local / names[0]), f"{root}/{names[0]}")
+
+
 def fetch_folder(url: str, dest: str | Path) -> bool:
     """Download every object under ``url`` into ``dest``; False when there is nothing there. Every key
     is checked first (:func:`scart_bench.names.join_inside`): a hostile one refuses the whole URL."""
@@ -416,12 +464,17 @@ def staged_dataset(location: str | Path, overwrite: bool = False) -> Iterator[Pa
     check_writable(url)
     with owned_tempdir(STAGE_PREFIX) as tmp:
         local = tmp / stage_name(url, "dataset")
+        base = None
         if has_manifest(url):
-            shutil.copytree(fetch_dataset(url), local)
+            base = fetch_dataset(url)
+            shutil.copytree(base, local)
         elif has_objects(url) and not overwrite:
             raise StorageError(f"{url}: holds objects but no manifest (not a complete scart-bench dataset); "
                                "choose a new prefix, or pass --overwrite to replace them")
         yield local
         if is_dataset(local):
-            clear(url)
-            publish_dataset(local, url)
+            if base is not None and (base / (has_manifest(url) or "")).is_file():
+                update_dataset(local, url, base)  # only what changed; the old dataset kept on failure
+            else:
+                clear(url)
+                publish_dataset(local, url)

@@ -254,6 +254,52 @@ def test_a_jobs_status_is_uploaded_after_its_scores_and_the_checksums(s3, tmp_pa
     assert order == ["checksums.json", "jobs/a/scores.npz", "jobs/a/status.json"]
 
 
+def test_adding_to_a_url_dataset_uploads_only_the_change_and_a_failure_keeps_the_old_dataset(s3, tmp_path,
+                                                                                               monkeypatch):
+    """A flight added to a dataset at a URL (sitl/proxy --record, attack --dataset) uploads what changed;
+    a failed upload puts the old files and manifest back (a clear and full re-upload left the flights
+    that were already there without a manifest)."""
+    from scart_bench import storage
+
+    fs, client = s3
+    base = tmp_path / "base"
+    for rel, text in {"manifest.parquet": "m1", "dataset.json": "d1", "flights/a/x": "a"}.items():
+        (base / rel).parent.mkdir(parents=True, exist_ok=True)
+        (base / rel).write_text(text)
+    url = f"s3://{BUCKET}/append/ds"
+    storage.publish_dataset(base, url)
+    local = tmp_path / "local"
+    shutil.copytree(base, local)
+    (local / "flights/b").mkdir()
+    (local / "flights/b/x").write_text("b")
+    (local / "manifest.parquet").write_text("m2")
+    (local / "dataset.json").write_text("d2")
+
+    def body(key: str) -> str:
+        return client.get_object(Bucket=BUCKET, Key=f"append/ds/{key}")["Body"].read().decode()
+
+    real = storage.upload_folder
+    uploaded: list[str] = []
+
+    def failing(src, dest, exclude=(), only=None):
+        if "dataset.json" in (only or ()) and Path(src) == local:
+            raise OSError("connection reset while uploading dataset.json")
+        uploaded.extend(only or ())
+        return real(src, dest, exclude, only=only)
+
+    monkeypatch.setattr(storage, "upload_folder", failing)
+    with pytest.raises(OSError, match="connection reset"):
+        storage.update_dataset(local, url, base)
+    assert body("manifest.parquet") == "m1" and body("dataset.json") == "d1" and body("flights/a/x") == "a"
+
+    uploaded.clear()
+    monkeypatch.setattr(storage, "upload_folder", lambda src, dest, exclude=(), only=None: (
+        uploaded.extend(only or ()), real(src, dest, exclude, only=only)))
+    storage.update_dataset(local, url, base)
+    assert body("manifest.parquet") == "m2" and body("dataset.json") == "d2" and body("flights/b/x") == "b"
+    assert sorted(uploaded) == ["dataset.json", "flights/b/x"]  # flights/a was already there
+
+
 def test_stale_temp_folders_only_of_dead_owners_are_removed(tmp_path, monkeypatch):
     from scart_bench.cli.common import owned_tempdir, remove_stale_temp
 
