@@ -3,9 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import shutil
 
-from scart_bench.cli.common import LAYOUT_HELP, LAYOUTS, UsageError, check_seed, staged_dataset, topic_list
+from scart_bench.cli.common import (
+    LAYOUT_HELP,
+    LAYOUTS,
+    UsageError,
+    check_seed,
+    removed_on_failure,
+    staged_dataset,
+    topic_list,
+)
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
@@ -27,14 +34,9 @@ def cmd_attack(args: argparse.Namespace) -> int:
     if not args.input or not args.out:
         raise UsageError("give --input LOG --out DIR (one log), or --dataset DATASET (its test flights)")
     with staged_dataset(args.out, overwrite=args.overwrite) as out:  # at a URL: written in a local copy, uploaded once done
-        existed = out.exists()
-        try:
+        with removed_on_failure(out):
             attack_file(args.input, args.scenario, out, fmt=args.format, seed=args.seed, overwrite=args.overwrite,
                         topics=topic_list(args.topics), allow_corrupt=args.allow_corrupt, layout=args.layout)
-        except BaseException:
-            if not existed:
-                shutil.rmtree(out, ignore_errors=True)
-            raise
     print(f"attacked copy written to {out}")
     return 0
 

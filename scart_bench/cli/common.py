@@ -6,6 +6,7 @@ Library code raises the errors of :mod:`scart_bench.errors`; ``UsageError`` is f
 
 from __future__ import annotations
 
+import shutil
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -111,6 +112,21 @@ def staged_folder(location: str | Path, exclude: tuple[str, ...] = ("cache",), w
     made in a staging folder owned by this process; those of killed processes are removed here."""
     with stage_folder(location, exclude, write) as staged:
         yield staged.path
+
+
+@contextmanager
+def removed_on_failure(out: Path | str) -> Iterator[None]:
+    """Remove ``out`` when the block fails and ``out`` did not exist before it (a URL is left to its
+    staging): nothing half-written looks like a new dataset."""
+    from scart_bench.storage import is_url
+
+    existed = is_url(out) or Path(out).exists()
+    try:
+        yield
+    except BaseException:
+        if not existed:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
 
 
 def print_tables(path: Path, metrics, shown: str | None = None, label: str = "run folder") -> None:

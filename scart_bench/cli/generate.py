@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import shutil
 
 from scart_bench.cli.common import (
     LAYOUT_HELP,
@@ -12,6 +11,7 @@ from scart_bench.cli.common import (
     UsageError,
     check_seed,
     remove_stale_temp,
+    removed_on_failure,
 )
 from scart_bench.generator.profiles import PROFILES
 
@@ -61,18 +61,12 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from scart_bench.storage import is_url, local_path
 
     out = args.out if is_url(args.out) else local_path(args.out)
-    existed = is_url(out) or out.exists()
-    try:
-        with Progress("generate", "flights") as progress:
-            generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
-                             overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
-                             scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
-                             uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
-                             scheduler=args.scheduler, jobs=args.jobs, progress=progress)
-    except BaseException:
-        if not existed:
-            shutil.rmtree(out, ignore_errors=True)  # nothing half-written is left behind
-        raise
+    with removed_on_failure(out), Progress("generate", "flights") as progress:  # nothing half-written is left
+        generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
+                         overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
+                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
+                         uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
+                         scheduler=args.scheduler, jobs=args.jobs, progress=progress)
     print(f"dataset written to {out}")
     return 0
 
@@ -92,14 +86,9 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     configs = [] if args.normal_only else attack_configs(args.scenarios, n)
     csv_configs = [] if args.normal_only else attack_configs(args.scenarios, n, link_only=True)
     out = local_path(args.out)
-    existed = out.exists()
-    try:
+    with removed_on_failure(out):
         generate_jmavsim(out, args.jmavsim, seed=args.seed, n_normal=n, configs=configs, fmt=args.format,
                          overwrite=args.overwrite, log=lambda msg: print(msg, flush=True), csv_configs=csv_configs)
-    except BaseException:
-        if not existed:
-            shutil.rmtree(out, ignore_errors=True)
-        raise
     print(f"dataset written to {out}")
     return 0
 
