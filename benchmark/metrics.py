@@ -399,6 +399,14 @@ class ThresholdFree(Metric):
         return out
 
 
+def _pooled_rows(ev: Evaluation) -> tuple[np.ndarray, np.ndarray] | None:
+    """(labels, alarms) of every row of the test flights, concatenated; None without test flights."""
+    ids = ev.test().index
+    if len(ids) == 0:
+        return None
+    return np.concatenate([ev.rows[f].label for f in ids]), np.concatenate([ev.rows[f].alarm for f in ids])
+
+
 class PointwisePRF(Metric):
     """Point-wise precision / recall / F1 over the rows of all test flights."""
 
@@ -406,11 +414,10 @@ class PointwisePRF(Metric):
     columns = ("point_precision", "point_recall", "point_f1")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
-        ids = ev.test().index
-        if len(ids) == 0:
+        pooled = _pooled_rows(ev)
+        if pooled is None:
             return dict.fromkeys(self.columns, float("nan"))
-        y = np.concatenate([ev.rows[f].label for f in ids])
-        p = np.concatenate([ev.rows[f].alarm for f in ids])
+        y, p = pooled
         return dict(zip(self.columns, point_prf(y, p)))
 
 
@@ -422,11 +429,10 @@ class RangePRF(Metric):
     columns = ("r_precision", "r_recall", "r_f1")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
-        ids = ev.test().index
-        if len(ids) == 0:
+        pooled = _pooled_rows(ev)
+        if pooled is None:
             return dict.fromkeys(self.columns, float("nan"))
-        y = np.concatenate([ev.rows[f].label for f in ids])
-        p = np.concatenate([ev.rows[f].alarm for f in ids])
+        y, p = pooled
         return dict(zip(self.columns, r_prf(y, p)))
 
 
