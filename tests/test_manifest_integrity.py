@@ -450,31 +450,41 @@ def _write_manifest(m: pd.DataFrame, root: Path, fmt: str) -> bool:
         return True
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(fmt=st.sampled_from(["parquet", "csv"]), row=st.integers(0, 15),
-       column=st.sampled_from(["flight_id", "mode", "split", "rows", "duration_s", "attack_start_us",
-                               "attack_end_us", "checksum", "seed", "no_effect", "scenario_id", "effect_rows"]),
-       value=st.one_of(st.sampled_from(HOSTILE), st.integers(-10**6, 10**8), st.sampled_from(
-           ["train", "test", "simulation", "csv", "sim-000", "normal-000", "b2:" + "0" * 32])),
-       drop=st.booleans())
-def test_random_manifests_read_or_are_refused_in_one_line(compact_ds, paper_ds, fmt, row, column, value, drop):
-    base_root = compact_ds if fmt == "parquet" else paper_ds
+def _mutate(base_root: Path, root: Path, fmt: str, row: int, column: str, value, drop: bool) -> bool:
+    """A copy of the dataset ``base_root`` at ``root`` whose manifest has ``column`` of flight ``row`` set
+    to ``value`` (or, with ``drop``, the column removed); True when reading it must fail."""
     base = open_dataset(base_root).manifest
     fid = str(base["flight_id"].iloc[row])
+    shutil.copytree(base_root, root, copy_function=os.link)  # the flights' files shared, not copied
+    _manifest_file(root).unlink()
+    m = base.copy()
+    if drop:  # the column missing altogether
+        m = m.drop(columns=column)
+        _write_manifest(m, root, fmt)
+        return column in ("flight_id", "mode", "split", "attack_start_us", "attack_end_us")
+    m[column] = m[column].astype(object)
+    m.loc[m["flight_id"] == fid, column] = [value]
+    as_text = _write_manifest(m, root, fmt)
+    return _expectation(base, column, fid, value, fmt, as_text)
+
+
+MANIFEST_CASES = dict(
+    fmt=st.sampled_from(["parquet", "csv"]), row=st.integers(0, 15),
+    column=st.sampled_from(["flight_id", "mode", "split", "rows", "duration_s", "attack_start_us",
+                            "attack_end_us", "checksum", "seed", "no_effect", "scenario_id", "effect_rows"]),
+    value=st.one_of(st.sampled_from(HOSTILE), st.integers(-10**6, 10**8), st.sampled_from(
+        ["train", "test", "simulation", "csv", "sim-000", "normal-000", "b2:" + "0" * 32])),
+    drop=st.booleans())
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(**MANIFEST_CASES)
+def test_random_manifests_read_or_are_refused_in_one_line(compact_ds, paper_ds, fmt, row, column, value, drop):
+    base_root = compact_ds if fmt == "parquet" else paper_ds
+    fid = str(open_dataset(base_root).manifest["flight_id"].iloc[row])
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp) / "ds"
-        shutil.copytree(base_root, root, copy_function=os.link)  # the flights' files shared, not copied
-        _manifest_file(root).unlink()
-        m = base.copy()
-        if drop:  # the column missing altogether
-            m = m.drop(columns=column)
-            must_fail = column in ("flight_id", "mode", "split", "attack_start_us", "attack_end_us")
-            _write_manifest(m, root, fmt)
-        else:
-            m[column] = m[column].astype(object)
-            m.loc[m["flight_id"] == fid, column] = [value]
-            as_text = _write_manifest(m, root, fmt)
-            must_fail = _expectation(base, column, fid, value, fmt, as_text)
+        must_fail = _mutate(base_root, root, fmt, row, column, value, drop)
         try:
             _read_for_a_run(root)
         except ScartBenchError as exc:
@@ -487,3 +497,24 @@ def test_random_manifests_read_or_are_refused_in_one_line(compact_ds, paper_ds, 
                 column == "checksum" and "changed since it was written" in msg), msg
             return
         assert not must_fail, f"{column}={value!r} on {fid} ({fmt}, drop={drop}) was accepted"
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(**MANIFEST_CASES)
+def test_run_on_a_random_manifest_works_or_exits_2_in_one_line(compact_ds, paper_ds, capsys, fmt, row, column,
+                                                               value, drop):
+    """The same hostile manifests through the ``run`` command itself: exit 0, or exit 2 with one line
+    (never a traceback, never exit 0 on a manifest that must be refused)."""
+    base_root = compact_ds if fmt == "parquet" else paper_ds
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) / "ds"
+        must_fail = _mutate(base_root, root, fmt, row, column, value, drop)
+        capsys.readouterr()
+        rc = main(["run", "--dataset", str(root), "--detectors", "zscore_test", "--plugin", ZS,
+                   "--out", str(Path(tmp) / "run"), "--jobs", "1"])
+        err = capsys.readouterr().err.strip()
+        assert rc in (0, 2), err
+        if rc == 2:
+            assert len(err.splitlines()) == 1 and err.startswith("scart-bench run: error: "), err
+        else:
+            assert not must_fail, f"run accepted {column}={value!r} ({fmt}, drop={drop})"
