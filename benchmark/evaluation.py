@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol, counted_max, counted_rows
+from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol, counted_masks, counted_max
 from scart_bench.errors import ScartBenchError
 
 
@@ -157,9 +157,7 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
     scored["flight_id"] = scored["flight_id"].astype(str)
     scored = scored.set_index("flight_id", drop=False)
     checked = _checked_scores(detector, scored, truth, scores)
-    armed = (pd.to_numeric(scored["armed_us"], errors="coerce") if "armed_us" in scored.columns
-             else pd.Series(np.nan, index=scored.index))
-    counted = {fid: counted_rows(truth[fid][0], armed[fid], protocol.burn_in_s) for fid in scored.index}
+    counted = counted_masks(protocol, scored, {fid: truth[fid][0] for fid in scored.index})
     validation = {fid: checked[fid] for fid in scored.index[scored["role"] == "validation"]}
     t_flight, t_row = protocol.thresholds(validation, counted)
     own = protocol.alarm_rule == "own" and alarms is not None
@@ -266,6 +264,11 @@ def calibration_table(ev: Evaluation) -> pd.DataFrame:
     val = ev.flights[ev.flights["role"] == "validation"]
     armed = (pd.to_numeric(val["armed_us"], errors="coerce") if "armed_us" in val.columns
              else pd.Series(np.nan, index=val.index))
+    def bound(col: str) -> pd.Series:
+        return (pd.to_numeric(val[col], errors="coerce") if col in val.columns
+                else pd.Series(np.nan, index=val.index))
+
+    lift, down = bound("liftoff_us"), bound("touchdown_us")
     rows = []
     for fid in val.index:
         fr = ev.rows[fid]
@@ -275,7 +278,17 @@ def calibration_table(ev: Evaluation) -> pd.DataFrame:
         raw = fr.timestamp[int(np.argmax(fr.score))]
         rows.append({"flight_id": fid, "score": float(val.at[fid, "score"]), "max_after_arming_s": (at - arm) / 1e6,
                      "raw_max_after_arming_s": (raw - arm) / 1e6,
+                     "max_after_liftoff_s": (at - lift[fid]) / 1e6 if not pd.isna(lift[fid]) else np.nan,
+                     "max_before_touchdown_s": (down[fid] - at) / 1e6 if not pd.isna(down[fid]) else np.nan,
                      "sets_threshold": bool(math.isfinite(ev.flight_threshold)
                                             and float(val.at[fid, "score"]) == ev.flight_threshold)})
-    return pd.DataFrame(rows, columns=["flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
-                                       "sets_threshold"])
+    cols = [c for c in CALIBRATION_COLUMNS if "liftoff_us" in val.columns or c not in PHASE_CALIBRATION_COLUMNS]
+    return pd.DataFrame(rows, columns=cols)
+
+
+#: calibration.csv's columns (per validation flight): seconds are from arming, take-off and to touchdown
+#: (the last two empty where the run has no phase bounds)
+CALIBRATION_COLUMNS = ("flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
+                       "max_after_liftoff_s", "max_before_touchdown_s", "sets_threshold")
+#: the columns a run without phase bounds (made before protocol v3) does not have
+PHASE_CALIBRATION_COLUMNS = ("max_after_liftoff_s", "max_before_touchdown_s")

@@ -501,6 +501,10 @@ class FalseAlarmRate(Metric):
 
 #: Seconds after arming within which a validation maximum counts as "near arming" in the summary.
 NEAR_ARMING_S = 10.0
+#: Seconds from take-off or touchdown within which a validation maximum counts as "near the ends".
+NEAR_ENDS_S = 3.0
+#: CalibrationPoint's columns that a run without phase bounds leaves empty (and out of metrics.csv)
+PHASE_METRIC_COLUMNS = ("threshold_after_liftoff_s", "threshold_before_touchdown_s", "val_max_near_ends")
 
 
 class CalibrationPoint(Metric):
@@ -509,17 +513,29 @@ class CalibrationPoint(Metric):
     rows), and how many of the raw maxima (all rows) the burn-in took out."""
 
     name = "calibration"
-    columns = ("threshold_after_arming_s", "val_max_near_arming", "val_raw_max_in_burn_in")
+    columns = ("threshold_after_arming_s", "val_max_near_arming", "val_raw_max_in_burn_in",
+               "threshold_after_liftoff_s", "threshold_before_touchdown_s", "val_max_near_ends")
 
     def compute(self, ev: Evaluation) -> dict[str, float]:
         cal = calibration_table(ev)
         sets = cal[cal["sets_threshold"]]
         burn_in = ev.protocol.burn_in_s if ev.protocol is not None else 0.0
         raw = cal["raw_max_after_arming_s"]
-        return {"threshold_after_arming_s": float(sets["max_after_arming_s"].iloc[0]) if len(sets) else float("nan"),
-                "val_max_near_arming": int(((cal["max_after_arming_s"] >= 0)
-                                            & (cal["max_after_arming_s"] < NEAR_ARMING_S)).sum()),
-                "val_raw_max_in_burn_in": int((raw < burn_in).sum()) if burn_in > 0 else 0}
+        out = {"threshold_after_arming_s": float(sets["max_after_arming_s"].iloc[0]) if len(sets) else float("nan"),
+               "val_max_near_arming": int(((cal["max_after_arming_s"] >= 0)
+                                           & (cal["max_after_arming_s"] < NEAR_ARMING_S)).sum()),
+               "val_raw_max_in_burn_in": int((raw < burn_in).sum()) if burn_in > 0 else 0,
+               "threshold_after_liftoff_s": float("nan"), "threshold_before_touchdown_s": float("nan"),
+               "val_max_near_ends": float("nan")}
+        if "max_after_liftoff_s" in cal.columns:
+            lift = pd.to_numeric(cal["max_after_liftoff_s"], errors="coerce")
+            down = pd.to_numeric(cal["max_before_touchdown_s"], errors="coerce")
+            near = (lift.abs() < NEAR_ENDS_S) | (down.abs() < NEAR_ENDS_S)
+            out.update(val_max_near_ends=int(near.sum()))
+            if len(sets):
+                out.update(threshold_after_liftoff_s=float(lift[sets.index[0]]),
+                           threshold_before_touchdown_s=float(down[sets.index[0]]))
+        return out
 
 
 class ScoringLatency(Metric):

@@ -52,6 +52,7 @@ only validation scores.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -62,7 +63,8 @@ from scart_bench.errors import ScartBenchError
 
 __all__ = [
     "ATTACK_MODES", "NORMAL_MODE", "ROLES", "Protocol", "ProtocolError", "Splits",
-    "ThresholdRule", "arming_time_us", "conformal_rank", "counted_rows", "flight_score",
+    "ThresholdRule", "arming_time_us", "conformal_rank", "counted_rows", "flight_phase_bounds", "flight_score",
+    "phase_counted_rows",
 ]
 
 NORMAL_MODE = "normal"
@@ -285,6 +287,112 @@ def counted_rows(timestamps: np.ndarray, armed_us: float | None, burn_in_s: floa
     return ts >= arm + int(round(burn_in_s * 1e6))
 
 
+#: Counting rules for the ends of a flight (``Protocol.phases``): ``"burn-in"`` (protocol v2: rows
+#: from ``burn_in_s`` after arming on, to the end of the recording) and ``"ends"`` (v3: the airborne
+#: rows from ``phase_margin_s`` after take-off to ``phase_margin_s`` before touchdown, both read
+#: from the flight's own phases) and ``"cruise"`` (the rows from the end of the climb plus
+#: ``phase_margin_s`` to ``phase_margin_s`` before the final descent: both transients out whole).
+PHASE_RULES = ("burn-in", "ends", "cruise")
+#: Default margin (seconds) after take-off and before touchdown of the "ends" rule.
+DEFAULT_PHASE_MARGIN_S = 3.0
+#: A flight's phase bounds (microseconds, ``Timestamp``; <NA> where the flight has none) and their source:
+#: take-off (the first airborne row), the end of the climb (the first row after take-off in neither
+#: the take-off nor the climb phase), the start of the final descent (the first row of the descent
+#: run that ends at touchdown) and touchdown (the first landed row after the last airborne one).
+PHASE_COLUMNS = ("liftoff_us", "climb_end_us", "descent_start_us", "touchdown_us", "phases_by")
+
+
+def _topic_tables(flight: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """A flat flight table (``topic.field`` columns on one row grid) as ``{topic: table}`` with its
+    ``Timestamp``, as generator.logs.phases reads a recorded log."""
+    ts = flight["Timestamp"].to_numpy(np.int64)
+    topics: dict[str, dict[str, np.ndarray]] = {}
+    for col in flight.columns:
+        if not isinstance(col, str) or "." not in col:
+            continue
+        topic, _, name = col.rpartition(".")
+        v = pd.to_numeric(flight[col], errors="coerce")
+        if v.notna().any():
+            topics.setdefault(topic, {"Timestamp": ts})[name] = v.to_numpy(np.float64)
+    return {t: pd.DataFrame(cols) for t, cols in topics.items()}
+
+
+def flight_phase_bounds(flight: pd.DataFrame) -> dict[str, object]:
+    """The flight's phase bounds (:data:`PHASE_COLUMNS`), read from the flight itself with the phase
+    detection real logs get (:func:`scart_bench.generator.logs.phases.flight_phases`: the log's
+    land detector and flight mode where it has them, else altitude and vertical speed).
+
+    A flight that starts in the air takes off at its first row; one that never lands touches down
+    after its last row (``touchdown_us`` <NA>). ``phases_by`` names the sources, or why there are no
+    bounds (no altitude in the flight, never airborne): such a flight is counted by the burn-in rule.
+    """
+    from scart_bench.generator.logs.phases import CLIMB, PHASES, TAKEOFF, flight_phases
+
+    out: dict[str, object] = dict.fromkeys(PHASE_COLUMNS[:-1], pd.NA)
+    if "Timestamp" not in flight.columns or not len(flight):
+        return {**out, "phases_by": "none: empty flight"}
+    try:
+        ph = flight_phases(_topic_tables(flight))
+    except ValueError:
+        return {**out, "phases_by": "none: no altitude in the flight"}
+    t = ph["Timestamp"].to_numpy(np.int64)
+    code = np.array([PHASES.index(p) for p in ph["phase"]])
+    air = np.flatnonzero(code != 0)
+    if not air.size:
+        return {**out, "phases_by": "none: never airborne"}
+    lift, last = int(air[0]), int(air[-1])
+    out["liftoff_us"] = int(t[lift])
+    rest = np.flatnonzero((np.arange(len(t)) > lift) & (code != TAKEOFF) & (code != CLIMB))
+    if rest.size:
+        out["climb_end_us"] = int(t[rest[0]])
+    if last + 1 < len(t):
+        out["touchdown_us"] = int(t[last + 1])
+    k = last
+    while k > lift and code[k] == PHASES.index("descent"):
+        k -= 1
+    if k < last:
+        out["descent_start_us"] = int(t[k + 1])
+    a = ph.attrs
+    out["phases_by"] = f"altitude {a.get('altitude')}; landed {a.get('landed')}" + (
+        f"; mode {a['mode']}" if a.get("mode") else "")
+    return out
+
+
+def phase_counted_rows(timestamps: np.ndarray, liftoff_us: float | None, touchdown_us: float | None,
+                       margin_s: float) -> np.ndarray:
+    """Rows the "ends" rule counts: from ``margin_s`` after take-off to ``margin_s`` before
+    touchdown (to the end of the recording when the flight does not land in it)."""
+    ts = np.asarray(timestamps, dtype=np.int64).reshape(-1)
+    m = int(round(margin_s * 1e6))
+    keep = ts >= int(liftoff_us) + m
+    if touchdown_us is not None and not pd.isna(touchdown_us):
+        keep &= ts < int(touchdown_us) - m
+    return keep
+
+
+def counted_masks(protocol: Protocol, flights: pd.DataFrame,
+                  timestamps: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per flight id (``flights`` indexed by it), the rows the protocol counts. Under the "ends" rule
+    a flight without phase bounds (``liftoff_us`` <NA>: no altitude, never airborne) is counted by
+    the burn-in rule; the flights table must carry the bounds (:data:`PHASE_COLUMNS`)."""
+    armed = (pd.to_numeric(flights["armed_us"], errors="coerce") if "armed_us" in flights.columns
+             else pd.Series(np.nan, index=flights.index))
+    if protocol.phases != "burn-in":
+        first, last = (("liftoff_us", "touchdown_us") if protocol.phases == "ends"
+                       else ("climb_end_us", "descent_start_us"))
+        missing = [c for c in (first, last) if c not in flights.columns]
+        if missing:
+            raise ProtocolError(f"the {protocol.phases!r} counting rule needs each flight's phase bounds "
+                                f"({', '.join(missing)} missing); score the run with its dataset at hand "
+                                f"(scart-bench score RUN --phases {protocol.phases})")
+        lo = pd.to_numeric(flights[first], errors="coerce")
+        hi = pd.to_numeric(flights[last], errors="coerce")
+        return {fid: (phase_counted_rows(timestamps[fid], lo[fid], hi[fid], protocol.phase_margin_s)
+                      if not pd.isna(lo[fid]) else counted_rows(timestamps[fid], armed[fid], protocol.burn_in_s))
+                for fid in flights.index}
+    return {fid: counted_rows(timestamps[fid], armed[fid], protocol.burn_in_s) for fid in flights.index}
+
+
 def counted_max(scores: np.ndarray, counted: np.ndarray) -> float:
     """The flight score: the largest score over the counted rows (the smallest score of the
     flight when no row is counted: such a flight is never flagged)."""
@@ -305,9 +413,14 @@ class Protocol:
     burn_in_s: float = DEFAULT_BURN_IN_S
     end_transient_s: float = DEFAULT_END_TRANSIENT_S
     alarm_rule: str = "calibrated"
+    #: which rows count at the flight's ends (:data:`PHASE_RULES`) and the "ends" rule's margin
+    phases: str = "burn-in"
+    phase_margin_s: float = DEFAULT_PHASE_MARGIN_S
 
     def __post_init__(self) -> None:
-        for name in ("burn_in_s", "end_transient_s"):
+        if self.phases not in PHASE_RULES:
+            raise ProtocolError(f"counting rule {self.phases!r}: expected one of {', '.join(PHASE_RULES)}")
+        for name in ("burn_in_s", "end_transient_s", "phase_margin_s"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and 0 <= v <= MAX_PROTOCOL_S):
                 raise ProtocolError(f"{name} {v!r}: expected a finite number of seconds in 0..{MAX_PROTOCOL_S:g}")
@@ -336,13 +449,29 @@ class Protocol:
 
     def rules(self) -> dict:
         """The rules as plain data (what makes two runs' thresholds comparable)."""
-        return {"flight_rule": asdict(self.flight_rule), "row_rule": asdict(self.row_rule),
-                "burn_in_s": float(self.burn_in_s), "end_transient_s": float(self.end_transient_s),
-                "alarm_rule": self.alarm_rule}
+        out = {"flight_rule": asdict(self.flight_rule), "row_rule": asdict(self.row_rule),
+               "burn_in_s": float(self.burn_in_s), "end_transient_s": float(self.end_transient_s),
+               "alarm_rule": self.alarm_rule}
+        if self.phases != "burn-in":  # v2's rules read as they always did
+            out.update(phases=self.phases, phase_margin_s=float(self.phase_margin_s))
+        return out
+
+    def counting(self) -> str:
+        """Which rows count, in a sentence."""
+        if self.phases != "burn-in":
+            span = ("take-off", "touchdown") if self.phases == "ends" else ("the end of the climb",
+                                                                            "the final descent")
+            return (f"airborne rows from {self.phase_margin_s:g} s after {span[0]} to {self.phase_margin_s:g} s "
+                    f"before {span[1]} (phases read from the flight; a flight without them: rows from "
+                    f"{self.burn_in_s:g} s after arming)")
+        return (f"rows from {self.burn_in_s:g} s after arming (start-up, arming, spin-up left out)"
+                if self.burn_in_s else "every row")
 
     def to_dict(self) -> dict:
         return {**self.rules(),
-                "flight_score": "max row score outside the burn-in" if self.burn_in_s else "max row score",
+                "flight_score": ("max row score over the counted rows" if self.phases != "burn-in"
+                                 else "max row score outside the burn-in" if self.burn_in_s else "max row score"),
+                "counted_rows": self.counting(),
                 "flight_threshold": self.flight_rule.describe() + " (validation flight scores)",
                 "row_threshold": self.row_rule.describe() + (
                     " (the same validation flight scores)" if self.row_rule.kind in FLIGHT_KINDS
@@ -363,4 +492,5 @@ class Protocol:
 
         return cls(rule(d["flight_rule"]), rule(d["row_rule"]), burn_in_s=float(d.get("burn_in_s", 0.0)),
                    end_transient_s=float(d.get("end_transient_s", 0.0)),
-                   alarm_rule=str(d.get("alarm_rule", "calibrated")))
+                   alarm_rule=str(d.get("alarm_rule", "calibrated")), phases=str(d.get("phases", "burn-in")),
+                   phase_margin_s=float(d.get("phase_margin_s", DEFAULT_PHASE_MARGIN_S)))

@@ -14,12 +14,19 @@ from pathlib import Path
 
 import pandas as pd
 
-from scart_bench.benchmark.evaluation import ScoreError, build_evaluation, calibration_table
+from scart_bench.benchmark.evaluation import (
+    CALIBRATION_COLUMNS,
+    PHASE_CALIBRATION_COLUMNS,
+    ScoreError,
+    build_evaluation,
+    calibration_table,
+)
 from scart_bench.benchmark.metrics import (
     DEFAULT_METRICS,
     NEAR_ARMING_S,
     OC_ALPHAS,
     OC_COLUMNS,
+    PHASE_METRIC_COLUMNS,
     compute_metrics,
     operating_characteristic,
 )
@@ -161,8 +168,7 @@ def _write_tables(store: RunStore, config: dict, done: list[tuple], prefix: str 
         columns=["detector", *FLIGHT_SCORE_COLUMNS])
     store.write_table(f"{prefix}flight_scores.csv", fs)
     cal = pd.concat(calibrations, ignore_index=True) if calibrations else pd.DataFrame(
-        columns=["detector", "flight_id", "score", "max_after_arming_s", "raw_max_after_arming_s",
-                 "sets_threshold"])
+        columns=["detector", *(c for c in CALIBRATION_COLUMNS if c not in PHASE_CALIBRATION_COLUMNS)])
     store.write_table(f"{prefix}calibration.csv", cal)
     return metrics
 
@@ -171,7 +177,10 @@ def _metrics_of(done: list[tuple]) -> pd.DataFrame:
     """The metrics table (one row per job, metrics.csv's columns) of :func:`_score_detectors`'s result."""
     columns = ["detector", "status", "message", *(c for m in DEFAULT_METRICS for c in m.columns),
                "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
-    return pd.DataFrame([row for row, _, _, _ in done], columns=columns)
+    table = pd.DataFrame([row for row, _, _, _ in done], columns=columns)
+    # a run without phase bounds (made before protocol v3) keeps metrics.csv's columns as they were
+    empty = [c for c in PHASE_METRIC_COLUMNS if table[c].isna().all()]
+    return table.drop(columns=empty)
 
 
 def score_run(path: str | Path, write: bool = True, processes: int | None = None) -> pd.DataFrame:

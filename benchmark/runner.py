@@ -46,7 +46,7 @@ from scart_bench.benchmark.flight_cache import (
     remove_cache,
 )
 from scart_bench.benchmark.jobs import JobResult, JobSpec
-from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign_roles
+from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign_roles, flight_phase_bounds
 from scart_bench.benchmark.results import paper_table, score_run, write_results
 from scart_bench.benchmark.selection import DetectorChoice, load_plugins, resolve_detectors, with_params
 from scart_bench.benchmark.sharding import ShardedScoring
@@ -152,14 +152,16 @@ class RunOutcome:
     skipped: list[str]
 
 
-def _truth(ds, flight_ids) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, tuple[int, str]]]:
-    """Labels (timestamps, Is_Anomaly) and arming time of every scored flight, each read once."""
-    out, arming = {}, {}
+def _truth(ds, flight_ids) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, tuple[int, str]],
+                                    dict[str, dict]]:
+    """Labels (timestamps, Is_Anomaly), arming time and phase bounds of every scored flight, each read once."""
+    out, arming, phases = {}, {}, {}
     for fid in flight_ids:
         f = ds.flight(fid)
         out[fid] = (f["Timestamp"].to_numpy(np.int64), f["Is_Anomaly"].to_numpy(np.int8))
         arming[fid] = arming_time_us(f)
-    return out, arming
+        phases[fid] = flight_phase_bounds(f)
+    return out, arming, phases
 
 
 def _flight_cache(store: RunStore, read, key: dict, flight_ids: list[str], note,
@@ -329,10 +331,11 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
         read = DatasetReader(ds.path) if transfer is None else transfer.reader
         cache = (_flight_cache(store, read, key, [*splits.train, *splits.scored], progress.note, readers)
                  if len(skipped) < len(chosen) else None)
-        if not store.has_truth() or not store.has_arming():
-            truth, arming = _truth(cache or (ds if transfer is None else transfer.reader), splits.scored)
+        if not store.has_truth() or not store.has_arming() or not store.has_phases():
+            truth, arming, phases = _truth(cache or (ds if transfer is None else transfer.reader), splits.scored)
             store.write_truth(truth)
             store.write_arming(arming)
+            store.write_phases(phases)
         threads = max(1, (os.cpu_count() or 1) // int(cfg.jobs))
         specs = [JobSpec(c.name, c.source, c.overrides(cfg.seed), tuple(p.source for p in plugins.values()),
                          job_dataset, splits.train, splits.scored, threads,

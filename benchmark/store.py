@@ -8,6 +8,10 @@
 <run>/truth.parquet            flight_id, Timestamp, Is_Anomaly for every scored flight
 <run>/arming.csv               flight_id, armed_us, armed_by: when each scored flight was armed
                                (the burn-in's start; benchmark.protocol.arming_time_us)
+<run>/phases.csv               flight_id, liftoff_us, climb_end_us, descent_start_us, touchdown_us,
+                               phases_by: each scored flight's phase bounds (the "ends" counting rule;
+                               benchmark.protocol.flight_phase_bounds); written by runs since protocol
+                               v3, and by `score --phases` for older runs whose dataset is at hand
 <run>/jobs/<detector>/params.json   detector name, class, source spec, params, job key
 <run>/jobs/<detector>/scores.npz    one float64 array of per-row scores per flight_id
                                     (validation + test flights; written only for OK jobs)
@@ -65,6 +69,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.benchmark.protocol import PHASE_COLUMNS
 from scart_bench.dataset.locks import FolderLock
 from scart_bench.errors import ScartBenchError
 from scart_bench.jsonfile import JsonFileError, loads_bounded, read_json
@@ -79,7 +84,7 @@ SUMMARY_FILES = ("results.csv", "metrics.csv", "metrics.md", "breakdown.csv", "f
 CHECKSUMS_FILE = "checksums.json"
 CHECKSUMS_FORMAT = "scart-bench-checksums/1"
 #: Run-level files the scores are computed from (each job's are in :data:`JOB_CHECKED_FILES`).
-RUN_CHECKED_FILES = ("truth.parquet", "arming.csv", "flights.csv")
+RUN_CHECKED_FILES = ("truth.parquet", "arming.csv", "phases.csv", "flights.csv")
 JOB_CHECKED_FILES = ("status.json", "scores.npz", "alarms.npz")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 _record_lock = threading.Lock()
@@ -477,6 +482,32 @@ class RunStore:
         if arming is not None:
             df = df.drop(columns=[c for c in ("armed_us", "armed_by") if c in df.columns]).merge(
                 arming, on="flight_id", how="left")
+        phases = self.read_phases()
+        if phases is not None:
+            df = df.drop(columns=[c for c in PHASE_COLUMNS if c in df.columns]).merge(
+                phases, on="flight_id", how="left")
+        return df
+
+    def has_phases(self) -> bool:
+        return (self.path / "phases.csv").is_file()
+
+    def write_phases(self, bounds: dict[str, dict]) -> None:
+        """phases.csv: flight id -> its phase bounds (:data:`~scart_bench.benchmark.protocol.PHASE_COLUMNS`)."""
+        df = pd.DataFrame([{"flight_id": f, **{c: b.get(c, pd.NA) for c in PHASE_COLUMNS}} for f, b in bounds.items()],
+                          columns=["flight_id", *PHASE_COLUMNS])
+        for c in PHASE_COLUMNS[:-1]:
+            df[c] = df[c].astype("Int64")
+        self._write_checked("phases.csv", df.to_csv(index=False).encode("utf-8"))
+
+    def read_phases(self) -> pd.DataFrame | None:
+        if not self.has_phases():
+            return None
+        df = self._read_csv("phases.csv", dtype={"flight_id": str, "phases_by": str,
+                                                 **dict.fromkeys(PHASE_COLUMNS[:-1], "Int64")})
+        missing = [c for c in ("flight_id", *PHASE_COLUMNS) if c not in df.columns]
+        if missing:
+            raise RunStoreError(f"{self.path / 'phases.csv'}: columns {', '.join(missing)} missing; expected "
+                                f"flight_id, {', '.join(PHASE_COLUMNS)}")
         return df
 
     def has_arming(self) -> bool:
