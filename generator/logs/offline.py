@@ -23,18 +23,29 @@ import pandas as pd
 from scart_bench.dataset import (
     DatasetError,
     DatasetWriter,
+    LockHeld,
     append_flights,
     check_layout,
     check_output_dir,
+    dataset_lock,
     flight_record,
     is_dataset,
     open_dataset,
     replacing,
 )
 from scart_bench.generator.logs.importers import load_flight_file
-from scart_bench.generator.logs.phases import PHASE_TOPIC, phase_topic
+from scart_bench.generator.logs.logged_time import (
+    LoggedClock,
+    gap_line,
+    gap_record,
+    log_triggers,
+    logging_gaps,
+)
+from scart_bench.generator.logs.orientation import listen_view, recorded_view
+from scart_bench.generator.logs.phases import LANDED, PHASE_TOPIC, phase_progress, phase_topic
 from scart_bench.generator.modes import csv_mode, csv_record, with_labels
 from scart_bench.generator.scart.grid import load_configurations
+from scart_bench.generator.scart.meanings import input_fields
 from scart_bench.generator.scart.spec import ScenarioError
 from scart_bench.progress import Progress, quiet
 
@@ -52,7 +63,7 @@ def _config_id(job) -> str:
 
 
 def _available(tables) -> dict[str, tuple[str, ...]]:
-    return {t: tuple(c for c in df.columns if c != "Timestamp" and c != "Is_Anomaly") for t, df in tables.items()}
+    return input_fields([tables], ("Is_Anomaly",))  # with the constants of a listen view (orientation.py)
 
 
 def _validate(jobs, tables, where: str) -> None:
@@ -62,22 +73,63 @@ def _validate(jobs, tables, where: str) -> None:
             sc.validate_topics(available, where=f"{sc.source} (on {where})")
 
 
-def with_phases(tables: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
+def with_phases(tables: dict[str, pd.DataFrame], clock: LoggedClock | None = None) -> dict[str, pd.DataFrame]:
     """The topics the layer listens to on a recording: its own and, when it has no mission computer's
     setpoint (a log, not a generated flight), the ``flight_phase`` topic derived from it
     (generator.logs.phases: the phase and mission item that ``flight_phase`` and ``mission_phase``
-    conditions read). The derived topic is on rows of the log's altitude, so the replay's message
-    times are the log's own; it is never written (:func:`without_phases`)."""
+    conditions read, and the progress through the phases that ``after_phase`` reads, in logged
+    time when ``clock`` is given). The derived topic is on rows of the log's altitude, so the
+    replay's message times are the log's own; it is never written (:func:`without_phases`)."""
+    tables = listen_view(tables)  # attitude from a quaternion, constant fields marked (orientation.py)
     if "setpoint" in tables or PHASE_TOPIC in tables:
         return tables
     topic = phase_topic(tables)
-    return tables if topic is None else {**tables, PHASE_TOPIC: topic}
+    if topic is None:
+        return tables
+    logged = None if clock is None else clock.to_logged(topic["Timestamp"].to_numpy(np.int64))
+    return {**tables, PHASE_TOPIC: phase_progress(topic, logged)}
+
+
+def takeoff_us(listen: dict[str, pd.DataFrame]) -> int | None:
+    """The first row off the ground (µs) by the derived phases, or None (no phases, never airborne)."""
+    topic = listen.get(PHASE_TOPIC)
+    if topic is None or "phase" not in topic.columns:
+        return None
+    air = np.flatnonzero(topic["phase"].to_numpy(np.float64) != LANDED)
+    return int(topic["Timestamp"].iloc[air[0]]) if len(air) else None
+
+
+def copy_seed(seed: int, job) -> int:
+    """The seed of one attacked copy: derived from ``--seed`` and the configuration id, so random
+    onsets and noise differ between the copies of one log as they do between generated flights
+    (one seed for all would give every level of an action the same onset)."""
+    return int.from_bytes(hashlib.sha256(f"{int(seed)}:{_config_id(job)}".encode()).digest()[:4], "little")
+
+
+def replay_on_log(listen: dict[str, pd.DataFrame], jobs: list, seed: int, clock: LoggedClock
+                  ) -> list[tuple[tuple, list[str]]]:
+    """csv mode on a recording in logged time: each configuration's time triggers taken to the
+    logged clock (generator.logs.logged_time.log_triggers: a trigger in a gap moves to the next
+    logged row, one past the end of the log moves earlier), the replay on that clock (durations
+    count logged seconds; each copy's seed from :func:`copy_seed`), and the results back on the log's own
+    time. Returns per configuration
+    (result without the derived phase topic, notes on moved triggers)."""
+    moved = [log_triggers(job, clock, takeoff_us(listen)) for job in jobs]
+    replay = clock.tables(listen)
+    results = csv_mode([replay] * len(jobs), [m[0] for m in moved], [copy_seed(seed, job) for job in jobs])
+    return [(without_phases(clock.back(r)), m[1]) for r, m in zip(results, moved)]
+
+
+def time_record(clock: LoggedClock, notes: list[str]) -> dict:
+    """What a copy records of its log's time (config.json ``logged_time``): the gaps and the moved triggers."""
+    return {"logging_gaps": gap_record(clock.gaps_), "trigger_notes": list(notes),
+            "rule": "durations and random spans count logged time (gaps excluded); see docs/own_logs.md"}
 
 
 def without_phases(result: tuple) -> tuple:
     """A csv-mode result without the derived phase topic (a copy holds the recording's topics only)."""
     nav, windows, events = result
-    return {t: df for t, df in nav.items() if t != PHASE_TOPIC}, windows, events
+    return recorded_view({t: df for t, df in nav.items() if t != PHASE_TOPIC}), windows, events
 
 
 #: Why a configuration gave no copy of a flight, from the error that refused it (short, for the summary).
@@ -121,6 +173,42 @@ def summary_line(reasons: Counter, total: int) -> str:
         return f"attack: all {total} configuration x flight pair(s) applied"
     why = "; ".join(f"{k} {r}" for r, k in sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0])))
     return f"attack: {n} of {total} configuration x flight pair(s) gave no copy: {why}"
+
+
+def prune_orphans(dataset: str | Path) -> list[str]:
+    """Remove what a killed ``attack`` or ``import`` left in a dataset: flight folders the manifest
+    does not list (the manifest is replaced last, so a killed append leaves its copies unlisted) and
+    a half-written manifest. Only while no other process writes the dataset (its lock is free).
+    Returns the names removed."""
+    import shutil
+
+    path = Path(dataset)
+    flights = path / "flights"
+    if not is_dataset(path) or not flights.is_dir():
+        return []
+    try:
+        lock = dataset_lock(path).acquire()
+    except (LockHeld, OSError):
+        return []  # another writer is at work: its folders are not orphans
+    try:
+        listed = set(open_dataset(path).manifest["flight_id"].astype(str))
+        gone = []
+        for entry in sorted(flights.iterdir()):
+            if entry.name not in listed and entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+                gone.append(entry.name)
+        for tmp in path.glob(".manifest.tmp.*"):
+            tmp.unlink(missing_ok=True)
+            gone.append(tmp.name)
+        return gone
+    finally:
+        lock.release()
+
+
+def _say_pruned(gone: list[str], say: Callable[[str], None]) -> None:
+    if gone:
+        say(f"removed {len(gone)} flight folder(s) that an interrupted attack or import left unlisted in the "
+            f"manifest ({', '.join(gone[:3])}{' ...' if len(gone) > 3 else ''})")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -251,7 +339,9 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
     paths = [Path(p) for p in paths]
     ids = import_ids(paths, start_s, end_s)
     out = Path(out)
+    say = say or (lambda msg: None)
     if is_dataset(out):
+        _say_pruned(prune_orphans(out), lambda m: say(f"import: {m}"))
         taken = set(open_dataset(out).manifest["flight_id"].astype(str))
         clash = [i for i in ids if i in taken]
         if clash:
@@ -259,7 +349,6 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
                                "flight ids come from the log names and --start/--end")
     splits = auto_splits(ids, seed) if split == "auto" else [split] * len(ids)
     loaded = []
-    say = say or (lambda msg: None)
     progress = progress or quiet()
     progress.expect("read", len(paths))
     progress.expect("written", len(paths))
@@ -267,6 +356,9 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
         tables = load_flight_file(p, topics, allow_corrupt=allow_corrupt, start_s=start_s, end_s=end_s)
         loaded.append(tables)
         progress.add("read")
+        gaps = logging_gaps(tables)
+        if gaps:
+            say(f"import: {p}: {gap_line(gaps)}; attack windows count logged time")
         counts = non_finite_cells(tables)
         if counts:
             shown = ", ".join(f"{c} {n}" for c, n in list(counts.items())[:8]) + (" ..." if len(counts) > 8 else "")
@@ -277,7 +369,8 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
         for p, fid, sp, tables in zip(paths, ids, splits, loaded):
             say(f"import: {p} -> {fid} ({sp})")
             config = {"mode": "import", "input": str(p), "topics": topics, "window_s": [start_s, end_s],
-                      "input_origin_us": {t: df.attrs.get("origin_us") for t, df in tables.items()}}
+                      "input_origin_us": {t: df.attrs.get("origin_us") for t, df in tables.items()},
+                      "logging_gaps": gap_record(logging_gaps(tables))}
             yield flight_record(fid, with_labels(tables), with_labels(tables),
                                 {"mode": "normal", "split": sp, "seed": seed, "source_flight": str(p)},
                                 json.loads(json.dumps(config, default=str)))
@@ -305,6 +398,8 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
     none starts, DatasetError. Returns the ids added. ``progress`` counts the source flights
     ``read`` and the copies ``replayed`` (written, or found never to start).
     """
+    say = say or (lambda msg: None)
+    _say_pruned(prune_orphans(dataset), lambda m: say(f"attack: {m}"))
     ds = open_dataset(dataset)
     bad = [s for s in sources if s not in ("test", "csv_source", "validation", "train")]
     if bad:
@@ -326,22 +421,25 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
     flights = []
     for fid in rows["flight_id"].astype(str):
         tables = load_flight_file(ds.flight_dir(fid))
-        listen = with_phases(tables)
+        clock = LoggedClock().fit(tables)
+        listen = with_phases(tables, clock)
         fit, why = applicable(jobs, listen, f"flight {fid}")
         reasons.update(why)
-        flights.append((fid, tables, listen, fit))
+        flights.append((fid, tables, listen, fit, clock))
         progress.add("read")
-    progress.expect("replayed", sum(len(fit) for *_, fit in flights))
-    if not any(fit for *_, fit in flights):
+    progress.expect("replayed", sum(len(f[3]) for f in flights))
+    if not any(f[3] for f in flights):
         _validate(jobs, flights[0][2], f"flight {flights[0][0]}")  # the first refusal, in full
-    say = say or (lambda msg: None)
     added: list[str] = []
 
     def records() -> Iterator:
-        for fid, tables, listen, fit in flights:
-            results = csv_mode([listen] * len(fit), fit, [seed] * len(fit))
-            for job, result in zip(fit, results):
+        for fid, tables, listen, fit, clock in flights:
+            if not clock.identity:
+                say(f"attack: {fid}: {gap_line(clock.gaps_)}; durations count logged time")
+            moved_any = []
+            for job, (result, notes) in zip(fit, replay_on_log(listen, fit, seed, clock)):
                 progress.add("replayed")
+                moved_any.extend(notes)
                 cid = f"csv-{fid}-{_config_id(job)}"
                 if not result[1]:
                     reasons["trigger never held (no attack window)"] += 1
@@ -350,8 +448,12 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                     continue
                 say(f"attack: {fid} x {_config_id(job)} -> {cid}")
                 added.append(cid)
-                yield csv_record(cid, tables, without_phases(result), job, seed, fid,
-                                 {"input": f"{ds.path}/flights/{fid}", "source_flight": fid})
+                yield csv_record(cid, tables, result, job, copy_seed(seed, job), fid,
+                                 {"input": f"{ds.path}/flights/{fid}", "source_flight": fid,
+                                  "logged_time": time_record(clock, notes)})
+            if moved_any:
+                say(f"attack: {fid}: {len(moved_any)} trigger(s) moved on the log's time, e.g. {moved_any[0]} "
+                    "(each copy's raw/config.json lists its own)")
 
     append_flights(ds.path, records())
     say(summary_line(reasons, (len(jobs) + n_closed) * len(flights)))
@@ -378,14 +480,19 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
     _refuse_physical(jobs, scenario_path)
     jobs = _refuse_closed_loop(jobs, scenario_path)
     tables = load_flight_file(input_path, topics=topics, allow_corrupt=allow_corrupt)
-    listen = with_phases(tables)
+    clock = LoggedClock().fit(tables)
+    listen = with_phases(tables, clock)
     fit, why = applicable(jobs, listen, str(input_path))
     if not fit:
         _validate(jobs, listen, str(input_path))  # the first refusal, in full
     if why:
         logger.warning("%s on %s: %s", scenario_path, input_path, summary_line(why, len(jobs)).partition(": ")[2])
     jobs = fit
-    results = [without_phases(r) for r in csv_mode([listen] * len(jobs), jobs, [seed] * len(jobs))]
+    replayed = replay_on_log(listen, jobs, seed, clock)
+    results = [r for r, _ in replayed]
+    notes = {_config_id(job): n for job, (_, n) in zip(jobs, replayed)}
+    for n in [n for _, ns in replayed for n in ns][:5]:
+        logger.warning("%s on %s: %s", scenario_path, input_path, n)
     started = [(job, result) for job, result in zip(jobs, results) if result[1]]
     for job, result in zip(jobs, results):
         if started and not result[1]:
@@ -402,7 +509,9 @@ def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Pa
         writer = DatasetWriter(partial, fmt=fmt, layout=layout,
                                info={"mode": "csv", "input": str(input_path), "scenario_file": str(scenario_path)})
         for job, result in zip(jobs, results):
-            config = json.loads(json.dumps({"input": str(input_path), "input_origin_us": origins}, default=str))
-            writer.write(csv_record("csv-" + _config_id(job), tables, result, job, seed, str(input_path), config))
+            config = json.loads(json.dumps({"input": str(input_path), "input_origin_us": origins,
+                                            "logged_time": time_record(clock, notes[_config_id(job)])}, default=str))
+            writer.write(csv_record("csv-" + _config_id(job), tables, result, job, copy_seed(seed, job), str(input_path),
+                                    config))
         writer.close()
     return out

@@ -267,3 +267,40 @@ def _carries_mission(mission: pd.DataFrame | None) -> bool:
         return False
     total = mission["seq_total"].to_numpy(np.float64) if "seq_total" in mission.columns else np.ones(1)
     return bool(np.nanmax(total) > 0)
+
+
+#: Where a phase-relative trigger counts from (``after_phase``): ``takeoff`` (or ``airborne``) is the
+#: first row off the ground; ``climb``, ``cruise``, ``descent`` the first row of that phase after it.
+ANCHORS = ("takeoff", "airborne", "climb", "cruise", "descent")
+
+
+def phase_progress(topic: pd.DataFrame, logged_us: np.ndarray | None = None) -> pd.DataFrame:
+    """The derived phase topic with the fields phase-relative triggers read (conditions
+    ``after_phase`` and ``airborne``), counted in logged time (``logged_us``: each row's logged
+    time, generator.logs.logged_time; default its ``Timestamp``):
+
+    - ``since_<anchor>_s``: seconds since the anchor (:data:`ANCHORS`; NaN before it, and for a
+      phase the flight never enters);
+    - ``<phase>_fraction``: the share of the flight's time in that phase (``airborne``: off the
+      ground) spent up to this row, 0 to 1 (NaN for a phase the flight never enters).
+    """
+    t = np.asarray(topic["Timestamp"] if logged_us is None else logged_us, dtype=np.int64)
+    codes = topic["phase"].to_numpy(np.float64).astype(int)
+    out = topic.copy()
+    airborne = codes != LANDED
+    first_air = int(np.argmax(airborne)) if airborne.any() else None
+    dt = np.r_[np.diff(t), 0].astype(np.float64)
+    for name in ANCHORS:
+        mask = airborne if name in ("takeoff", "airborne") else codes == PHASES.index(name)
+        if first_air is not None:
+            mask = mask & (np.arange(len(t)) >= first_air)
+        since = np.full(len(t), np.nan)
+        if mask.any():
+            k = int(np.argmax(mask))
+            since[k:] = (t[k:] - t[k]) / 1e6
+        out[f"since_{name}_s"] = since
+        in_phase = airborne if name == "airborne" else codes == PHASES.index(name)
+        spent = np.r_[0.0, np.cumsum(dt * in_phase)[:-1]]
+        total = float(np.sum(dt * in_phase))
+        out[f"{name}_fraction"] = spent / total if total > 0 else np.nan
+    return out

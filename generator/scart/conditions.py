@@ -7,10 +7,12 @@ flight, so one group evaluates many parameter settings at once.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from scart_bench.generator.geo import ne_from_latlon
-from scart_bench.generator.logs.phases import PHASES
+from scart_bench.generator.logs.phases import ANCHORS, LANDED, PHASES
 from scart_bench.generator.scart.spec import Param, ScenarioError
 from scart_bench.generator.scart.units import latlon_pair, quantity
 
@@ -188,6 +190,72 @@ class FlightPhase(Condition):
         return vals[:, fields.index("phase")] == PHASES.index(self.params["phase"])
 
 
+#: ``after_phase``'s ``after``: an anchor and seconds after it, or a phase and a share of it.
+_AFTER = re.compile(r"^\s*(?P<anchor>[a-z]+)\s*(?:\+\s*(?P<s>\d+(?:\.\d*)?|\.\d+)\s*s|"
+                    r"(?P<pct>\d+(?:\.\d*)?|\.\d+)\s*%)?\s*$")
+
+
+def parse_after(text: str, where: str = "after") -> tuple[str, str, float]:
+    """``"takeoff + 10 s"`` -> (``takeoff``, ``s``, 10.0); ``"cruise 30 %"`` -> (``cruise``, ``%``, 30.0);
+    a bare anchor is ``+ 0 s``. ScenarioError naming what is expected otherwise."""
+    m = _AFTER.match(text) if isinstance(text, str) else None
+    if m is None or m["anchor"] not in ANCHORS or (m["pct"] is not None and float(m["pct"]) > 100):
+        raise ScenarioError(f"{where}: {text!r}: expected '<anchor> + <seconds> s' or '<phase> <0-100> %' with "
+                            f"an anchor of {', '.join(ANCHORS)} (e.g. 'takeoff + 10 s', 'cruise 30 %')")
+    if m["pct"] is not None:
+        return m["anchor"], "%", float(m["pct"])
+    return m["anchor"], "s", float(m["s"] or 0.0)
+
+
+class AfterPhase(Condition):
+    """Holds from a point of the flight's own phases on: ``after = "takeoff + 10 s"`` (seconds of
+    logged flight after leaving the ground, or after first entering climb, cruise or descent) or
+    ``after = "cruise 30 %"`` (once 30 % of the flight's cruise time has passed; ``airborne``: of its
+    time off the ground). ``random``: the onset is drawn per flight in ``[after, after + random]``
+    (in after's unit). Reads the phases csv mode derives from a recording (generator.logs.phases;
+    logs only: a generated flight has its mission computer's setpoint instead)."""
+
+    name = "after_phase"
+    spec = (Param("after", str, required=True, help="'takeoff + 10 s' or 'cruise 30 %'"),
+            Param("random", float, 0.0, minimum=0.0, help="spread of a random onset, in after's unit (s or %)"),
+            Param("topic", str, "phase", help="the quantity 'phase' (the flight_phase topic csv mode derives)"))
+
+    @staticmethod
+    def check_params(params: dict, where: str) -> None:
+        _, unit, value = parse_after(params["after"], f"{where}.after")
+        if unit == "%" and value + params["random"] > 100:
+            raise ScenarioError(f"{where}.random: {params['after']!r} plus {params['random']:g} % passes 100 %")
+
+    def __call__(self, ctx):
+        vals, fields = _latest(ctx, self.params["topic"])
+        if vals is None:
+            return np.zeros(ctx.rows.shape, bool)
+        anchor, unit, value = parse_after(self.params["after"])
+        onset = value + np.asarray(self.params["random"]) * self.u
+        if unit == "%":
+            name, onset = f"{anchor}_fraction", onset / 100.0
+        else:
+            name = f"since_{anchor}_s"
+        if name not in fields:
+            return np.zeros(ctx.rows.shape, bool)
+        with np.errstate(invalid="ignore"):
+            return vals[:, fields.index(name)] >= onset  # NaN (before the anchor) is False
+
+
+class Airborne(Condition):
+    """Holds while the flight is off the ground (its phase is not ``landed``), as csv mode derives it
+    from the recording (generator.logs.phases). (csv mode only)"""
+
+    name = "airborne"
+    spec = (Param("topic", str, "phase", help="the quantity 'phase' (the flight_phase topic csv mode derives)"),)
+
+    def __call__(self, ctx):
+        vals, fields = _latest(ctx, self.params["topic"])
+        if vals is None:
+            return np.zeros(ctx.rows.shape, bool)
+        return vals[:, fields.index("phase")] != LANDED
+
+
 class RandomStart(Condition):
     """Holds from a time drawn per flight, uniformly in [low_s, high_s]."""
 
@@ -258,8 +326,8 @@ class ScenarioEnded(Condition):
 
 
 CONDITIONS: dict[str, type[Condition]] = {
-    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, FlightPhase, RandomStart, Duration,
-                        ScenarioActive, ScenarioStarted, ScenarioEnded)
+    c.name: c for c in (TimeWindow, MessageCount, Geofence, AltitudeAbove, MissionPhase, FlightPhase, AfterPhase,
+                        Airborne, RandomStart, Duration, ScenarioActive, ScenarioStarted, ScenarioEnded)
 }
 
 #: The built-in conditions: pure functions of the context (no state, no random draws), so the layer
