@@ -17,6 +17,7 @@ from scart_bench.dataset import (
 from scart_bench.generator.attacks import csv_applicable, grid_path, strip_labels
 from scart_bench.generator.engine.flight_batch import defaults_summary
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
+from scart_bench.generator.mission_files import mission_for_seed
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.telemetry.tables import normal_record
@@ -116,7 +117,10 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
     n_src = min(n_src, count - n_train)
     # a scaled-down profile keeps its csv sources (csv mode needs one): validation takes what is left
     n_val = min(int(round(count * frac_val)), count - n_train - n_src) if count > 2 else 0
-    config_dict = {"flight_config": dataclasses.asdict(cfg), "versions": versions(), "profile": prof.name}
+    flight_config = dataclasses.asdict(cfg)
+    if not cfg.mission.missions:  # the square: the flights' config as it was before mission files
+        del flight_config["mission"]["missions"]
+    config_dict = {"flight_config": flight_config, "versions": versions(), "profile": prof.name}
     return GenerationPlan(prof, cfg, config_dict, int(seed), normal_seeds(seed, count),
                           splits(count, n_train, n_val, n_src), with_attacks)
 
@@ -135,9 +139,13 @@ def fly_normal_batch(writer, plan: GenerationPlan, batch: int, say: Callable[[st
     sources: Sources = {"csv_source": [], "validation": []}
     say(f"flying normal flights {start + 1}-{start + len(chunk)} of {count}")
     flown = simulate(chunk, plan.config)
+    missions = plan.config.mission.missions
     for j in range(len(chunk)):
         i = start + j
-        record = normal_record(flown, j, f"normal-{i:04d}", plan.split_of[i], plan.config_dict)
+        config = plan.config_dict
+        if missions:  # which file the flight flew (generator.mission_files.mission_for_seed)
+            config = {**config, "mission_file": missions[mission_for_seed(missions, plan.seeds[i])].name}
+        record = normal_record(flown, j, f"normal-{i:04d}", plan.split_of[i], config)
         writer.write(record)
         if plan.split_of[i] in sources:
             sources[plan.split_of[i]].append((record.flight_id, strip_labels(record.navigator), plan.seeds[i]))

@@ -51,16 +51,48 @@ def mission_waypoints(mission: MissionParams, rngs: list[np.random.Generator]) -
     return wps, speeds
 
 
+def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random.Generator]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-flight mission: items (N, K, 3) NED, cruise speeds (N,), the item table (N, K, 5: north,
+    east, down, speed of the leg to the item, hold at it in s) and each flight's last item (N,).
+
+    Without ``mission.missions`` every flight flies the jittered square (:func:`mission_waypoints`);
+    with them, flight ``i`` flies mission file ``seeds[i] mod len(missions)`` as written
+    (:mod:`scart_bench.generator.mission_files`). A flight with fewer items than the batch's longest
+    repeats its last one; it lands after its own last item all the same.
+    """
+    if not mission.missions:
+        wps, cruise = mission_waypoints(mission, rngs)
+        table = np.zeros(wps.shape[:2] + (5,))
+        table[:, :, :3] = wps
+        table[:, :, 3] = cruise[:, None]
+        return wps, cruise, table, np.full(len(rngs), wps.shape[1] - 1, dtype=np.int64)
+    from scart_bench.generator.mission_files import mission_for_seed
+
+    flown = [mission.missions[mission_for_seed(mission.missions, s)].navigator_items(mission.cruise_speed)
+             for s in seeds]
+    k = max(len(t) for t in flown)
+    table = np.array([np.vstack([t, np.repeat(t[-1:], k - len(t), axis=0)]) for t in flown])
+    last = np.array([len(t) - 1 for t in flown], dtype=np.int64)
+    return table[:, :, :3].copy(), table[:, 0, 3].copy(), table, last
+
+
 class Navigator:
     """Mission state machine for a batch: arm, take off, mission items, land."""
 
     def __init__(self, mission: MissionParams, waypoints: np.ndarray, cruise: np.ndarray,
-                 arm_s: np.ndarray | None = None):
+                 arm_s: np.ndarray | None = None, table: np.ndarray | None = None, last: np.ndarray | None = None):
         self.m = mission
         self.wps = waypoints
         self.cruise = cruise
         #: (N,) when each flight arms (generator.flight_software.startup); default: the mission's arm_delay_s
         self.arm_s = np.full(waypoints.shape[0], mission.arm_delay_s) if arm_s is None else np.asarray(arm_s)
+        n, k = waypoints.shape[:2]
+        #: (N, K) speed of the leg to each item and hold at it (s), (N,) each flight's last item
+        #: (:func:`mission_table`; default: the cruise speed on every leg, no holds, all K items)
+        self.speeds = np.repeat(np.asarray(cruise, dtype=float)[:, None], k, axis=1) if table is None else table[:, :, 3]
+        self.holds = np.zeros((n, k)) if table is None else table[:, :, 4]
+        self.last = np.full(n, k - 1, dtype=np.int64) if last is None else np.asarray(last, dtype=np.int64)
 
     def init_state(self, n: int, yaw0: np.ndarray) -> NavigatorState:
         return NavigatorState(
@@ -86,12 +118,14 @@ class Navigator:
         armed = t >= self.arm_s
         start = (s.phase == PHASE_IDLE) & (t >= self.arm_s + 0.5)
         s.phase[start] = PHASE_TAKEOFF
-        k_last = self.wps.shape[1] - 1
-        target = self.wps[np.arange(n), np.minimum(s.seq, k_last)]
+        k_last = self.last
+        rows = np.arange(n)
+        ti = np.minimum(s.seq, k_last)
+        target = self.wps[rows, ti]
         d = target - s.pos
         dist_h = np.hypot(d[:, 0], d[:, 1])
         flying = (s.phase == PHASE_TAKEOFF) | (s.phase == PHASE_MISSION)
-        speed = np.minimum(self.cruise, m.approach_gain * dist_h)
+        speed = np.minimum(self.speeds[rows, ti], m.approach_gain * dist_h)
         speed = np.where(s.phase == PHASE_TAKEOFF, np.minimum(speed, 1.0), speed)
         dir_h = d[:, :2] / np.maximum(dist_h, 1e-6)[:, None]
         vh = dir_h * speed[:, None]
@@ -126,12 +160,20 @@ class Navigator:
         go = tk & (s.hold_until > 0) & (t >= s.hold_until)
         s.phase[go] = PHASE_MISSION
         s.seq[go] += 1
+        s.hold_until[go] = -1.0  # no hold begun at the next item
         adv = reached & (s.phase == PHASE_MISSION) & ~go
+        # an item with a hold time (NAV_WAYPOINT param1, NAV_LOITER_TIME): stay from its arrival until it has passed
+        hold = self.holds[rows, ti]
+        wait = adv & (hold > 0)
+        begin = wait & (s.hold_until < 0)
+        s.hold_until[begin] = t + hold[begin]
+        adv &= ~wait | (t >= s.hold_until)
         last = adv & (s.seq >= k_last)
         s.seq[adv & ~last] += 1
+        s.hold_until[adv & ~last] = -1.0
         s.phase[last] = PHASE_LAND
         land = s.phase == PHASE_LAND
-        home = self.wps[:, -1, :2]
+        home = self.wps[rows, k_last, :2]
         dh = home - s.pos[:, :2]
         vh_land = np.clip(1.0 * dh, -1.0, 1.0)
         out[land, 0:2] = vh_land[land]

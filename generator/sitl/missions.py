@@ -243,6 +243,46 @@ class MissionProtocol:
         self.flush(addr)
 
 
+def file_items(mission, home: tuple[float, float, float]) -> list[MissionItem]:
+    """The items of a mission file (:class:`scart_bench.generator.mission_files.MissionFile`) to upload to a
+    vehicle whose home is ``home`` (deg, deg, m AMSL), as a ground station would send them.
+
+    The mission is moved to the vehicle's home: each position keeps its north/east offset and its height
+    above the file's home (the WGS-84 tangent plane, generator.geo), in the frame the file states it
+    (global AMSL, global relative or local NED); commands and parameters are the file's. Skipped items
+    (camera, gimbal) are not sent."""
+    from scart_bench.generator.geo import latlon_from_ne
+    from scart_bench.generator.mission_files import (
+        AMSL_FRAMES,
+        CMD_CHANGE_SPEED,
+        CMD_LOITER_TIME,
+        CMD_RTL,
+        CMD_WAYPOINT,
+        FRAME_LOCAL_NED,
+        FRAME_MISSION,
+    )
+
+    lat0, lon0, alt0 = (float(v) for v in home)
+    out: list[MissionItem] = []
+    for c in mission.commands:
+        seq = len(out)
+        if c.command == CMD_CHANGE_SPEED:
+            speed = -1.0 if c.speed is None else c.speed
+            out.append(MissionItem(seq, FRAME_MISSION, c.command, 1.0, speed, -1.0, 0.0, 0.0, 0.0, 0.0))
+            continue
+        if c.command == CMD_RTL:
+            out.append(MissionItem(seq, FRAME_MISSION, c.command))
+            continue
+        hold = c.hold_s if c.command in (CMD_WAYPOINT, CMD_LOITER_TIME) else 0.0
+        if c.frame == FRAME_LOCAL_NED:
+            out.append(MissionItem(seq, c.frame, c.command, hold, 0.0, 0.0, float("nan"), c.north, c.east, -c.up))
+            continue
+        lat, lon = latlon_from_ne(c.north, c.east, lat0, lon0)
+        z = alt0 + c.up if c.frame in AMSL_FRAMES else c.up
+        out.append(MissionItem(seq, c.frame, c.command, hold, 0.0, 0.0, float("nan"), float(lat), float(lon), z))
+    return out
+
+
 def _wire_int(value: float, scale: float) -> int:
     """A coordinate as MISSION_ITEM_INT carries it; NaN ("the current position") goes out as 0."""
     return 0 if math.isnan(value) else int(round(value * scale))

@@ -57,6 +57,11 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if not 1 <= args.jobs <= MAX_JOBS:
         raise UsageError(f"--jobs {args.jobs}: expected 1 to {MAX_JOBS} local dask workers")
     remove_stale_temp()  # the staging folders of killed commands (a generate to a URL writes in one)
+    config = profile.flight_config()
+    if args.missions:  # every file read and checked before anything is written
+        from scart_bench.generator.mission_files import read_missions, with_missions
+
+        config = with_missions(config, read_missions(args.missions))
     from scart_bench.progress import Progress
     from scart_bench.storage import is_url, local_path
 
@@ -64,7 +69,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     with removed_on_failure(out), Progress("generate", "flights") as progress:  # nothing half-written is left
         generate_dataset(args.profile, out, seed=args.seed, fmt=args.format, n_normal=args.flights,
                          overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
-                         scenarios=args.scenarios, config=profile.flight_config(), layout=args.layout,
+                         scenarios=args.scenarios, config=config, layout=args.layout,
                          uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
                          scheduler=args.scheduler, jobs=args.jobs, progress=progress)
     print(f"dataset written to {out}")
@@ -76,9 +81,9 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     from scart_bench.generator.hil.dataset import attack_configs, generate_jmavsim
     from scart_bench.storage import local_path
 
-    if args.executor != "local" or args.uorb or args.layout:
-        raise UsageError("--physics jmavsim flies one jMAVSim flight at a time: --executor dask, --uorb and "
-                         "--layout are for the built-in engine")
+    if args.executor != "local" or args.uorb or args.layout or args.missions:
+        raise UsageError("--physics jmavsim flies one jMAVSim flight at a time: --executor dask, --uorb, "
+                         "--layout and --missions are for the built-in engine")
     check_seed(args.seed)
     n = 8 if args.flights is None else args.flights
     if not 1 <= n <= 1000:
@@ -123,6 +128,9 @@ def register(sub) -> None:
     g.add_argument("--jobs", type=int, default=2, help="with --executor dask and no --scheduler: local workers (default 2)")
     g.add_argument("--batch-size", type=int, default=None, help="flights flown together, and one dask shard "
                    "(default: the profile's, 256); the flights depend on it, so compare datasets made with the same")
+    g.add_argument("--missions", nargs="+", default=None, metavar="FILE",
+                   help="fly these mission files instead of the square: QGroundControl .plan or MAVLink WPL "
+                   "('QGC WPL 110' .waypoints/.txt); the flight with seed s flies file s mod N (docs/missions.md)")
     g.add_argument("--overwrite", action="store_true", help="replace an existing dataset in --out")
     g.add_argument("--physics", choices=("builtin", "jmavsim"), default="builtin",
                    help="builtin (default): the generator's engine; jmavsim: the flight software flies jMAVSim "
