@@ -59,7 +59,8 @@ class BatchState:
         self.row = np.zeros((n, L.WIDTH))
         self.truth_buffer = np.zeros((n, delay, 6))  # true pos/vel, for the GPS delay
         self.history = np.zeros((n, delay, 6))  # estimated pos/vel, for delayed GPS fusion
-        self.waypoints = np.array(waypoints, dtype=float, order="C", copy=True)  # a mission tamper rewrites it
+        #: (N, K, 5) the navigator's items: north, east, down, leg speed, hold s (a mission tamper rewrites the first 3)
+        self.waypoints = np.array(waypoints, dtype=float, order="C", copy=True)
 
     def __len__(self) -> int:
         return self.row.shape[0]
@@ -84,7 +85,7 @@ class BatchState:
 def initial_state(init, est_P0: np.ndarray) -> BatchState:
     """The batch state at step 0 from the shared initial conditions (generator.engine.simulate.Initial)."""
     n = len(init.rngs)
-    st = BatchState(n, init.sensors.delay_steps, init.waypoints)
+    st = BatchState(n, init.sensors.delay_steps, init.table)
     vs, ss, yaw0 = init.vehicle_state, init.sensor_state, init.yaw0
     st["pos"], st["vel"], st["quat"] = vs.pos, vs.vel, vs.quat
     st["on_ground"] = vs.on_ground
@@ -101,6 +102,7 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     st["att_sp"] = np.eye(3).ravel()
     st["nav_yaw_sp"], st["nav_yaw"] = yaw0, yaw0
     st["cruise"] = init.cruise
+    st["nav_last"] = init.last
     st["battery"] = init.battery
     st["gps_fix_at"], st["gps_origin_at"], st["arm_at"] = init.start[:, 0], init.start[:, 1], init.start[:, 2]
     st["exit_step"] = -1.0
@@ -409,7 +411,7 @@ class _Hooks:
             if "command" in self.points:
                 K.stage_navigate(st.row, st.waypoints, p, self.all_rows, h, sp)
                 rec_sp[m] = sp
-                vals, sp_ok, command, st.waypoints[:] = exchange(layer, h, t_us, sp.copy(), self.mission)
+                vals, sp_ok, command, st.waypoints[:, :, :3] = exchange(layer, h, t_us, sp.copy(), self.mission)
                 self.nav["setpoint"][m] = vals
                 self.nav_ok["setpoint"][m] = sp_ok
                 est = st["est_x"].reshape(n, 3, 3)[:, :, :2] + st["out_err"].reshape(n, 3, 2)  # the output

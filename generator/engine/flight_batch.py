@@ -13,7 +13,7 @@ import numpy as np
 
 from scart_bench.dataset.schema import SIM_RATE_HZ
 from scart_bench.generator.flight_software.commander import ControlParams
-from scart_bench.generator.flight_software.navigator import mission_waypoints
+from scart_bench.generator.flight_software.navigator import mission_table
 from scart_bench.generator.flight_software.startup import battery_start, startup_times
 from scart_bench.generator.params import (
     DT,
@@ -127,6 +127,10 @@ class Initial:
     start: np.ndarray | None = None
     #: (N, 3) battery state at boot: voltage, current, remaining
     battery: np.ndarray | None = None
+    #: (N, K, 5) the navigator's items (north, east, down, leg speed, hold s) and (N,) each flight's last
+    #: item (generator.flight_software.navigator.mission_table)
+    table: np.ndarray | None = None
+    last: np.ndarray | None = None
 def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
     n = len(seeds)
@@ -140,7 +144,7 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     wind_mean = np.column_stack([wind_speed * np.cos(wind_dir), wind_speed * np.sin(wind_dir), np.zeros(n)])
     wind = Wind(mean=wind_mean, gust=np.zeros((n, 3)), sigma=m.gust_sigma_max * u[:, 2], tau=m.gust_tau)
     yaw0 = (u[:, 3] - 0.5) * 0.5
-    waypoints, cruise = mission_waypoints(m, rngs)
+    waypoints, cruise, table, last = mission_table(m, seeds, rngs)
     sensors = Sensors(cfg.sensors, DT)
     vs = VehicleState.zeros(n, yaw0)
     ss = sensors.init_state(n, rngs)
@@ -148,7 +152,7 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     ss.fix_at = start[:, 0].copy()
     battery = _battery_init(battery_start(seeds))
     return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ),
-                   start, battery)
+                   start, battery, table, last)
 def alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
     """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
     lost = env.lost(sensor) if env is not None else None

@@ -678,8 +678,10 @@ def _receive(s, topic, vals, m):
 
 @njit(**_HOT)
 def _navigate(s, wps, p, t, out, m):
-    """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed)."""
-    k_last = wps.shape[0] - 1
+    """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed).
+
+    ``wps`` (K, 5): per item north, east, down, speed of the leg to it, hold at it (s)."""
+    k_last = int(s[L.NAV_LAST])
     armed = 1.0 if t >= s[L.ARM_AT] else 0.0
     if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + 0.5:
         s[L.PHASE] = PH_TAKEOFF
@@ -691,7 +693,7 @@ def _navigate(s, wps, p, t, out, m):
     d2 = wps[ti, 2] - s[L.NAV_POS + 2]
     dist_h = math.hypot(d0, d1)
     flying = phase == PH_TAKEOFF or phase == PH_MISSION
-    speed = min(s[L.CRUISE], p[K_APPROACH] * dist_h)
+    speed = min(wps[ti, 3], p[K_APPROACH] * dist_h)
     if phase == PH_TAKEOFF:
         speed = min(speed, 1.0)
     den = max(dist_h, 1e-6)
@@ -731,10 +733,16 @@ def _navigate(s, wps, p, t, out, m):
     if go:
         s[L.PHASE] = PH_MISSION
         s[L.SEQ] += 1.0
+        s[L.HOLD_UNTIL] = -1.0  # no hold begun at the next item
     adv = reached and s[L.PHASE] == PH_MISSION and not go
+    if adv and wps[ti, 4] > 0.0:  # a hold time: stay from the item's arrival until it has passed
+        if s[L.HOLD_UNTIL] < 0.0:
+            s[L.HOLD_UNTIL] = t + wps[ti, 4]
+        adv = t >= s[L.HOLD_UNTIL]
     last = adv and s[L.SEQ] >= k_last
     if adv and not last:
         s[L.SEQ] += 1.0
+        s[L.HOLD_UNTIL] = -1.0
     if last:
         s[L.PHASE] = PH_LAND
     if s[L.PHASE] == PH_LAND:

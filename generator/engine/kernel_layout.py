@@ -99,7 +99,9 @@ ARM_AT = 186  # s, the navigator arms
 OUT_ERR = 187  # 6: per axis (N, E, D) [position, velocity] of the output minus the filter's state
 # -- the mixer's output ------------------------------------------------------------------------------
 MOTOR_CMD = 193  # 4, rad/s: the rotor speeds the rate controller's mixer commanded this step (before a rotor limit)
-WIDTH = 197
+# -- the navigator's last mission item (generator.flight_software.navigator.mission_table) --------------
+NAV_LAST = 197
+WIDTH = 198
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -135,7 +137,7 @@ FIELDS: dict[str, tuple[int, int]] = {
     "status": (STATUS, 1), "landed_at": (LANDED_AT, 1), "R_ctrl": (R_CTRL, 9), "R_true": (R_TRUE, 9),
     "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1), "gps_fix_at": (GPS_FIX_AT, 1),
     "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
-    "motor_cmd": (MOTOR_CMD, 4),
+    "motor_cmd": (MOTOR_CMD, 4), "nav_last": (NAV_LAST, 1),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------

@@ -132,7 +132,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     sensors = init.sensors
     est = Estimator(cfg.estimator, DT, sensors.delay_steps, cfg.sensors.mag_field_ned)
     ctrl = Controller(cfg.controller, cfg.vehicle, DT)
-    nav = Navigator(m, waypoints.copy(), init.cruise, init.start[:, 2])  # a copy: a mission tamper changes what it flies
+    nav = Navigator(m, waypoints.copy(), init.cruise, init.start[:, 2],  # a copy: a mission tamper changes what it flies
+                    init.table, init.last)
     vs = init.vehicle_state
     ss = init.sensor_state
     es = est.init_state(n, yaw0)
