@@ -21,6 +21,7 @@ from scart_bench.generator.attack_effect import attack_effect
 from scart_bench.generator.engine.simulate import BatchResult, FlightConfig, simulate
 from scart_bench.generator.params import STEP_US
 from scart_bench.generator.scart.layer import AttackLayer
+from scart_bench.generator.scart.meanings import input_fields
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.telemetry.tables import flight_views, uorb_stream_tables, with_uorb
 
@@ -118,7 +119,7 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
         return out
     n = len(flights)
     topics = list(flights[0])
-    fields = {t: tuple(c for c in flights[0][t].columns if c != "Timestamp" and c not in LABEL_COLUMNS) for t in topics}
+    fields = input_fields(flights, LABEL_COLUMNS)  # with what a recording's listen view knows (meanings.Fields)
     lengths = {t: np.array([len(f[t]) for f in flights]) for t in topics}
     times = {t: max((f[t] for f in flights), key=len)["Timestamp"].to_numpy(np.int64) for t in topics}
     values = {}

@@ -17,6 +17,9 @@ that unit and the instance field of multi-instance sensors. The rules (docs/own_
   format character has none, the value is multiplied by it (``MagX`` in mGauss -> Gauss). The
   units are ArduPilot's (attitude in degrees, altitudes in metres), listed per field in the
   table's ``attrs["units"]`` when the log has FMTU messages. Text fields are dropped.
+- **No value**: a battery monitor's field (:data:`NO_SENSOR_FIELDS` of ``CURR``, ``BAT`` ...) that reads 0
+  in every message of the log is no reading (ArduPilot logs 0 where no voltage or current sensor is
+  fitted): it becomes a missing value (NaN), named in ``attrs["no_value"]``.
 - **Damage**: bytes DFReader has to skip (a bad header in the middle) or unreadable bytes after the
   last whole message are refused unless ``allow_corrupt``; up to 528 bytes of trailing padding
   after the last whole message (ArduPilot's block logs end in a partial page) are not damage. A
@@ -59,6 +62,21 @@ TRAILING_PADDING = 528
 NOT_TELEMETRY = frozenset({"FMT", "FMTU", "UNIT", "MULT", "PARM", "FILE"})
 #: Fields that say a message carries GPS time (its ``TimeMS`` is then the GPS time of week).
 GPS_TIME_FIELDS = ("Week", "GWk")
+#: Battery monitor messages and their fields that read 0 for the whole log where no sensor is fitted.
+BATTERY_MESSAGES = frozenset({"CURR", "CUR2", "BAT", "BAT2", "BATT", "BCL"})
+NO_SENSOR_FIELDS = frozenset({"Volt", "VoltR", "Curr", "CurrTot", "EnrgTot", "Vcc", "Res"})
+
+
+def no_sensor(message: str, fields: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict]:
+    """A battery monitor's fields with those that read 0 for the whole log (no sensor fitted) as NaN,
+    and the notes naming them."""
+    if message not in BATTERY_MESSAGES:
+        return fields, {}
+    empty = [n for n, v in fields.items() if n in NO_SENSOR_FIELDS and v.size and not np.any(v)]
+    if not empty:
+        return fields, {}
+    out = {n: (np.full(v.shape, np.nan) if n in empty else v) for n, v in fields.items()}
+    return out, {"no_value": {n: "0 for the whole log: no sensor fitted" for n in empty}}
 
 
 def _open(path: Path):
@@ -198,7 +216,8 @@ def _table(fmt, rows: list, times: np.ndarray, ids: str, mults: dict[str, float]
     notes: dict = {"dataflash_message": fmt.name, "time_field": tf[0] if tf else None}
     if units:
         notes["units"] = {n: units[fmt.columns[i]] for n, i in zip(names, keep) if units.get(fmt.columns[i])}
-    return np.asarray(times, dtype=np.int64), {n: values[:, j] for j, n in enumerate(names)}, notes
+    fields, marked = no_sensor(fmt.name, {n: values[:, j] for j, n in enumerate(names)})
+    return np.asarray(times, dtype=np.int64), fields, {**notes, **marked}
 
 
 def _check_damage(path: Path, reader, whole: int, end: int, allow_corrupt: bool, n_read: int, clock: list[int]

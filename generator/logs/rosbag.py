@@ -20,8 +20,11 @@ The rules (docs/own_logs.md):
   version suffix dropped (``vehicle_status_v1`` -> ``vehicle_status``), arrays as ``q_0`` ...,
   integer lat/lon (1e-7 deg) and alt (mm) in degrees and metres, ``timestamp`` dropped.
 - **Other topics**: the topic name sanitised (``/camera/info`` -> ``camera_info``), every numeric
-  field flattened (``header.stamp.sec`` -> ``header_stamp_sec``, arrays ``_0``, ``_1`` ...); text
-  and lists of messages dropped.
+  field flattened (``header.stamp.sec`` -> ``header_stamp_sec``, arrays ``_0``, ``_1`` ...); text,
+  lists of messages and the message definition's constants (``STATUS_FIX``: no reading) dropped.
+- **Orientations** stay ROS quaternions (ENU world, FLU body; ``orientation_w`` ...; MAVROS
+  ``imu/data`` and ``local_position/pose`` keep theirs); csv mode reads them as roll, pitch and
+  yaw (generator.logs.orientation).
 - A bag that cannot be opened is an error; one that fails while read is refused unless
   ``allow_corrupt`` (then the messages read before the failure are used).
 """
@@ -49,11 +52,13 @@ MAVROS: dict[str, tuple[str, dict[str, tuple[str, float]]]] = {
         "lat": ("latitude", 1.0), "lon": ("longitude", 1.0), "alt": ("altitude", 1.0)}),
     "global_position/rel_alt": ("altitude", {"altitude_relative": ("data", 1.0)}),
     "local_position/pose": ("local_position_ned", {  # ENU -> NED
-        "x": ("pose_position_y", 1.0), "y": ("pose_position_x", 1.0), "z": ("pose_position_z", -1.0)}),
+        "x": ("pose_position_y", 1.0), "y": ("pose_position_x", 1.0), "z": ("pose_position_z", -1.0),
+        **{f"pose_orientation_{a}": (f"pose_orientation_{a}", 1.0) for a in "wxyz"}}),  # as in ROS: ENU/FLU
     "imu/data": ("highres_imu", {  # FLU body -> FRD body
         "xacc": ("linear_acceleration_x", 1.0), "yacc": ("linear_acceleration_y", -1.0),
         "zacc": ("linear_acceleration_z", -1.0), "xgyro": ("angular_velocity_x", 1.0),
-        "ygyro": ("angular_velocity_y", -1.0), "zgyro": ("angular_velocity_z", -1.0)}),
+        "ygyro": ("angular_velocity_y", -1.0), "zgyro": ("angular_velocity_z", -1.0),
+        **{f"orientation_{a}": (f"orientation_{a}", 1.0) for a in "wxyz"}}),  # as in ROS: ENU world, FLU body
     "battery": ("battery_status", {
         "voltage": ("voltage", 1.0), "current": ("current", 1.0), "remaining": ("percentage", 1.0)}),
     "extended_state": ("extended_sys_state", {
@@ -73,11 +78,17 @@ def bag_path(path: Path) -> Path:
                        f"{path.suffix} file; {path.parent} has none (expected the folder ros2 bag record wrote)")
 
 
+def is_constant(f: dataclasses.Field) -> bool:
+    """A message definition's constant (``uint8 STATUS_FIX=0``): rosbags declares it a ``ClassVar`` field
+    with its value as default; it is the same in every message, no reading."""
+    return str(f.type).replace("typing.", "").startswith("ClassVar")
+
+
 def flatten(msg, prefix: str = "") -> dict[str, float]:
     """A message's numeric fields, nested names joined by ``_``, arrays expanded ``_0``, ``_1`` ..."""
     out: dict[str, float] = {}
     for f in dataclasses.fields(msg):
-        if f.name == "__msgtype__":
+        if f.name == "__msgtype__" or is_constant(f):
             continue
         value = getattr(msg, f.name)
         name = f"{prefix}{f.name}"

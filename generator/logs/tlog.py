@@ -19,14 +19,22 @@ arrived. The rules (docs/own_logs.md):
   ``cm`` -> m, ``cm/s`` -> m/s, ``cdeg`` and ``deg`` -> rad (latitudes and longitudes stay in
   degrees), ``mG`` -> m/s^2, ``mgauss`` -> gauss, ``mV`` -> V, ``cA`` -> A, ``%`` -> 0..1,
   ``cdegC`` -> degC, ``Pa`` -> hPa. ``attrs["units"]`` gives each converted field's unit.
+- **No value**: a field holding the value its MAVLink definition declares ``invalid`` (unused battery
+  cells' ``UINT16_MAX`` mV, ``-1`` for a current not measured, ``UINT16_MAX`` for an unknown
+  heading, ``NaN`` ...; :func:`invalid_values`) becomes a missing value (NaN), element by element
+  in arrays; ``attrs["no_value"]`` counts them per field.
 - **Damage**: frames that fail their checksum (pymavlink's BAD_DATA) or a last frame cut by the
   end of the file are refused unless ``allow_corrupt``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import io
 import logging
 import math
+import re
 from collections import Counter
 from pathlib import Path
 
@@ -64,20 +72,75 @@ def _scale(field: str, unit: str | None) -> tuple[str | None, float]:
     return UNIT_SCALES[unit]
 
 
+#: MAVLink's names for the limits of its integer types (the ``invalid`` attribute's words).
+_LIMITS = {"UINT8_MAX": 2**8 - 1, "UINT16_MAX": 2**16 - 1, "UINT32_MAX": 2**32 - 1, "UINT64_MAX": 2**64 - 1,
+           "INT8_MAX": 2**7 - 1, "INT16_MAX": 2**15 - 1, "INT32_MAX": 2**31 - 1, "INT64_MAX": 2**63 - 1}
+
+
+def _marker(text: str) -> float | None:
+    """The number an ``invalid`` attribute names (``UINT16_MAX``, ``-1``, ``0xFFFF``, ``NaN``), or None."""
+    text = text.strip()
+    if text in _LIMITS:
+        return float(_LIMITS[text])
+    try:
+        return float(int(text, 0)) if re.fullmatch(r"-?(0x[0-9a-fA-F]+|\d+)", text) else float(text)
+    except ValueError:
+        return None  # an enum's name: not a number to compare with
+
+
+@functools.lru_cache(maxsize=1)
+def invalid_values() -> dict[str, dict[str, float]]:
+    """MAVLink message -> field -> the raw value that means "no value", from the ``invalid``
+    attributes of the message definitions pymavlink ships (ardupilotmega.xml and what it includes;
+    ``[X]`` for an array applies to each element). Empty when the definitions are not installed."""
+    try:
+        from pymavlink.generator import mavparse
+    except ImportError:  # pragma: no cover - pymavlink without its generator
+        return {}
+    root = Path(mavparse.__file__).resolve().parent.parent / "dialects" / "v20"
+    out: dict[str, dict[str, float]] = {}
+    todo, seen = ["ardupilotmega.xml"], set()
+    while todo:
+        name = todo.pop()
+        if name in seen or not (root / name).is_file():
+            continue
+        seen.add(name)
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):  # its remarks on other dialects' enums
+                xml = mavparse.MAVXML(str(root / name), "2.0")
+        except Exception as exc:  # pragma: no cover - a damaged installation
+            logger.debug("%s: not read (%s); its invalid markers are not applied", root / name, exc)
+            continue
+        todo.extend(xml.include)
+        for m in xml.message:
+            for f in m.fields:
+                value = _marker(str(getattr(f, "invalid", "") or "").strip("[]").rstrip(":"))
+                if value is not None and not math.isnan(value):  # NaN is missing already
+                    out.setdefault(m.name, {})[f.name] = value
+    return out
+
+
 def _fields(msg) -> list[tuple[str, float, str | None]]:
-    """(column, value in the project's unit, unit) for a message's numeric fields, arrays expanded."""
+    """(column, value in the project's unit, unit) for a message's numeric fields, arrays expanded;
+    a field holding its definition's "no value" marker is NaN."""
     out = []
     units = getattr(msg, "fieldunits_by_name", {}) or {}
+    invalid = invalid_values().get(msg.get_type(), {})
     for name in msg.get_fieldnames():
         value = getattr(msg, name)
         unit, factor = _scale(name, units.get(name))
+        marker = invalid.get(name)
         if isinstance(value, (list, tuple)):
             for k, v in enumerate(value):
                 if isinstance(v, (int, float)):
-                    out.append((f"{sanitize_field_name(name)}_{k}", _times(v, factor), unit))
+                    out.append((f"{sanitize_field_name(name)}_{k}", _value(v, factor, marker), unit))
         elif isinstance(value, (int, float)):  # bool too
-            out.append((sanitize_field_name(name), _times(value, factor), unit))
+            out.append((sanitize_field_name(name), _value(value, factor, marker), unit))
     return out
+
+
+def _value(raw: float, factor: float, marker: float | None) -> float:
+    return math.nan if marker is not None and raw == marker else _times(raw, factor)
 
 
 def _times(value: float, factor: float) -> float:
@@ -178,6 +241,9 @@ def read_tlog(path: Path, topics: list[str] | None = None, allow_corrupt: bool =
         cols = columns[topic]
         notes = {"mavlink_message": topic.upper(), "system": vehicle[0], "component": vehicle[1],
                  "units": {c: u for c, u in cols if u}, "other_sources_dropped": others, **damage}
+        missing = {c: int(n) for (c, _), n in zip(cols, np.isnan(values).sum(axis=0)) if n}
+        if missing:
+            notes["no_value"] = missing
         raw[topic] = (np.asarray(times[topic], dtype=np.int64), {c: values[:, j] for j, (c, _) in enumerate(cols)},
                       notes)
     return raw, origin

@@ -29,32 +29,43 @@ QUANTITIES: dict[str, dict[str, tuple[str, ...]]] = {
                 "vehicle_gps_position.lon", "vehicle_gps_position.longitude_deg", "sensor_gps.longitude_deg",
                 "gps.Lng", "pos.Lng", "ahr2.Lng", "global_position_global.longitude",
                 "global_position_raw_fix.longitude"),
-        "x": ("local_position_ned.x", "vehicle_local_position.x", "ekf1.PN", "xkf1.PN", "local_position_pose.y"),
-        "y": ("local_position_ned.y", "vehicle_local_position.y", "ekf1.PE", "xkf1.PE", "local_position_pose.x"),
+        # ArduPilot's EKF position: EKF1 (the first EKF), NKF1 (EKF2), XKF1 (EKF3), the primary core
+        "x": ("local_position_ned.x", "vehicle_local_position.x", "ekf1.PN", "nkf1.PN", "xkf1.PN",
+              "local_position_pose.y"),
+        "y": ("local_position_ned.y", "vehicle_local_position.y", "ekf1.PE", "nkf1.PE", "xkf1.PE",
+              "local_position_pose.x"),
     },
     "velocity": {
         "vn": ("global_position_int.vx", "local_position_ned.vx", "gps_raw_int.vn", "sensor_gps.vn",
                "vehicle_local_position.vx", "vehicle_gps_position.vel_n_m_s", "sensor_gps.vel_n_m_s", "ekf1.VN",
-               "xkf1.VN", "local_position_velocity_local.vy", "global_position_raw_gps_vel.vy"),
+               "nkf1.VN", "xkf1.VN", "local_position_velocity_local.vy", "global_position_raw_gps_vel.vy"),
         "ve": ("global_position_int.vy", "local_position_ned.vy", "gps_raw_int.ve", "sensor_gps.ve",
                "vehicle_local_position.vy", "vehicle_gps_position.vel_e_m_s", "sensor_gps.vel_e_m_s", "ekf1.VE",
-               "xkf1.VE", "local_position_velocity_local.vx", "global_position_raw_gps_vel.vx"),
+               "nkf1.VE", "xkf1.VE", "local_position_velocity_local.vx", "global_position_raw_gps_vel.vx"),
         "vd": ("global_position_int.vz", "local_position_ned.vz", "gps_raw_int.vd", "sensor_gps.vd",
                "vehicle_local_position.vz", "vehicle_gps_position.vel_d_m_s", "sensor_gps.vel_d_m_s", "ekf1.VD",
-               "xkf1.VD", "gps.VZ", "local_position_velocity_local.vz", "global_position_raw_gps_vel.vz"),
+               "nkf1.VD", "xkf1.VD", "gps.VZ", "local_position_velocity_local.vz", "global_position_raw_gps_vel.vz"),
     },
     "altitude": {
-        "z": ("local_position_ned.z", "vehicle_local_position.z", "ekf1.PD", "xkf1.PD", "local_position_pose.z"),
+        "z": ("local_position_ned.z", "vehicle_local_position.z", "ekf1.PD", "nkf1.PD", "xkf1.PD",
+              "local_position_pose.z"),
         "relative": ("global_position_int.relative_alt", "altitude.altitude_relative", "ctun.Alt", "gps.RelAlt",
                      "pos.RelHomeAlt", "global_position_rel_alt.data"),
         "amsl": ("global_position_int.alt", "altitude.altitude_amsl", "vehicle_global_position.alt", "ahr2.Alt",
                  "pos.Alt", "global_position_global.altitude"),
     },
     "attitude": {
-        "roll": ("attitude.roll", "att.Roll"),  # ArduPilot's ATT in degrees (generator.scart.units)
-        "pitch": ("attitude.pitch", "att.Pitch"),
-        "yaw": ("attitude.yaw", "att.Yaw"),
-        # PX4 logs the attitude as a quaternion: components are unit-free (magnitudes apply as is)
+        # ArduPilot's ATT, AHR2 and EKF attitudes in degrees (generator.scart.units); a quaternion's roll,
+        # pitch and yaw (PX4's vehicle_attitude.q, a ROS orientation) are derived on a recording's
+        # replay and written back as a rotated quaternion (generator.logs.orientation)
+        "roll": ("attitude.roll", "att.Roll", "ahr2.Roll", "ekf1.Roll", "nkf1.Roll", "xkf1.Roll",
+                 "vehicle_attitude.roll", "highres_imu.roll", "imu_data.roll", "imu.roll", "local_position_ned.roll"),
+        "pitch": ("attitude.pitch", "att.Pitch", "ahr2.Pitch", "ekf1.Pitch", "nkf1.Pitch", "xkf1.Pitch",
+                  "vehicle_attitude.pitch", "highres_imu.pitch", "imu_data.pitch", "imu.pitch",
+                  "local_position_ned.pitch"),
+        "yaw": ("attitude.yaw", "att.Yaw", "ahr2.Yaw", "ekf1.Yaw", "nkf1.Yaw", "xkf1.Yaw", "vehicle_attitude.yaw",
+                "highres_imu.yaw", "imu_data.yaw", "imu.yaw", "local_position_ned.yaw"),
+        # PX4's quaternion itself (w, x, y, z): one rotation, never a target of its own (see PARTS)
         "q": ("vehicle_attitude.q_0", "vehicle_attitude.q_1", "vehicle_attitude.q_2", "vehicle_attitude.q_3"),
     },
     "gps": {
@@ -108,6 +119,47 @@ QUANTITIES: dict[str, dict[str, tuple[str, ...]]] = {
 
 #: Link fields the shipped grids name that no quantity lists under that name: the quantity field they are.
 ALIASES = {"altitude.altitude_local": "altitude.relative"}
+#: Quantity fields that are parts of another (a quaternion's components are roll, pitch and yaw): a
+#: target naming the whole quantity leaves them out.
+PARTS = {("attitude", "q")}
+#: Quantities a scenario's conditions read (control state): kept when constant for the whole flight.
+CONTROL_QUANTITIES = ("mission", "phase")
+
+
+class Fields(tuple):
+    """A topic's field names in one input, with what csv mode knows of a recording's fields:
+    ``constant`` (field -> the one value it reads for the whole flight, NaN when it has none) and
+    ``quaternion`` (the components of a quaternion whose roll/pitch/yaw are derived fields here)."""
+
+    constant: dict[str, float]
+    quaternion: tuple[str, ...]
+
+    def __new__(cls, names, constant: dict[str, float] | None = None, quaternion: tuple[str, ...] = ()):
+        out = super().__new__(cls, names)
+        out.constant = dict(constant or {})
+        out.quaternion = tuple(quaternion)
+        return out
+
+
+def input_fields(flights: list[dict], exclude: tuple[str, ...] = ()) -> dict[str, Fields]:
+    """topic -> :class:`Fields` of recordings replayed together (the first flight's columns, less
+    ``Timestamp`` and ``exclude``): a field is constant when it is in every flight's table attrs
+    ``constant_fields`` with the same value; the attrs are set on a recording's listen view
+    (generator.logs.orientation.listen_view), so generated flights have none."""
+    out: dict[str, Fields] = {}
+    for topic, df in flights[0].items():
+        names = tuple(c for c in df.columns if c != "Timestamp" and c not in exclude)
+        const = dict(df.attrs.get("constant_fields", {}))
+        for other in flights[1:]:
+            theirs = other[topic].attrs.get("constant_fields", {}) if topic in other else {}
+            const = {k: v for k, v in const.items() if k in theirs and _same(theirs[k], v)}
+        out[topic] = Fields(names, {k: v for k, v in const.items() if k in names},
+                            tuple(df.attrs.get("quaternion", ())))
+    return out
+
+
+def _same(a: float, b: float) -> bool:
+    return a == b or (a != a and b != b)
 
 
 def _meaning_index() -> dict[str, str]:
@@ -147,8 +199,15 @@ def is_quantity(name: str) -> bool:
 
 def _candidates(name: str) -> list[str]:
     q, f = _split(name)
-    fields = [f] if f else list(QUANTITIES[q])
+    fields = [f] if f else [fld for fld in QUANTITIES[q] if (q, fld) not in PARTS]
     return [c for fld in fields for c in QUANTITIES[q][fld]]
+
+
+def constant_reason(name: str, constant: list[tuple[str, float]]) -> str:
+    """The short reason (for the attack summary line) why quantity ``name`` is not attacked."""
+    c, v = constant[0]
+    more = f" and {len(constant) - 1} more" if len(constant) > 1 else ""
+    return f"{name} constant for the whole flight ({c} = {v:g}{more})"
 
 
 def _describe(available: dict[str, tuple[str, ...]]) -> str:
@@ -159,6 +218,10 @@ def _describe(available: dict[str, tuple[str, ...]]) -> str:
 def resolve_target(name: str, available: dict[str, tuple[str, ...]], where: str) -> list[str]:
     """The concrete ``topic`` / ``topic.field`` targets of one scenario target in this input."""
     topic, field = _split(name)
+    if topic in available and field in getattr(available[topic], "quaternion", ()):
+        raise ScenarioError(f"{where}: {name!r} is a component of {topic}'s quaternion, which stays a unit "
+                            f"quaternion only when rotated: target {topic}.roll, .pitch or .yaw (or attitude.roll "
+                            "...) instead")
     if topic in available and (not field or field in available[topic] or not is_quantity(name)):
         return [name]
     if not is_quantity(name) and topic not in available and name in MEANING_OF:
@@ -170,7 +233,14 @@ def resolve_target(name: str, available: dict[str, tuple[str, ...]], where: str)
         looked = sorted({_split(c)[0] for c in _candidates(name)})
         raise ScenarioError(f"{where}: {name!r} (a quantity) matches no topic of this input; it looks for "
                             f"{', '.join(looked)}; the input has: {_describe(available)}")
-    return found
+    # a field that reads one value for the whole flight (a zero GPS on a log without GPS) is no
+    # measurement to attack: moving it would make a copy that differs from the flight in nothing real
+    constant = [(c, getattr(available[_split(c)[0]], "constant", {}).get(_split(c)[1])) for c in found]
+    live = [c for c, v in constant if v is None]
+    if not live:
+        raise ScenarioError(f"{where}: {name!r} (a quantity) is not attacked on this flight: "
+                            f"{constant_reason(name, constant)}")
+    return live
 
 
 def resolve_condition_topic(condition: str, params: dict, available: dict[str, tuple[str, ...]],
