@@ -54,8 +54,13 @@ logger = logging.getLogger(__name__)
 #: Splits a log can be imported into; ``csv_source``: normal flights kept as csv-mode attack sources
 #: (neither trained on nor scored).
 IMPORT_SPLITS = ("train", "validation", "test", "csv_source")
-#: Shares of ``--split auto`` (train, validation, test; csv_source takes the rest).
-AUTO_SHARES = (0.5, 0.2, 0.15)
+#: ``--split auto``: validation gets this share of the logs, and at least AUTO_MIN_VALIDATION: validation
+#: flights set every threshold, and on a few logs the false alarms per flight-hour are calibrated on their
+#: time, so they get as much as leaves train and test a share; test and csv_source get these shares
+#: (test at least one), train the rest.
+AUTO_VALIDATION_SHARE = 1 / 3
+AUTO_MIN_VALIDATION = 2
+AUTO_SHARES = {"test": 0.15, "csv_source": 0.15}
 
 
 def _config_id(job) -> str:
@@ -114,6 +119,8 @@ def replay_on_log(listen: dict[str, pd.DataFrame], jobs: list, seed: int, clock:
     count logged seconds; each copy's seed from :func:`copy_seed`), and the results back on the log's own
     time. Returns per configuration
     (result without the derived phase topic, notes on moved triggers)."""
+    if not jobs:
+        return []
     moved = [log_triggers(job, clock, takeoff_us(listen)) for job in jobs]
     replay = clock.tables(listen)
     results = csv_mode([replay] * len(jobs), [m[0] for m in moved], [copy_seed(seed, job) for job in jobs])
@@ -286,23 +293,64 @@ def import_ids(paths: list[Path], start_s: float | None = None, end_s: float | N
     return ids
 
 
-def auto_splits(ids: list[str], seed: int) -> list[str]:
-    """``--split auto``: train / validation / test / csv_source by a seeded shuffle of the ids.
+def auto_counts(n: int) -> dict[str, int]:
+    """How many of ``n`` logs ``--split auto`` puts in each split: a third (at least 2) validation,
+    15 % test (at least 1), 15 % csv_source, the rest train. Too few logs for all: csv_source gives
+    way first, then test down to 1, validation down to 1, test, validation (train keeps one)."""
+    import math
 
-    Deterministic for a seed and a set of ids (not their order). With 4 or more flights every one
-    of train, validation and test gets at least one.
+    if n <= 0:
+        return dict.fromkeys(IMPORT_SPLITS, 0)
+    val = max(AUTO_MIN_VALIDATION, math.ceil(n * AUTO_VALIDATION_SHARE))
+    test = max(1, int(n * AUTO_SHARES["test"] + 1e-9))
+    csv = int(n * AUTO_SHARES["csv_source"] + 1e-9)
+    while n > 0 and val + test + csv + 1 > n:
+        if csv:
+            csv -= 1
+        elif test > 1:
+            test -= 1
+        elif val > 1:
+            val -= 1
+        elif test:
+            test -= 1
+        else:
+            val -= 1
+    return {"train": max(n - val - test - csv, 0), "validation": val, "test": test, "csv_source": csv}
+
+
+def auto_splits(ids: list[str], seed: int) -> list[str]:
+    """``--split auto``: train / validation / test / csv_source by a seeded shuffle of the ids, in the
+    numbers of :func:`auto_counts`.
+
+    Deterministic for a seed and a set of ids (not their order). From 2 logs on, train and
+    validation each get one; from 3, test too; from 4, validation gets 2.
     """
     n = len(ids)
     key = lambda fid: hashlib.sha256(f"{seed}:{fid}".encode()).hexdigest()  # noqa: E731
     order = sorted(range(n), key=lambda i: key(ids[i]))
-    n_train = max(1, round(AUTO_SHARES[0] * n))
-    n_val = min(max(1, round(AUTO_SHARES[1] * n)), max(n - n_train, 0))
-    n_test = min(max(1, round(AUTO_SHARES[2] * n)), max(n - n_train - n_val, 0))
+    counts = auto_counts(n)
+    n_train, n_val, n_test = counts["train"], counts["validation"], counts["test"]
     out = [""] * n
     for rank, i in enumerate(order):
         out[i] = ("train" if rank < n_train else "validation" if rank < n_train + n_val
                   else "test" if rank < n_train + n_val + n_test else "csv_source")
     return out
+
+
+def auto_split_line(splits: list[str], loaded: list[dict[str, pd.DataFrame]], seed: int) -> str:
+    """One line on what ``--split auto`` chose: flights and logged minutes (gaps not counted) per split."""
+    from scart_bench.generator.logs.logged_time import log_times
+
+    minutes = dict.fromkeys(IMPORT_SPLITS, 0.0)
+    for sp, tables in zip(splits, loaded):
+        t = log_times(tables)
+        if len(t) > 1:
+            span = float(t[-1] - t[0]) - sum(b - a for a, b in logging_gaps(tables))
+            minutes[sp] += span / 60e6
+    parts = [f"{splits.count(sp)} {sp} ({minutes[sp]:.1f} min)" for sp in IMPORT_SPLITS if splits.count(sp)]
+    return (f"import: --split auto (seed {seed}) for {len(splits)} log(s): {', '.join(parts)} of logged flight; "
+            f"validation holds a third of the logs (at least {AUTO_MIN_VALIDATION}): its time calibrates the "
+            "thresholds")
 
 
 def non_finite_cells(tables: dict[str, pd.DataFrame]) -> dict[str, int]:
@@ -364,6 +412,8 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
             shown = ", ".join(f"{c} {n}" for c, n in list(counts.items())[:8]) + (" ..." if len(counts) > 8 else "")
             say(f"import: warning: {p}: {sum(counts.values())} NaN/inf cell(s) in {len(counts)} column(s) ({shown}); "
                 "detectors treat them as missing values")
+    if split == "auto":
+        say(auto_split_line(splits, loaded, seed))
 
     def records() -> Iterator:
         for p, fid, sp, tables in zip(paths, ids, splits, loaded):
