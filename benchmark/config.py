@@ -16,6 +16,8 @@ over it::
     plugins = ["my_detector.py:MyDetector"]
     features = ["vehicle_gps_position.*"]    # optional: the feature columns (glob patterns), or
     exclude = ["battery_status.*"]           #   columns to leave out of the default feature rule
+    columns = "auto"                         # or "logged" / "meaning": how flights that log different
+                                             #   columns are read (scart_bench.benchmark.transfer.open_meaning)
 
     [params.goad]                            # constructor parameters per detector
     n_trans = 64
@@ -26,6 +28,8 @@ over it::
     burn_in_s = 8.0                          # after arming: rows neither calibrate nor alarm
     end_transient_s = 2.0                    # an alarm this soon after the attack's end is "at the end"
     alarm_rule = "calibrated"                # or "own": the detector's own alarm rule where it has one
+    phases = "burn-in"                       # rows counted at the ends: burn-in, ends or cruise
+    phase_margin_s = 3.0                     # the margin of ends / cruise after take-off and before touchdown
     [protocol.flight_rule]                   # or the rules in full (kind conformal / max / quantile)
     kind = "conformal"
 
@@ -47,6 +51,7 @@ from pathlib import Path
 import pandas as pd
 
 from scart_bench.benchmark.protocol import Protocol, ProtocolError, ThresholdRule
+from scart_bench.benchmark.transfer import COLUMN_MODES
 from scart_bench.errors import RunError
 from scart_bench.generator.profiles import PROFILES
 from scart_bench.storage import is_url
@@ -55,7 +60,7 @@ from scart_bench.storage import is_url
 #: values of ``--device``
 DEVICES = ("auto", "cpu", "cuda")
 RUN_KEYS = ("detectors", "profile", "dataset", "train_dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
-            "plugins", "params", "protocol", "resume", "features", "exclude", "device", "score_shards")
+            "plugins", "params", "protocol", "resume", "features", "exclude", "device", "score_shards", "columns")
 
 
 @dataclass
@@ -84,6 +89,9 @@ class RunConfig:
     #: scart_bench.detectors.base.feature_columns)
     features: list[str] | None = None
     exclude: list[str] | None = None
+    #: how a run on one dataset reads its flights: auto (by meaning when they log different columns
+    #: and no --features/--exclude names logged columns), logged or meaning (benchmark.transfer.open_meaning)
+    columns: str = "auto"
     #: torch device of the detectors that take one: auto (cuda when available, as the detectors'
     #: own default), cpu or cuda
     device: str = "auto"
@@ -116,6 +124,10 @@ class RunConfig:
             raise RunError(f"--device {self.device!r}: expected one of {', '.join(DEVICES)}")
         if not self.detectors:
             raise RunError("--detectors: expected 'all' or a comma-separated list of names")
+        if self.columns not in COLUMN_MODES:
+            raise RunError(f"--columns {self.columns!r}: expected one of {', '.join(COLUMN_MODES)}")
+        if self.train_dataset is not None and self.columns == "logged":
+            raise RunError("--columns logged: a transfer run (--train-dataset) always reads its flights by meaning")
         if self.train_dataset is not None and self.dataset is None:
             raise RunError(f"--train-dataset {self.train_dataset}: a transfer run tests on --dataset DIR; none given")
 
@@ -144,6 +156,8 @@ class RunConfig:
             out["features"] = list(self.features)
         if self.exclude:
             out["exclude"] = list(self.exclude)
+        if self.columns != "auto":
+            out["columns"] = self.columns
         out["device"] = self.device
         return out
 
@@ -194,7 +208,7 @@ def _checked(p: Path, data: dict) -> dict:
             out["detectors"] = list(d)
         else:
             raise bad("detectors", '"all" or a list of detector names')
-    for key in ("profile", "executor", "scheduler", "dataset", "train_dataset", "out", "device"):
+    for key in ("profile", "executor", "scheduler", "dataset", "train_dataset", "out", "device", "columns"):
         if key in data and not isinstance(data[key], str):
             raise bad(key, "a string")
     for key in ("dataset", "train_dataset", "out"):
@@ -224,7 +238,8 @@ def _checked(p: Path, data: dict) -> dict:
 
 def protocol_from(p: Path, data: object) -> Protocol:
     """A Protocol from a run file's ``[protocol]`` table (missing keys keep their defaults)."""
-    keys = ("flight_rule", "row_rule", "alpha", "burn_in_s", "end_transient_s", "alarm_rule")
+    keys = ("flight_rule", "row_rule", "alpha", "burn_in_s", "end_transient_s", "alarm_rule", "phases",
+            "phase_margin_s")
     if not isinstance(data, dict):
         raise RunError(f"--config {p}: protocol: expected a table with {', '.join(keys)}")
     unknown = [k for k in data if k not in keys]
@@ -244,14 +259,15 @@ def protocol_from(p: Path, data: object) -> Protocol:
         except ProtocolError as exc:
             raise RunError(f"--config {p}: protocol.{key}: {exc}") from exc
     extra = {}
-    for key in ("burn_in_s", "end_transient_s"):
+    for key in ("burn_in_s", "end_transient_s", "phase_margin_s"):
         if key in data:
             v = data[key]
             if isinstance(v, bool) or not isinstance(v, int | float):
                 raise RunError(f"--config {p}: protocol.{key} = {v!r}: expected a number of seconds >= 0")
             extra[key] = float(v)
-    if "alarm_rule" in data:
-        extra["alarm_rule"] = data["alarm_rule"]
+    for key in ("alarm_rule", "phases"):
+        if key in data:
+            extra[key] = data[key]
     try:
         return Protocol(rules["flight_rule"], rules["row_rule"], **extra)
     except ProtocolError as exc:

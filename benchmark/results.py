@@ -24,6 +24,7 @@ from scart_bench.benchmark.evaluation import (
 from scart_bench.benchmark.metrics import (
     DEFAULT_METRICS,
     NEAR_ARMING_S,
+    NEAR_ENDS_S,
     OC_ALPHAS,
     OC_COLUMNS,
     PHASE_METRIC_COLUMNS,
@@ -31,7 +32,7 @@ from scart_bench.benchmark.metrics import (
     operating_characteristic,
 )
 from scart_bench.benchmark.protocol import Protocol
-from scart_bench.benchmark.store import RunStore, atomic_write_json
+from scart_bench.benchmark.store import RunStore, RunStoreError, atomic_write_json
 from scart_bench.benchmark.tables import (
     BREAKDOWN_COLUMNS,
     DETECTION_RULE,
@@ -179,8 +180,7 @@ def _metrics_of(done: list[tuple]) -> pd.DataFrame:
                "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
     table = pd.DataFrame([row for row, _, _, _ in done], columns=columns)
     # a run without phase bounds (made before protocol v3) keeps metrics.csv's columns as they were
-    empty = [c for c in PHASE_METRIC_COLUMNS if table[c].isna().all()]
-    return table.drop(columns=empty)
+    return table.drop(columns=list(PHASE_METRIC_COLUMNS)) if table["val_max_near_ends"].isna().all() else table
 
 
 def score_run(path: str | Path, write: bool = True, processes: int | None = None) -> pd.DataFrame:
@@ -225,14 +225,39 @@ EVALUATIONS_DIR = "evaluations"
 EVALUATION_FORMAT = "scart-bench-evaluation/1"
 
 
-def evaluation_name(alpha: float | None = None, burn_in_s: float | None = None) -> str:
+def evaluation_name(alpha: float | None = None, burn_in_s: float | None = None, phases: str | None = None,
+                    phase_margin_s: float | None = None) -> str:
     """The folder name of an evaluation at another operating point: ``alpha-0.01``,
-    ``alpha-0.01-burnin-12``, ``burnin-12``."""
+    ``alpha-0.01-burnin-12``, ``burnin-12``, ``phases-ends``, ``alpha-0.01-phases-ends-margin-5``."""
     parts = ([f"alpha-{alpha:g}"] if alpha is not None else []) + (
-        [f"burnin-{burn_in_s:g}"] if burn_in_s is not None else [])
+        [f"burnin-{burn_in_s:g}"] if burn_in_s is not None else []) + (
+        [f"phases-{phases}"] if phases is not None else []) + (
+        [f"margin-{phase_margin_s:g}"] if phase_margin_s is not None else [])
     if not parts:
-        raise ValueError("an evaluation needs an alpha or a burn-in")
+        raise ValueError("an evaluation needs an alpha, a burn-in or a counting rule")
     return "-".join(parts)
+
+
+def ensure_phases(store: RunStore, config: dict) -> None:
+    """Give a run made before protocol v3 its phase bounds (phases.csv), read from its dataset's
+    flights; RunStoreError when the dataset is not at hand (or the run is a transfer run, whose
+    flights are read by meaning)."""
+    from scart_bench.benchmark.protocol import flight_phase_bounds
+    from scart_bench.dataset import DatasetError, open_dataset
+
+    if store.has_phases():
+        return
+    if config.get("train_dataset"):
+        raise RunStoreError(f"{store.path}: a transfer run made before protocol v3 has no phase bounds; "
+                            "run it again to count by phases")
+    path = (config.get("dataset") or {}).get("path")
+    try:
+        ds = open_dataset(path)
+    except (DatasetError, OSError, TypeError) as exc:
+        raise RunStoreError(f"{store.path}: made before protocol v3, it has no phases.csv, and its dataset "
+                            f"{path} cannot be read to find them ({exc})") from None
+    ids = list(store.read_truth())
+    store.write_phases({fid: flight_phase_bounds(ds.flight(fid)) for fid in ids})
 
 
 def evaluate_run(path: str | Path, protocol: Protocol, name: str,
@@ -248,6 +273,8 @@ def evaluate_run(path: str | Path, protocol: Protocol, name: str,
     """
     store = RunStore(path)
     config = store.read_config()
+    if protocol.phases != "burn-in":
+        ensure_phases(store, config)
     results = pd.DataFrame([_result_row(store, config, n) for n in _job_order(store, config)],
                            columns=list(_RESULT_COLUMNS))
     processes = _default_processes(config) if processes is None else max(1, int(processes))
@@ -287,10 +314,17 @@ def _evaluation_lines(evaluation: dict | None) -> list[str]:
     def rate(a) -> str:
         return "its own alarm rules" if a is None else f"alpha {a:g}"
 
+    def counting(rules: dict | None, burn_in) -> str:
+        if rules and rules.get("phases", "burn-in") != "burn-in":
+            return Protocol.from_dict(rules).counting()
+        return f"burn-in {burn_in:g} s"
+
     return [f"Evaluation `{evaluation['name']}`, made after the run from its saved scores (no job was run): "
-            f"thresholds recalibrated on the saved validation scores at {rate(evaluation['alpha'])}, burn-in "
-            f"{evaluation['burn_in_s']:g} s (the run: {rate(evaluation.get('run_alpha'))}, burn-in "
-            f"{evaluation.get('run_burn_in_s', 0.0):g} s). The run's own tables are in the run folder.", ""]
+            f"thresholds recalibrated on the saved validation scores at {rate(evaluation['alpha'])}, "
+            f"{counting(evaluation.get('protocol'), evaluation['burn_in_s'])} (the run: "
+            f"{rate(evaluation.get('run_alpha'))}, "
+            f"{counting(evaluation.get('run_protocol'), evaluation.get('run_burn_in_s', 0.0))}). "
+            "The run's own tables are in the run folder.", ""]
 
 
 def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | None = None) -> str:
@@ -317,6 +351,7 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | Non
               f"- flight threshold: {proto.get('flight_threshold')}",
               f"- row threshold: {proto.get('row_threshold')}",
               f"- burn-in: {proto.get('burn_in', 'none')}",
+              *([f"- counted rows: {proto['counted_rows']}"] if "counted_rows" in proto else []),
               f"- alarms: {proto.get('alarms', 'score > the calibrated threshold')}",
               f"- end transient: {proto.get('end_transient', 'none')}",
               f"- decision: {proto.get('decision')}",
@@ -333,6 +368,15 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | Non
                     f"{int(r['val_raw_max_in_burn_in'])} of {int(r['n_validation'])} validation maxima fell in the "
                     f"burn-in and were left out" for _, r in ok.iterrows()
                     if not pd.isna(r.get("threshold_after_arming_s"))), ""]
+    if len(ok) and "val_max_near_ends" in ok.columns:
+        lift = pd.to_numeric(ok["threshold_after_liftoff_s"], errors="coerce").abs()
+        down = pd.to_numeric(ok["threshold_before_touchdown_s"], errors="coerce").abs()
+        near = ok[(lift < NEAR_ENDS_S) | (down < NEAR_ENDS_S)]
+        lines += [f"- {len(near)} of {len(ok)} detectors' thresholds are set by a row within {NEAR_ENDS_S:g} s of "
+                  "take-off or touchdown" + (f" ({', '.join(near['detector'].astype(str))})" if len(near) else "")
+                  + "; validation maxima within it: " + ", ".join(
+                      f"{r['detector']} {int(r['val_max_near_ends'])}" for _, r in ok.iterrows()
+                      if not pd.isna(r.get("val_max_near_ends"))), ""]
     return "\n".join(lines)
 
 

@@ -50,8 +50,14 @@ from scart_bench.benchmark.protocol import ROLES, Splits, arming_time_us, assign
 from scart_bench.benchmark.results import paper_table, score_run, write_results
 from scart_bench.benchmark.selection import DetectorChoice, load_plugins, resolve_detectors, with_params
 from scart_bench.benchmark.sharding import ShardedScoring
-from scart_bench.benchmark.store import RunStore, diff_identity, json_safe
-from scart_bench.benchmark.transfer import TransferRun, open_transfer, plan_fingerprint
+from scart_bench.benchmark.store import RunStore, comparable, diff_identity, json_safe
+from scart_bench.benchmark.transfer import (
+    MeaningRun,
+    TransferRun,
+    open_meaning,
+    open_transfer,
+    plan_fingerprint,
+)
 from scart_bench.errors import RunError
 from scart_bench.storage import fetch_dataset, is_url
 
@@ -211,9 +217,16 @@ def _check_identity(store: RunStore, old: dict | None, identity: dict) -> None:
 
 def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: Splits, identity: dict,
                 chosen: list[DetectorChoice], plugins: dict[str, DetectorChoice], settings: dict,
-                transfer: TransferRun | None = None) -> dict:
+                transfer: TransferRun | None = None, meaning: MeaningRun | None = None) -> dict:
     """config.json: identity, dataset, detectors (accumulated over invocations), environment."""
     previous = list(old.get("detectors", [])) if old else []
+    if meaning is not None:  # a run on one dataset read by meaning: its quantities and why
+        plan = meaning.plan.to_dict()
+        dropped = plan["dropped"].get("dataset", {})
+        by_meaning = {"columns": {"by": "meaning", "why": meaning.why, "quantities": plan["columns"],
+                                  "lacking": plan["lacking"],
+                                  "dropped": {c: why for c, why in dropped.items() if why != "no meaning"},
+                                  "no_meaning": sum(why == "no meaning" for why in dropped.values())}}
     extra = {} if transfer is None else {
         "train_dataset": {"path": str(transfer.train.path.resolve()), "info": transfer.train.info,
                           "fingerprint": identity["train_dataset_fingerprint"],
@@ -233,6 +246,7 @@ def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: S
         "dataset": {"path": str(ds.path.resolve()), "info": ds.info, "fingerprint": identity["dataset_fingerprint"],
                     "flights": {r: len(getattr(splits, r)) for r in ROLES}, "no_effect": list(splits.no_effect)},
         **extra,
+        **(by_meaning if meaning is not None else {}),
         "detectors": list(dict.fromkeys([*previous, *(c.name for c in chosen)])),
         "jobs": {**(old.get("jobs", {}) if old else {}), **settings},
         "plugins": [c.source for c in plugins.values()],
@@ -250,7 +264,8 @@ def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: S
 def _finished(store: RunStore, name: str, key: dict) -> bool:
     """True when a job finished OK with the same job key and its scores are on disk."""
     status, params = store.read_status(name), store.read_params(name)
-    return bool(status and status.get("status") == "OK" and params and params.get("key") == json_safe(key)
+    return bool(status and status.get("status") == "OK" and params
+                and json_safe(comparable(params.get("key"))) == json_safe(comparable(key))
                 and (store.job_dir(name) / "scores.npz").exists())
 
 
@@ -285,13 +300,19 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
     else:
         splits = Splits.from_manifest(ds.manifest)
         ds.check_flights(dict.fromkeys(splits.train + splits.scored))  # a damaged table stops the run here
+    meaning = None  # flights that log different columns are read by meaning (benchmark.transfer.open_meaning)
+    if transfer is None and not (cfg.columns == "auto" and (cfg.features or cfg.exclude)):
+        meaning = open_meaning(ds, splits, cfg.columns, note=lambda m: print(m, file=sys.stderr))
+    reader = transfer.reader if transfer is not None else meaning.reader if meaning is not None else ds.flight
     check_against_flights(cfg, chosen, splits, ds.manifest if transfer is None else transfer.flights,
-                          ds.flight if transfer is None else transfer.reader)  # windows, burn-in, --features
+                          reader)  # windows, burn-in, --features
     identity = {"format": RUN_FORMAT, "dataset_fingerprint": dataset_fingerprint(ds.manifest, ds.path),
                 "seed": int(cfg.seed), "protocol": cfg.protocol.rules()}
     if transfer is not None:  # absent otherwise: runs on one dataset keep their identity
         identity["train_dataset_fingerprint"] = dataset_fingerprint(transfer.train.manifest, transfer.train.path)
         identity["transfer"] = {"columns": list(transfer.plan.columns), "interval_us": transfer.plan.interval_us}
+    if meaning is not None:  # absent otherwise: runs on flights read as logged keep their identity
+        identity["columns"] = {"by": "meaning", "columns": list(meaning.plan.columns)}
     if cfg.features or cfg.exclude:  # absent otherwise: runs made before these options stay comparable
         identity["features"] = {"include": list(cfg.features or []), "exclude": list(cfg.exclude or [])}
     _check_identity(store, old, identity)
@@ -312,13 +333,15 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
         store.path.mkdir(parents=True, exist_ok=True)
         lock = store.lock()  # a second writer to this folder is refused here, before it writes anything
         store.mark_stale()  # old tables must not read as this run's results if it is interrupted
-        config = _run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer)
+        config = _run_config(cfg, old, store, ds, splits, identity, chosen, plugins, settings, transfer, meaning)
         if is_url(cfg.dataset):  # where the dataset lives (its "path" is this machine's copy)
             config["dataset"]["url"] = str(cfg.dataset)
         store.write_config(config)
         if transfer is None:
             store.write_flights(ds.manifest.assign(role=assign_roles(ds.manifest))[
                 ["flight_id", "role", *(c for c in ds.manifest.columns if c != "flight_id")]])
+            if meaning is not None:
+                store.write_table("columns.csv", meaning.dropped_table())
         else:
             store.write_flights(transfer.flights)
             store.write_table("columns.csv", transfer.dropped_table())
@@ -326,13 +349,18 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
         progress = JobProgress(len(chosen) - len(skipped), enabled=cfg.progress)
         if skipped:
             progress.note(f"resume: {len(skipped)} finished job(s) kept: {', '.join(skipped)}")
-        key = cache_key(identity["dataset_fingerprint"] if transfer is None else plan_fingerprint(identity))
+        by_meaning = transfer is not None or meaning is not None
+        key = cache_key(plan_fingerprint(identity) if by_meaning else identity["dataset_fingerprint"])
         readers = min(int(cfg.jobs), os.cpu_count() or 1) if cfg.executor == "local" else 1
-        read = DatasetReader(ds.path) if transfer is None else transfer.reader
+        read = (transfer.reader if transfer is not None else meaning.reader if meaning is not None
+                else DatasetReader(ds.path))
         cache = (_flight_cache(store, read, key, [*splits.train, *splits.scored], progress.note, readers)
                  if len(skipped) < len(chosen) else None)
         if not store.has_truth() or not store.has_arming() or not store.has_phases():
-            truth, arming, phases = _truth(cache or (ds if transfer is None else transfer.reader), splits.scored)
+            # labels, arming and phases from the flights as logged (a table by meaning has the same rows,
+            # but not the topics the phase detector reads); a transfer run's test flights are resampled
+            source = transfer.reader if transfer is not None else ds if meaning is not None else cache or ds
+            truth, arming, phases = _truth(source, splits.scored)
             store.write_truth(truth)
             store.write_arming(arming)
             store.write_phases(phases)
@@ -341,7 +369,8 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
                          job_dataset, splits.train, splits.scored, threads,
                          tuple(cfg.features) if cfg.features else None, tuple(cfg.exclude) if cfg.exclude else None,
                          str(cache.folder.resolve()) if cache else None, key if cache else None,
-                         cfg.protocol.alarm_rule == "own", transfer.job_args() if transfer else None)
+                         cfg.protocol.alarm_rule == "own",
+                         transfer.job_args() if transfer else meaning.job_args(job_dataset) if meaning else None)
                  for c in chosen if c.name not in skipped]
         # costliest first (a scheduling hint only: tables keep the detectors' order)
         cost = {c.name: float(getattr(c.cls, "relative_cost", 10.0)) for c in chosen}

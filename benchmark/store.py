@@ -662,8 +662,30 @@ class RunStore:
         atomic_write_text(self.path / name, text)
 
 
+#: The protocol keys that change a job's output (the own alarms it returns); the rest (alpha, the
+#: threshold rules, burn-in, end transient, counting rule) only change how saved scores are counted,
+#: so they are not part of what makes two runs (or two jobs) the same.
+JOB_PROTOCOL_KEYS = ("alarm_rule",)
+
+
+def comparable(value: dict) -> dict:
+    """An identity (or a job key holding one under ``identity``) with its protocol reduced to
+    :data:`JOB_PROTOCOL_KEYS`: what ``--resume`` compares. The operating point is chosen after the run
+    (``scart-bench score RUN --alpha``, ``run --resume --alpha``) and never reruns a job."""
+    if not isinstance(value, dict):
+        return value
+    if isinstance(value.get("identity"), dict):
+        return {**value, "identity": comparable(value["identity"])}
+    proto = value.get("protocol")
+    if isinstance(proto, dict):
+        return {**value, "protocol": {"alarm_rule": proto.get("alarm_rule", "calibrated")}}
+    return value
+
+
 def diff_identity(old: dict, new: dict) -> list[str]:
-    """Human-readable differences between two config identities (empty when they match)."""
+    """Human-readable differences between two config identities (empty when they match), the
+    operating point left out (:func:`comparable`)."""
+    old, new = comparable(old), comparable(new)
     out = []
     for key in sorted(set(old) | set(new)):
         if json_safe(old.get(key)) != json_safe(new.get(key)):

@@ -25,7 +25,7 @@ _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset"
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
             "score_shards": "score_shards",
             "timeout": "timeout", "seed": "seed", "features": "features",
-            "exclude": "exclude", "device": "device"}
+            "exclude": "exclude", "device": "device", "columns": "columns"}
 
 
 def run_config(args: argparse.Namespace):
@@ -77,6 +77,19 @@ def _trusted_plugins(from_file: list[str], from_command_line: list[str], args: a
     return list(dict.fromkeys([*from_command_line, *untrusted]))
 
 
+def add_phase_options(parser) -> None:
+    """``--phases`` and ``--phase-margin`` (run and score)."""
+    from scart_bench.benchmark.protocol import DEFAULT_PHASE_MARGIN_S, PHASE_RULES
+
+    parser.add_argument("--phases", choices=PHASE_RULES,
+                        help="which rows calibrate and alarm at the flight's ends: burn-in (protocol v2: from "
+                             "--burn-in s after arming), ends (airborne rows from --phase-margin s after take-off "
+                             "to --phase-margin s before touchdown, read from the flight) or cruise (from the end "
+                             "of the climb to the final descent); docs/protocol.md")
+    parser.add_argument("--phase-margin", type=float, metavar="SECONDS", dest="phase_margin",
+                        help=f"margin of --phases ends/cruise at both ends (default {DEFAULT_PHASE_MARGIN_S:g} s)")
+
+
 def protocol_options(protocol, args: argparse.Namespace):
     """The run's protocol with ``--alpha``, ``--burn-in`` and ``--threshold`` applied."""
     import dataclasses
@@ -94,6 +107,12 @@ def protocol_options(protocol, args: argparse.Namespace):
         if getattr(args, "burn_in", None) is not None:
             option = f"--burn-in {args.burn_in:g}"
             protocol = dataclasses.replace(protocol, burn_in_s=args.burn_in)
+        if getattr(args, "phases", None) is not None:
+            option = f"--phases {args.phases}"
+            protocol = dataclasses.replace(protocol, phases=args.phases)
+        if getattr(args, "phase_margin", None) is not None:
+            option = f"--phase-margin {args.phase_margin:g}"
+            protocol = dataclasses.replace(protocol, phase_margin_s=args.phase_margin)
         if getattr(args, "threshold", None) is not None:
             option = f"--threshold {args.threshold}"
             protocol = dataclasses.replace(protocol, alarm_rule=args.threshold)
@@ -240,6 +259,11 @@ def register(sub) -> None:
                         "not constant)")
     r.add_argument("--exclude", action="append", metavar="GLOB,...",
                    help="drop these columns from the features, e.g. 'battery_status.*' (repeatable)")
+    r.add_argument("--columns", choices=("auto", "logged", "meaning"),
+                   help="how a run on one dataset reads its flights: logged (each flight's own topic.field "
+                        "columns), meaning (the quantities of the scenarios' meaning table, shared by firmware "
+                        "builds that log different fields) or auto (default: by meaning when the flights log "
+                        "different columns and no --features/--exclude is given); docs/own_logs.md")
     r.add_argument("--device", choices=("auto", "cpu", "cuda"),
                    help="torch device of the detectors that take one (deepsvdd, rdp, rca, goad, neutral, "
                         "telemanom): auto (default: cuda when available, else cpu), cpu or cuda")
@@ -251,6 +275,7 @@ def register(sub) -> None:
                         "conformal order statistic of the validation flights' scores")
     r.add_argument("--burn-in", type=float, metavar="SECONDS", dest="burn_in",
                    help="seconds after arming in which rows neither calibrate nor alarm (default 8)")
+    add_phase_options(r)
     r.add_argument("--threshold", choices=("calibrated", "own"),
                    help="calibrated (default): score > the calibrated threshold; own: each detector's own alarm "
                         "rule where it has one (Telemanom's dynamic threshold, Statistical's vote)")

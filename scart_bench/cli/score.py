@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 
 from scart_bench.cli.common import UsageError, name_failed, print_tables, staged_folder
+from scart_bench.cli.run import add_phase_options
 
 
 def _operating_point(run, args: argparse.Namespace):
@@ -31,12 +32,13 @@ def cmd_score(args: argparse.Namespace) -> int:
     with staged_folder(args.run) as run:  # a run folder at a URL: scored in a local copy, uploaded back
         RunStore(run).read_config()  # a damaged config.json is named before anything else
         RunStore(run).verify()  # labels and scores as the run wrote them, or refused (one line naming the file)
-        if args.alpha is None and args.burn_in is None:
+        if args.alpha is None and args.burn_in is None and args.phases is None and args.phase_margin is None:
             metrics = score_run(run, processes=args.jobs)
             print_tables(run, metrics, shown=str(args.run))
         else:
             protocol = _operating_point(run, args)
-            name = evaluation_name(args.alpha, args.burn_in)
+            name = evaluation_name(args.alpha, args.burn_in, protocol.phases if (
+                args.phases is not None or args.phase_margin is not None) else None, args.phase_margin)
             _, metrics = evaluate_run(run, protocol, name, processes=args.jobs)
             print_tables(run, metrics, shown=f"{str(args.run).rstrip('/')}/evaluations/{name}",
                          label="evaluation folder")
@@ -59,4 +61,5 @@ def register(sub) -> None:
     s.add_argument("--burn-in", type=float, metavar="SECONDS", dest="burn_in",
                    help="with or without --alpha: evaluate with this burn-in after arming instead of the run's "
                         "(folder RUN/evaluations/[alpha-RATE-]burnin-SECONDS/)")
+    add_phase_options(s)
     s.set_defaults(func=cmd_score)
