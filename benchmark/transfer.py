@@ -21,14 +21,23 @@ the table the scenarios by meaning resolve with:
 - what says *where* a flight is rather than how it flies is taken from the flight's own start:
   latitude/longitude become metres north/east of the flight's first fix (``position.north``,
   ``position.east``, ``gps.north``, ``gps.east``), and AMSL altitudes, the barometer's pressure and
-  altitude and the battery voltage their change since the first valid value;
+  altitude, the magnetometer's field (its strength and direction are the site's) and the battery
+  voltage (the pack's) their change since the first valid value;
 - the mission item and the flight phase (control state, not measurements) are not kept; the arming
   columns (``armed``, ``arming_state``) are kept as they are for the burn-in;
 - the run keeps the quantities every train, validation and test flight has (:func:`plan_transfer`),
-  and says which columns of either dataset had no counterpart;
+  and says which columns of either dataset had no counterpart, and which flights lack a quantity
+  that was dropped for that reason (a GPS-less log removes every position quantity);
 - test flights logged at another rate are resampled to the training flights' row interval (each
   new row the last row at or before its time; labelled attacked when any row since the previous new
   row was), so that windows counted in rows span the same time on both.
+
+A run on one dataset reads its flights by meaning too when they log different columns (firmware
+builds of one fleet: ``EKF1`` or ``NKF1``; ``--columns auto``, :func:`open_meaning`): the run's
+quantities are those a training flight has (the detectors learn them from the flights that have
+them), and a flight without one has it as missing values, which every detector treats as any gap
+(filled with the training mean); a line names those flights (attacked copies counted under their
+source flight). Rows are not resampled: every flight is its own table by meaning.
 """
 
 from __future__ import annotations
@@ -47,7 +56,12 @@ from scart_bench.generator.geo import ne_from_latlon
 from scart_bench.generator.scart import units
 from scart_bench.generator.scart.meanings import MEANING_OF, QUANTITIES
 
-__all__ = ["TransferFlights", "TransferPlan", "column_meanings", "plan_transfer", "resample", "shared_table"]
+__all__ = ["COLUMN_MODES", "MeaningRun", "TransferFlights", "TransferPlan", "column_meanings", "logged_columns",
+           "open_meaning", "plan_transfer", "resample", "shared_table"]
+
+#: How a run on one dataset reads its flights (``run --columns``): ``auto`` (by meaning when the run's
+#: flights log different columns, else as logged), ``logged`` (each flight's own columns) or ``meaning``.
+COLUMN_MODES = ("auto", "logged", "meaning")
 
 #: Columns every flight table starts with; kept as they are.
 LABEL_COLUMNS = ("Index", "Timestamp", "Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
@@ -56,7 +70,7 @@ ARMING_FIELDS = ("armed", "arming_state")
 #: Quantities that are control state, not measurements: never shared.
 NOT_SHARED = ("mission", "phase")
 #: Quantities re-referenced to the flight's first valid value (they say where, or with what pack).
-FROM_START = ("altitude.amsl", "gps.alt", "baro.alt", "baro.pressure", "battery.voltage")
+FROM_START = ("altitude.amsl", "gps.alt", "baro.alt", "baro.pressure", "battery.voltage", "mag.x", "mag.y", "mag.z")
 #: latitude/longitude pairs -> (north, east) columns in metres from the flight's first fix.
 LATLON = {("position.lat", "position.lon"): ("position.north", "position.east"),
           ("gps.lat", "gps.lon"): ("gps.north", "gps.east")}
@@ -198,6 +212,49 @@ def shared_table(flight: pd.DataFrame, columns: Iterable[str] | None = None,
     return out
 
 
+def name_flights(ids: Iterable[str], source_of: dict[str, str] | None = None, limit: int = 8) -> str:
+    """Flights named for a user: an attacked copy is counted under its source flight (``log-a and its 12
+    attacked copies``, or ``3 attacked copies of log-b`` when the source itself is not among them);
+    at most ``limit`` names, then how many more."""
+    source_of = source_of or {}
+    ids = list(dict.fromkeys(str(f) for f in ids))
+    listed = set(ids)
+    copies: dict[str, int] = {}
+    for f in ids:
+        src = source_of.get(f)
+        key = src if src and src != f else f
+        copies[key] = copies.get(key, 0) + (key != f)
+    names = []
+    for key, n in copies.items():
+        if key in listed:
+            names.append(key + (f" and its {n} attacked cop{'y' if n == 1 else 'ies'}" if n else ""))
+        else:
+            names.append(f"{n} attacked cop{'y' if n == 1 else 'ies'} of {key}")
+    more = len(names) - limit
+    return ", ".join(names[:limit]) + (f" and {more} more" if more > 0 else "")
+
+
+def _labelled(tables: Iterable) -> Iterable[tuple[str, pd.DataFrame]]:
+    """``(flight id, table)`` pairs from pairs or bare tables (numbered ``#i``)."""
+    for i, t in enumerate(tables):
+        yield (str(t[0]), t[1]) if isinstance(t, tuple) else (f"#{i}", t)
+
+
+def _order() -> list[str]:
+    """Quantity columns in the table's order (QUANTITIES, then the north/east columns of lat/lon)."""
+    return list(dict.fromkeys([*(f"{q}.{f}" for q, fs in QUANTITIES.items() for f in fs),
+                               *(v for pair in LATLON.values() for v in pair)]))
+
+
+def lacking_lines(lacking: dict[str, list[str]], source_of: dict[str, str] | None = None) -> list[str]:
+    """One line per set of flights lacking the same quantities: ``q1, q2: not in log-a, log-b ...``."""
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for q, ids in lacking.items():
+        if ids:
+            groups.setdefault(tuple(ids), []).append(q)
+    return [f"{', '.join(qs)}: not in {name_flights(ids, source_of)}" for ids, qs in groups.items()]
+
+
 @dataclass(frozen=True)
 class TransferPlan:
     """What a transfer run shares between its datasets: the quantity columns, the row interval of the
@@ -207,10 +264,13 @@ class TransferPlan:
     interval_us: int
     #: dataset ("train" / "test") -> columns of its flights that were left out, with why
     dropped: dict[str, dict[str, str]] = field(default_factory=dict)
+    #: quantity left out because some flights lack it -> those flights (ids), for the user to see
+    lacking: dict[str, list[str]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"columns": list(self.columns), "interval_us": int(self.interval_us),
-                "dropped": {k: dict(v) for k, v in self.dropped.items()}}
+                "dropped": {k: dict(v) for k, v in self.dropped.items()},
+                "lacking": {k: list(v) for k, v in self.lacking.items()}}
 
     def describe(self) -> str:
         """One line: how many quantities are shared and what was dropped."""
@@ -225,46 +285,54 @@ class TransferPlan:
         return "; ".join(parts)
 
 
-def plan_transfer(train_tables: Iterable[pd.DataFrame], test_tables: Iterable[pd.DataFrame],
-                  train_name: str = "train", test_name: str = "test") -> TransferPlan:
+def plan_transfer(train_tables: Iterable, test_tables: Iterable, train_name: str = "train",
+                  test_name: str = "test") -> TransferPlan:
     """The shared quantities: those every training/validation flight and every test flight has.
-    Raises RunError naming both datasets when none is shared."""
-    sides: dict[str, tuple[set[str] | None, set[str], set[str]]] = {}
+    The tables may come as ``(flight id, table)`` pairs, so that the flights lacking a quantity that
+    is dropped for them are named (:attr:`TransferPlan.lacking`). Raises RunError naming both
+    datasets when none is shared."""
+    sides: dict[str, tuple[dict[str, set[str]], set[str], set[str]]] = {}
     intervals: list[float] = []
     for side, tables in (("train", train_tables), ("test", test_tables)):
-        common: set[str] | None = None
+        have: dict[str, set[str]] = {}
         cols: set[str] = set()
         used: set[str] = set()
-        for t in tables:
+        for fid, t in _labelled(tables):
             meanings = column_meanings(t.columns)
-            have = set(shared_values(t))
-            common = have if common is None else common & have
+            got = set(shared_values(t))
+            have[fid] = got
             cols |= {c for c in t.columns if isinstance(c, str) and "." in c}
-            used |= set(meanings.values()) | ({*QUATERNION} if "attitude.roll" in have else set())
+            used |= set(meanings.values()) | ({*QUATERNION} if "attitude.roll" in got else set())
             if side == "train":
                 intervals.append(median_interval_us(t))
-        sides[side] = (common, cols, used)
-    train_common = sides["train"][0] or set()
-    test_common = sides["test"][0] or set()
-    order = [*(f"{q}.{f}" for q, fs in QUANTITIES.items() for f in fs), *(v for pair in LATLON.values() for v in pair)]
-    shared = [c for c in dict.fromkeys(order) if c in train_common and c in test_common]
+        sides[side] = (have, cols, used)
+    common = {side: set.intersection(*have.values()) if have else set() for side, (have, _, _) in sides.items()}
+    union = {side: set().union(*have.values()) for side, (have, _, _) in sides.items()}
+    shared = [c for c in _order() if c in common["train"] and c in common["test"]]
     if not shared:
         raise RunError(f"--train-dataset {train_name} / --dataset {test_name}: no quantity is in every flight of "
-                       f"both (train flights have: {', '.join(sorted(train_common)) or 'none'}; test flights have: "
-                       f"{', '.join(sorted(test_common)) or 'none'}); import the logs with their sensor topics")
+                       f"both (train flights have: {', '.join(sorted(common['train'])) or 'none'}; test flights "
+                       f"have: {', '.join(sorted(common['test'])) or 'none'}); import the logs with their sensor "
+                       "topics")
     dropped: dict[str, dict[str, str]] = {}
-    for side, (common, cols, used) in sides.items():
-        other = test_common if side == "train" else train_common
-        why = {c: "not in every flight of the other dataset" for c in sorted((common or set()) - set(shared))
-               if c not in other}
-        why.update({c: "not in every flight of this dataset" for c in sorted((common or set()) - set(shared))
-                    if c in other})
+    lacking: dict[str, list[str]] = {}
+    for side, (have, cols, used) in sides.items():
+        other = "test" if side == "train" else "train"
+        why = {}
+        for c in [c for c in _order() if c in union[side] and c not in shared]:
+            if c not in common[side]:
+                why[c] = "not in every flight of this dataset"
+                lacking.setdefault(c, []).extend(f for f, got in have.items() if c not in got)
+            elif c not in union[other]:
+                why[c] = "in no flight of the other dataset"
+            else:
+                why[c] = "not in every flight of the other dataset"
         arming = {c for c in cols if c.rpartition(".")[2] in ARMING_FIELDS}
         why.update({c: "no meaning" for c in sorted(cols - used - arming)})
         dropped[side] = why
     finite = [i for i in intervals if math.isfinite(i) and i > 0]
     interval = int(round(float(np.median(finite)))) if finite else 0
-    return TransferPlan(tuple(shared), interval, dropped)
+    return TransferPlan(tuple(shared), interval, dropped, {c: lacking[c] for c in _order() if c in lacking})
 
 
 def plan_fingerprint(*parts: object) -> str:
@@ -378,11 +446,14 @@ def open_transfer(train_path, test_ds, note=print) -> TransferRun:
     used_test = tested["test_normal"] + tested["test_attacked"]
     train.check_flights(dict.fromkeys(part["train"] + part["validation"]))
     test_ds.check_flights(dict.fromkeys(used_test))
-    plan = plan_transfer((train.flight(f) for f in part["train"] + part["validation"]),
-                         (test_ds.flight(f) for f in used_test), str(train_path), str(test_ds.path))
+    plan = plan_transfer(((f, train.flight(f)) for f in part["train"] + part["validation"]),
+                         ((f, test_ds.flight(f)) for f in used_test), str(train_path), str(test_ds.path))
     note(f"transfer: trained and calibrated on {train.path} ({len(part['train'])} train, "
          f"{len(part['validation'])} validation flights), tested on {test_ds.path} ({len(tested['test_normal'])} "
          f"normal, {len(tested['test_attacked'])} attacked flights); {plan.describe()}")
+    sources = {**source_flights(train.manifest), **source_flights(test_ds.manifest)}
+    for line in lacking_lines(plan.lacking, sources):
+        note(f"transfer: dropped for every flight, since some lack it: {line}")
     reader = TransferFlights(str(train.path.resolve()), str(test_ds.path.resolve()),
                              {f: renamed.get(f, f) for f in splits.train + splits.validation}, plan.columns,
                              plan.interval_us)
@@ -443,3 +514,124 @@ def _run_ids(train, test_ds, train_ids: tuple[str, ...], test_ids: set[str], tra
                            f"and {run_id!r} is taken by the test dataset; a transfer run needs ids it can tell apart")
         renamed[run_id] = f
     return renamed
+
+
+# -- a run on one dataset, by meaning ------------------------------------------------------------
+
+def source_flights(manifest: pd.DataFrame) -> dict[str, str]:
+    """Attacked copy -> the flight of the same dataset it copies (``source_flight``), where the manifest says."""
+    if "source_flight" not in manifest.columns:
+        return {}
+    ids = manifest["flight_id"].astype(str)
+    known = set(ids)
+    return {f: s for f, s in zip(ids, manifest["source_flight"]) if isinstance(s, str) and s in known and s != f}
+
+
+def logged_columns(ds, flight_id: str) -> frozenset[str]:
+    """The ``topic.field`` columns of a flight's table (the navigator view), from the compact layout's
+    metadata where it has it (no data read), else from the table itself."""
+    from scart_bench.dataset import compact
+    from scart_bench.dataset.record import TRUTH_TOPICS
+
+    root = ds.flight_dir(flight_id)
+    path = root / "navigator.parquet"
+    if path.exists():
+        try:
+            meta = compact.read_meta(path)
+            fields = {s["name"]: [c for c, _ in s["columns"]] for s in meta.get("stored", [])}
+            for name, other in meta.get("reuse", {}).items():
+                if name not in fields:
+                    elsewhere = compact.read_meta(root / f"{other}.parquet")
+                    fields.update({s["name"]: [c for c, _ in s["columns"]] for s in elsewhere.get("stored", [])
+                                   if s["name"] == name})
+            return frozenset(f"{t}.{c}" for t in meta["topics"] if t not in TRUTH_TOPICS for c in fields[t]
+                             if c != "Timestamp" and c not in LABEL_COLUMNS)
+        except (compact.CompactError, KeyError, TypeError, ValueError, OSError):
+            pass  # read the table below
+    return frozenset(c for c in ds.flight(flight_id).columns if isinstance(c, str) and c not in LABEL_COLUMNS)
+
+
+def differing_columns(ds, train: Iterable[str], scored: Iterable[str]) -> str | None:
+    """Why a run on ``ds`` should read its flights by meaning: its training flights log different
+    columns, or a validation/test flight lacks a column every training flight logs (the run would
+    fail on it). None when neither (every generated dataset; logs of one firmware build)."""
+    cols = {f: logged_columns(ds, f) for f in dict.fromkeys([*train, *scored])}
+    train = list(dict.fromkeys(train))
+    first = train[0]
+    for f in train[1:]:
+        if cols[f] != cols[first]:
+            lack, extra = sorted(cols[first] - cols[f]), sorted(cols[f] - cols[first])
+            return (f"the training flights log different columns: {f} lacks {len(lack)} of {first}'s"
+                    + (f" (e.g. {', '.join(lack[:3])})" if lack else "")
+                    + (f" and has {len(extra)} it has not (e.g. {', '.join(extra[:3])})" if extra else ""))
+    common = frozenset.intersection(*(cols[f] for f in train))
+    for f in dict.fromkeys(scored):
+        lack = sorted(common - cols[f])
+        if lack:
+            return (f"flight {f} lacks {len(lack)} column(s) every training flight logs "
+                    f"(e.g. {', '.join(lack[:3])})")
+    return None
+
+
+@dataclass
+class MeaningRun:
+    """A run on one dataset whose flights are read by meaning (:func:`open_meaning`)."""
+
+    plan: TransferPlan  # the quantities (no resampling: interval 0) and the flights lacking one
+    reader: TransferFlights
+    why: str
+
+    def job_args(self, dataset: str) -> dict:
+        """What a job needs to read the flights by meaning (JobSpec.transfer, every flight from ``dataset``)."""
+        return {"train_dataset": dataset, "train_ids": [], "columns": list(self.plan.columns), "interval_us": 0}
+
+    def dropped_table(self) -> pd.DataFrame:
+        """columns.csv: the columns of the dataset's flights left out, and why."""
+        rows = [{"dataset": side, "column": c, "why": why} for side, cols in self.plan.dropped.items()
+                for c, why in cols.items()]
+        return pd.DataFrame(rows, columns=["dataset", "column", "why"])
+
+
+def open_meaning(ds, splits, mode: str = "auto", note=print) -> MeaningRun | None:
+    """How a run on one dataset reads its flights (``run --columns``): None for as logged (``logged``,
+    or ``auto`` when :func:`differing_columns` finds nothing), else by meaning. Then the quantities are
+    those a training flight has; a flight lacking one has it as missing values, and a line names it
+    (attacked copies under their source flight, which is what is read to tell). RunError when no
+    training flight has any quantity."""
+    if mode not in COLUMN_MODES:
+        raise RunError(f"--columns {mode!r}: expected one of {', '.join(COLUMN_MODES)}")
+    if mode == "logged":
+        return None
+    why = "--columns meaning" if mode == "meaning" else differing_columns(ds, splits.train, splits.scored)
+    if why is None:
+        return None
+    run_ids = list(dict.fromkeys([*splits.train, *splits.scored]))
+    sources = source_flights(ds.manifest)
+    read_ids = list(dict.fromkeys(sources.get(f, f) for f in run_ids))
+    have: dict[str, set[str]] = {}
+    no_meaning: set[str] = set()
+    for f in read_ids:  # one flight at a time: only what it has is kept
+        t = ds.flight(f)
+        values = shared_values(t)
+        have[f] = {q for q, v in values.items() if np.isfinite(v).any()}
+        used = set(column_meanings(t.columns).values()) | ({*QUATERNION} if "attitude.roll" in values else set())
+        no_meaning |= {c for c in t.columns if isinstance(c, str) and "." in c and c not in used
+                       and c.rpartition(".")[2] not in ARMING_FIELDS}
+    trained = set().union(*(have[f] for f in splits.train))
+    columns = [q for q in _order() if q in trained]
+    if not columns:
+        raise RunError(f"--dataset {ds.path}: reading its flights by meaning ({why}), no training flight has a "
+                       "quantity of the meaning table; use --columns logged with --features")
+    lacking = {q: [f for f in run_ids if q not in have[sources.get(f, f)]] for q in columns}
+    lacking = {q: ids for q, ids in lacking.items() if ids}
+    untrained = [q for q in _order() if q not in trained and any(q in h for h in have.values())]
+    dropped = {"dataset": {**{q: "in no training flight" for q in untrained},
+                           **{c: "no meaning" for c in sorted(no_meaning)}}}
+    plan = TransferPlan(tuple(columns), 0, dropped, lacking)
+    note(f"columns by meaning ({why}): {len(columns)} quantities ({', '.join(columns)})"
+         + (f"; left out, in no training flight: {', '.join(untrained)}" if untrained else "")
+         + f"; {len(no_meaning)} logged column(s) with no quantity left out (columns.csv)")
+    for line in lacking_lines(lacking, sources):
+        note(f"columns by meaning: missing values (filled as any gap) where a flight lacks a quantity: {line}")
+    path = str(ds.path.resolve())
+    return MeaningRun(plan, TransferFlights(path, path, {}, plan.columns, 0), why)
