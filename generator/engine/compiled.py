@@ -59,7 +59,8 @@ class BatchState:
         self.row = np.zeros((n, L.WIDTH))
         self.truth_buffer = np.zeros((n, delay, 6))  # true pos/vel, for the GPS delay
         self.history = np.zeros((n, delay, 6))  # estimated pos/vel, for delayed GPS fusion
-        #: (N, K, 5) the navigator's items: north, east, down, leg speed, hold s (a mission tamper rewrites the first 3)
+        #: (N, K, 6) the navigator's items: north, east, down, leg speed, hold s, braking m/s^2 (a mission tamper
+        #: rewrites the first 3)
         self.waypoints = np.array(waypoints, dtype=float, order="C", copy=True)
 
     def __len__(self) -> int:

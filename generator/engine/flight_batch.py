@@ -127,7 +127,7 @@ class Initial:
     start: np.ndarray | None = None
     #: (N, 3) battery state at boot: voltage, current, remaining
     battery: np.ndarray | None = None
-    #: (N, K, 5) the navigator's items (north, east, down, leg speed, hold s) and (N,) each flight's last
+    #: (N, K, 6) the navigator's items (north, east, down, leg speed, hold s, braking) and (N,) each flight's last
     #: item (generator.flight_software.navigator.mission_table)
     table: np.ndarray | None = None
     last: np.ndarray | None = None

@@ -680,7 +680,8 @@ def _receive(s, topic, vals, m):
 def _navigate(s, wps, p, t, out, m):
     """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed).
 
-    ``wps`` (K, 5): per item north, east, down, speed of the leg to it, hold at it (s)."""
+    ``wps`` (K, 6): per item north, east, down, speed of the leg to it, hold at it (s), braking deceleration
+    towards it (m/s^2; 0: none)."""
     k_last = int(s[L.NAV_LAST])
     armed = 1.0 if t >= s[L.ARM_AT] else 0.0
     if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + 0.5:
@@ -694,6 +695,8 @@ def _navigate(s, wps, p, t, out, m):
     dist_h = math.hypot(d0, d1)
     flying = phase == PH_TAKEOFF or phase == PH_MISSION
     speed = min(wps[ti, 3], p[K_APPROACH] * dist_h)
+    if wps[ti, 5] > 0.0:  # a mission file's item: slow down so as to stop there
+        speed = min(speed, math.sqrt(2.0 * wps[ti, 5] * dist_h))
     if phase == PH_TAKEOFF:
         speed = min(speed, 1.0)
     den = max(dist_h, 1e-6)

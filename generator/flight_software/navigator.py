@@ -15,6 +15,9 @@ from scart_bench.generator.params import MissionParams
 from scart_bench.generator.physics.rotation import wrap_pi
 
 PHASE_IDLE, PHASE_TAKEOFF, PHASE_MISSION, PHASE_LAND = 0, 1, 2, 3
+#: m/s^2: towards an item of a mission file the navigator slows so as to stop there at this deceleration
+#: (half MPC_ACC_HOR: the velocity loop lags its setpoint), so a fast leg or a sharp turn does not overshoot
+BRAKE_ACC = 1.5
 
 
 @dataclass
@@ -53,8 +56,9 @@ def mission_waypoints(mission: MissionParams, rngs: list[np.random.Generator]) -
 
 def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random.Generator]
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-flight mission: items (N, K, 3) NED, cruise speeds (N,), the item table (N, K, 5: north,
-    east, down, speed of the leg to the item, hold at it in s) and each flight's last item (N,).
+    """Per-flight mission: items (N, K, 3) NED, cruise speeds (N,), the item table (N, K, 6: north,
+    east, down, speed of the leg to the item, hold at it in s, braking deceleration towards it in m/s^2
+    or 0) and each flight's last item (N,).
 
     Without ``mission.missions`` every flight flies the jittered square (:func:`mission_waypoints`);
     with them, flight ``i`` flies mission file ``seeds[i] mod len(missions)`` as written
@@ -63,7 +67,7 @@ def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random
     """
     if not mission.missions:
         wps, cruise = mission_waypoints(mission, rngs)
-        table = np.zeros(wps.shape[:2] + (5,))
+        table = np.zeros(wps.shape[:2] + (6,))
         table[:, :, :3] = wps
         table[:, :, 3] = cruise[:, None]
         return wps, cruise, table, np.full(len(rngs), wps.shape[1] - 1, dtype=np.int64)
@@ -73,6 +77,7 @@ def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random
              for s in seeds]
     k = max(len(t) for t in flown)
     table = np.array([np.vstack([t, np.repeat(t[-1:], k - len(t), axis=0)]) for t in flown])
+    table = np.concatenate([table, np.full(table.shape[:2] + (1,), BRAKE_ACC)], axis=2)
     last = np.array([len(t) - 1 for t in flown], dtype=np.int64)
     return table[:, :, :3].copy(), table[:, 0, 3].copy(), table, last
 
@@ -92,6 +97,7 @@ class Navigator:
         #: (:func:`mission_table`; default: the cruise speed on every leg, no holds, all K items)
         self.speeds = np.repeat(np.asarray(cruise, dtype=float)[:, None], k, axis=1) if table is None else table[:, :, 3]
         self.holds = np.zeros((n, k)) if table is None else table[:, :, 4]
+        self.brake = np.zeros((n, k)) if table is None else table[:, :, 5]
         self.last = np.full(n, k - 1, dtype=np.int64) if last is None else np.asarray(last, dtype=np.int64)
 
     def init_state(self, n: int, yaw0: np.ndarray) -> NavigatorState:
@@ -126,6 +132,9 @@ class Navigator:
         dist_h = np.hypot(d[:, 0], d[:, 1])
         flying = (s.phase == PHASE_TAKEOFF) | (s.phase == PHASE_MISSION)
         speed = np.minimum(self.speeds[rows, ti], m.approach_gain * dist_h)
+        # a mission file's item: slow down so as to stop there (sharp turns, faster legs); the square does not
+        brake = self.brake[rows, ti]
+        speed = np.where(brake > 0, np.minimum(speed, np.sqrt(2.0 * brake * dist_h)), speed)
         speed = np.where(s.phase == PHASE_TAKEOFF, np.minimum(speed, 1.0), speed)
         dir_h = d[:, :2] / np.maximum(dist_h, 1e-6)[:, None]
         vh = dir_h * speed[:, None]

@@ -27,6 +27,7 @@ import numpy as np
 
 from scart_bench.dataset.schema import HOME_ALT
 from scart_bench.generator.flight_software.commander import OFFBOARD_LOSS_ACTIONS, ControlParams
+from scart_bench.generator.flight_software.navigator import BRAKE_ACC
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.sitl.bounds import target_ok
 
@@ -625,6 +626,8 @@ class Commander:
             self.item_phase = 1
         if item.command == CMD_LAND and self.item_phase >= 2:
             return self._land(self.target[:2])
+        if self.item_phase == 1:  # slow down so as to stop at the item: a fast leg or a sharp turn does not overshoot
+            speed = min(speed, math.sqrt(2.0 * BRAKE_ACC * math.hypot(*(self.target[:2] - self.pos[:2]))))
         v = self._goto(self.target, speed, line=item.command != CMD_TAKEOFF)
         if not _nan(item.param4) and item.command == CMD_WAYPOINT:
             self.yaw_sp = _wrap(math.radians(item.param4))
