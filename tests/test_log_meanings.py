@@ -156,9 +156,13 @@ def test_dataflash_battery_fields_that_read_zero_for_the_whole_log_are_missing(e
 
 @pytest.mark.skipif(not NO_GPS.exists(), reason=f"{NO_GPS} not found")
 def test_a_log_with_no_gps_and_no_battery_sensor():
-    t = load_flight_file(NO_GPS, topics=["curr", "ekf1"])
+    t = load_flight_file(NO_GPS, topics=["curr", "ekf1", "att"])
     assert t["curr"][["Volt", "Curr", "Vcc", "CurrTot"]].isna().all().all()
     assert t["curr"]["ThrOut"].notna().all()  # the throttle is a reading, 0 or not
+    fit, reasons = applicable(load_configurations(QUICK, check_topics=False), with_phases(t), "25-9-2014_1")
+    # no GPS, AHR2 or POS message (position.lat: not in the log) and EKF1 held at 0: the reason given is
+    # the one that says most
+    assert len(fit) == 30 and reasons == {"position.x constant for the whole flight (ekf1.PN = 0)": 36}
     available = input_fields([listen_view(t)])
     assert available["ekf1"].constant["PN"] == 0.0  # the EKF never ran: its position is held at 0
     from scart_bench.generator.scart.meanings import resolve_target

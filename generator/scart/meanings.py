@@ -126,6 +126,10 @@ PARTS = {("attitude", "q")}
 CONTROL_QUANTITIES = ("mission", "phase")
 
 
+class ConstantQuantity(ScenarioError):
+    """A quantity whose every candidate in this input reads one value for the whole flight."""
+
+
 class Fields(tuple):
     """A topic's field names in one input, with what csv mode knows of a recording's fields:
     ``constant`` (field -> the one value it reads for the whole flight, NaN when it has none) and
@@ -238,7 +242,7 @@ def resolve_target(name: str, available: dict[str, tuple[str, ...]], where: str)
     constant = [(c, getattr(available[_split(c)[0]], "constant", {}).get(_split(c)[1])) for c in found]
     live = [c for c, v in constant if v is None]
     if not live:
-        raise ScenarioError(f"{where}: {name!r} (a quantity) is not attacked on this flight: "
+        raise ConstantQuantity(f"{where}: {name!r} (a quantity) is not attacked on this flight: "
                             f"{constant_reason(name, constant)}")
     return live
 

@@ -37,7 +37,7 @@ from scart_bench.generator.flight_software.commander import CONTROL_TOPICS
 from scart_bench.generator.scart.actions import ACTIONS
 from scart_bench.generator.scart.conditions import CONDITIONS
 from scart_bench.generator.scart.effects import EFFECTS, PHYSICAL_POINTS
-from scart_bench.generator.scart.meanings import resolve_condition_topic, resolve_target
+from scart_bench.generator.scart.meanings import ConstantQuantity, resolve_condition_topic, resolve_target
 from scart_bench.generator.scart.spec import ScenarioError, read_toml, validate_params
 from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS
 from scart_bench.names import IdError, check_id
@@ -172,8 +172,8 @@ class Scenario:
                         missing.append(exc)
                         continue
                     targets.extend(r for r in found if r not in targets)
-                if missing and not targets:
-                    raise missing[0]
+                if missing and not targets:  # the reason that says most: a quantity there but constant
+                    raise next((e for e in missing if isinstance(e, ConstantQuantity)), missing[0])
                 p = {**p, "target": targets}
             actions.append((name, p))
         conds = {}
