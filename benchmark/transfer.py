@@ -212,11 +212,12 @@ def shared_table(flight: pd.DataFrame, columns: Iterable[str] | None = None,
     return out
 
 
-def name_flights(ids: Iterable[str], source_of: dict[str, str] | None = None, limit: int = 8) -> str:
-    """Flights named for a user: an attacked copy is counted under its source flight (``log-a and its 12
-    attacked copies``, or ``3 attacked copies of log-b`` when the source itself is not among them);
-    at most ``limit`` names, then how many more."""
-    source_of = source_of or {}
+def name_flights(ids: Iterable[str], source_of: dict[str, str] | None = None, roles: dict[str, str] | None = None,
+                 limit: int = 8) -> str:
+    """Flights named for a user, with their role where ``roles`` has it: an attacked copy is counted under
+    its source flight (``log-a (test) and its 12 attacked copies``, or ``3 attacked copies of log-b`` when
+    the source itself is not among them); at most ``limit`` names, then how many more."""
+    source_of, roles = source_of or {}, roles or {}
     ids = list(dict.fromkeys(str(f) for f in ids))
     listed = set(ids)
     copies: dict[str, int] = {}
@@ -227,9 +228,9 @@ def name_flights(ids: Iterable[str], source_of: dict[str, str] | None = None, li
     names = []
     for key, n in copies.items():
         if key in listed:
-            names.append(key + (f" and its {n} attacked cop{'y' if n == 1 else 'ies'}" if n else ""))
+            names.append(key + (f" ({roles[key]})" if key in roles else "") + (f" and its {n} attacked cop{'y' if n == 1 else 'ies'}" if n else ""))
         else:
-            names.append(f"{n} attacked cop{'y' if n == 1 else 'ies'} of {key}")
+            names.append(f"{n} attacked cop{'y' if n == 1 else 'ies'} of {key}" + (f" ({roles[key]})" if key in roles else ""))
     more = len(names) - limit
     return ", ".join(names[:limit]) + (f" and {more} more" if more > 0 else "")
 
@@ -246,13 +247,14 @@ def _order() -> list[str]:
                                *(v for pair in LATLON.values() for v in pair)]))
 
 
-def lacking_lines(lacking: dict[str, list[str]], source_of: dict[str, str] | None = None) -> list[str]:
+def lacking_lines(lacking: dict[str, list[str]], source_of: dict[str, str] | None = None,
+                  roles: dict[str, str] | None = None) -> list[str]:
     """One line per set of flights lacking the same quantities: ``q1, q2: not in log-a, log-b ...``."""
     groups: dict[tuple[str, ...], list[str]] = {}
     for q, ids in lacking.items():
         if ids:
             groups.setdefault(tuple(ids), []).append(q)
-    return [f"{', '.join(qs)}: not in {name_flights(ids, source_of)}" for ids, qs in groups.items()]
+    return [f"{', '.join(qs)}: not in {name_flights(ids, source_of, roles)}" for ids, qs in groups.items()]
 
 
 @dataclass(frozen=True)
@@ -452,7 +454,10 @@ def open_transfer(train_path, test_ds, note=print) -> TransferRun:
          f"{len(part['validation'])} validation flights), tested on {test_ds.path} ({len(tested['test_normal'])} "
          f"normal, {len(tested['test_attacked'])} attacked flights); {plan.describe()}")
     sources = {**source_flights(train.manifest), **source_flights(test_ds.manifest)}
-    for line in lacking_lines(plan.lacking, sources):
+    roles = {**{f: f"{r}, {train_path}" for r, ids in part.items() for f in ids},
+             **{f: f"{'test' if r == 'test_normal' else 'attacked'}, {test_ds.path}"
+                for r, ids in tested.items() for f in ids}}
+    for line in lacking_lines(plan.lacking, sources, roles):
         note(f"transfer: dropped for every flight, since some lack it: {line}")
     reader = TransferFlights(str(train.path.resolve()), str(test_ds.path.resolve()),
                              {f: renamed.get(f, f) for f in splits.train + splits.validation}, plan.columns,
@@ -631,7 +636,10 @@ def open_meaning(ds, splits, mode: str = "auto", note=print) -> MeaningRun | Non
     note(f"columns by meaning ({why}): {len(columns)} quantities ({', '.join(columns)})"
          + (f"; left out, in no training flight: {', '.join(untrained)}" if untrained else "")
          + f"; {len(no_meaning)} logged column(s) with no quantity left out (columns.csv)")
-    for line in lacking_lines(lacking, sources):
+    roles = {f: r for r in ("train", "validation") for f in getattr(splits, r)}
+    roles.update({f: "test" for f in splits.test_normal})
+    roles.update({f: "csv_source" for f in splits.csv_source})
+    for line in lacking_lines(lacking, sources, roles):
         note(f"columns by meaning: missing values (filled as any gap) where a flight lacks a quantity: {line}")
     path = str(ds.path.resolve())
     return MeaningRun(plan, TransferFlights(path, path, {}, plan.columns, 0), why)

@@ -144,9 +144,10 @@ def test_columns_map_by_meaning_and_units():
     assert t["baro.pressure"].iloc[0] == 0.0 and np.isclose(t["baro.pressure"].iloc[-1], -ts[-1] / 1e7)  # hPa
     assert np.isclose(t["gps.north"].iloc[-1], (n - 1) * 1e-7 * 111_034, rtol=2e-3)  # metres north, 40 deg N
     ardupilot = pd.DataFrame({"Timestamp": ts, "Is_Anomaly": np.zeros(n, np.int8), "att.Yaw": 90.0,
-                              "mag.MagX": 200.0, "mag.MagY": 0.0, "mag.MagZ": 400.0})
+                              "mag.MagX": 200.0, "mag.MagY": 0.0, "mag.MagZ": 400.0 + 0.1 * np.arange(n)})
     t = shared_table(ardupilot)
-    assert np.allclose(t["attitude.yaw"], np.pi / 2) and np.allclose(t["mag.z"], 0.4)  # deg -> rad, mG -> G
+    # deg -> rad; mG -> G, and the field (the site's) as its change since the flight's start
+    assert np.allclose(t["attitude.yaw"], np.pi / 2) and np.allclose(t["mag.z"], 1e-4 * np.arange(n))
     # resampling keeps an attacked row's label
     lab = np.zeros(n, np.int8)
     lab[101] = 1
