@@ -45,7 +45,8 @@ def register(sub) -> None:
     a = sub.add_parser("attack", help="csv mode: attacked copies of your own log, or of a dataset's test flights")
     a.add_argument("--input", help="a CSV with a timestamp column, a PX4 ULog, a Parquet file or a dataset "
                    "flight folder (with --out)")
-    a.add_argument("--scenario", required=True, help="a scenario file or a grid file (TOML)")
+    a.add_argument("--scenario", required=True, help="a scenario file or a grid file (TOML); on logs, times count "
+                   "logged time (gaps left out) and data/scenarios/logs/quick.toml triggers on the flight's own phases")
     a.add_argument("--out", help="output dataset folder or fsspec URL (with --input)")
     a.add_argument("--dataset", metavar="DATASET", help="add labelled attacked copies of this "
                    "dataset's normal flights to it (ids csv-<source>-<scenario>)")
