@@ -211,6 +211,9 @@ def monitor_from_run(run: str | Path, name: str, plugins: list[str] | None = Non
     if config.get("train_dataset"):
         raise RunError(f"--run {run}: a transfer run (--train-dataset) fits its detectors on columns matched by "
                        "meaning, which a live stream does not carry; give a run on one dataset")
+    if (config.get("columns") or {}).get("by") == "meaning":
+        raise RunError(f"--run {run}: its flights were read by meaning (their logged columns differ), which a live "
+                       "stream does not carry; give a run read as logged (run --columns logged)")
     flights = store.read_flights()
     train = flights.loc[flights["role"] == "train", "flight_id"].astype(str).tolist()
     validation = flights.loc[flights["role"] == "validation", "flight_id"].astype(str).tolist()

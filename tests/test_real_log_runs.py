@@ -72,6 +72,12 @@ def test_a_plain_run_over_two_firmware_families_reads_the_flights_by_meaning(fle
     assert "log-ekf_nogps (train)" in line and "log-nkf_nogps (test)" in line and "log-ekf_gps " not in line
     assert config["columns"]["lacking"]["gps.north"] == ["log-ekf_nogps", "log-nkf_nogps"]
     assert set(pd.read_csv(out / "columns.csv")["why"]) >= {"no meaning"}
+    # a live monitor streams logged columns: refused in one line
+    from scart_bench.benchmark.live import monitor_from_run
+    from scart_bench.errors import ScartBenchError
+
+    with pytest.raises(ScartBenchError, match="read by meaning"):
+        monitor_from_run(out, "statistical")
 
 
 @needs_fleet
