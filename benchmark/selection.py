@@ -80,10 +80,14 @@ def _parse_names(names: list[str]) -> list[str]:
 
 
 def resolve_detectors(names: list[str], plugins: dict[str, DetectorChoice]) -> list[DetectorChoice]:
-    """The detectors to run, in order; ``["all"]`` means every known detector."""
+    """The detectors to run, in order; ``["all"]`` means the paper's eight and every plugin.
+
+    A tag of ``registry.TAGS`` (``zoo``, ``paper``) stands for its built-ins and mixes with names.
+    """
     from scart_bench.detectors import registry
 
     names = _parse_names(names)
+    names = list(dict.fromkeys(n for name in names for n in registry.TAGS.get(name, (name,))))
 
     def choice(info) -> DetectorChoice:
         if info.name in plugins:
@@ -93,7 +97,7 @@ def resolve_detectors(names: list[str], plugins: dict[str, DetectorChoice]) -> l
         return DetectorChoice(info.name, info.cls, f"{info.cls.__module__}:{info.cls.__qualname__}")
 
     if names == ["all"]:
-        chosen = [choice(info) for info in registry.available().values()]
+        chosen = [choice(info) for info in registry.available().values() if info.name not in registry.ZOO]
         for c in chosen:
             check_id(c.name, f"detector name (from {c.source})")
         return chosen

@@ -20,8 +20,8 @@ from scart_bench.detectors.base import Detector, DetectorError
 
 ENTRY_POINT_GROUP = "scart_bench.detectors"
 
-#: name -> "module:Class" of the built-in adapters, in the paper's order.
-BUILTINS: dict[str, str] = {
+#: name -> "module:Class" of the paper's eight detectors, in the paper's order (``--detectors all``).
+PAPER: dict[str, str] = {
     "telemanom": "scart_bench.detectors.telemanom:Telemanom",
     "tsbitmaps": "scart_bench.detectors.tsbitmaps:TSBitmaps",
     "statistical": "scart_bench.detectors.statistical:Statistical",
@@ -31,6 +31,37 @@ BUILTINS: dict[str, str] = {
     "goad": "scart_bench.detectors.deepod_models:GOAD",
     "neutral": "scart_bench.detectors.deepod_models:NeuTraL",
 }
+
+#: name -> "module:Class" of the zoo (issue 50): detectors the field uses beside the paper's eight,
+#: each an adapter of scikit-learn, PyOD or DeepOD where one ships (``--detectors zoo``).
+ZOO: dict[str, str] = {
+    "iforest": "scart_bench.detectors.zoo_tabular:IForest",
+    "pca": "scart_bench.detectors.zoo_tabular:PCAReconstruction",
+    "kmeans": "scart_bench.detectors.zoo_tabular:KMeansDistance",
+    "knn": "scart_bench.detectors.zoo_tabular:KNNDistance",
+    "lof": "scart_bench.detectors.zoo_tabular:LOF",
+    "ecod": "scart_bench.detectors.zoo_tabular:ECOD",
+    "copod": "scart_bench.detectors.zoo_tabular:COPOD",
+    "hbos": "scart_bench.detectors.zoo_tabular:HBOS",
+    "lstm_ae": "scart_bench.detectors.zoo_torch:LSTMAutoencoder",
+    "tcned": "scart_bench.detectors.zoo_deepod:TcnED",
+    "usad": "scart_bench.detectors.zoo_deepod:USAD",
+    "deepsvdd_ts": "scart_bench.detectors.zoo_deepod:DeepSVDDTS",
+    "dif_ts": "scart_bench.detectors.zoo_deepod:DIFTS",
+    "timesnet": "scart_bench.detectors.zoo_deepod:TimesNet",
+}
+
+#: name -> "module:Class" of every built-in: the paper's eight, then the zoo.
+BUILTINS: dict[str, str] = {**PAPER, **ZOO}
+
+#: Names that stand for a set of built-ins in ``--detectors`` and a run file's ``detectors``
+#: (``all`` is the paper's eight and every plugin: see scart_bench.benchmark.selection).
+TAGS: dict[str, tuple[str, ...]] = {"paper": tuple(PAPER), "zoo": tuple(ZOO)}
+
+
+def tag_of(name: str) -> str | None:
+    """The tag of a built-in ("paper" or "zoo"), None for a plugin."""
+    return next((tag for tag, names in TAGS.items() if name in names), None)
 
 
 class DetectorInfo:
@@ -98,6 +129,9 @@ def load_plugin(spec: str) -> DetectorInfo:
     name = cls.__dict__.get("name")
     if not isinstance(name, str) or not name:
         raise DetectorError(f"plugin spec {spec!r}: {cls.__name__} must set a class attribute `name`")
+    if name in TAGS or name == "all":
+        raise DetectorError(f"plugin spec {spec!r}: name {name!r} stands for a set of detectors in --detectors; "
+                            "choose another")
     if name in BUILTINS:
         if _import_spec(BUILTINS[name]) is cls:  # the built-in itself, named by its module
             return DetectorInfo(name, cls, "built-in")

@@ -217,8 +217,9 @@ def register(sub) -> None:
     r.add_argument("--config", type=Path, metavar="FILE",
                    help="a run file (TOML: detectors, params, profile or dataset, seed, protocol, ...) or a run "
                         "folder's config.json; the options below override it")
-    r.add_argument("--detectors", metavar="all|NAME,...",
-                   help="detectors to run: 'all' (default) or a comma-separated list of names")
+    r.add_argument("--detectors", metavar="all|zoo|NAME,...",
+                   help="detectors to run: 'all' (default: the paper's eight and any plugins), 'zoo' (the zoo's "
+                        "built-ins: `scart-bench detectors`) or a comma-separated list of names and tags")
     r.add_argument("--param", action="append", metavar="DETECTOR.KEY=VALUE",
                    help="a detector parameter, e.g. goad.n_trans=64 or telemanom.epochs=5 (repeatable); "
                         "VALUE is a TOML literal (64, 0.5, true, [32, 32], \"cpu\")")
