@@ -553,6 +553,21 @@ def logged_columns(ds, flight_id: str) -> frozenset[str]:
                              if c != "Timestamp" and c not in LABEL_COLUMNS)
         except (compact.CompactError, KeyError, TypeError, ValueError, OSError):
             pass  # read the table below
+    else:  # the paper layout: the combined table's header
+        import csv
+
+        import pyarrow.parquet as pq
+
+        base = root / "combined" / "navigator_most_frequent"
+        try:
+            if base.with_suffix(".parquet").exists():
+                names = pq.read_schema(base.with_suffix(".parquet")).names
+            else:
+                with base.with_suffix(".csv").open(newline="") as fh:
+                    names = next(csv.reader(fh))
+            return frozenset(c for c in names if "." in c and c not in LABEL_COLUMNS)
+        except (OSError, StopIteration, ValueError):
+            pass  # read the table below
     return frozenset(c for c in ds.flight(flight_id).columns if isinstance(c, str) and c not in LABEL_COLUMNS)
 
 
