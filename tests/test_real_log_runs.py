@@ -139,3 +139,21 @@ def test_split_auto_keeps_a_third_for_validation_and_says_what_it_chose():
     assert "2 validation (" in line and "1 test (" in line and "\n" not in line
     minutes = {s: sum(60.0 - 30.0 * (i == 5) for i, x in enumerate(splits) if x == s) / 60 for s in set(splits)}
     assert f"2 validation ({minutes['validation']:.1f} min)" in line
+
+
+def test_columns_is_a_run_option_and_a_run_file_key(tmp_path):
+    from scart_bench.benchmark.config import RunConfig, read_run_file
+    from scart_bench.errors import RunError
+
+    run_file = tmp_path / "run.toml"
+    run_file.write_text('columns = "meaning"\n')
+    cfg = RunConfig(**read_run_file(run_file))
+    assert cfg.columns == "meaning" and cfg.to_dict()["columns"] == "meaning"
+    assert "columns" not in RunConfig().to_dict()  # auto: a run file as before
+    with pytest.raises(RunError, match="--columns 'bogus': expected one of auto, logged, meaning"):
+        RunConfig(columns="bogus")
+    with pytest.raises(RunError, match="a transfer run"):
+        RunConfig(columns="logged", dataset=tmp_path, train_dataset=tmp_path)
+    run_file.write_text("columns = 3\n")
+    with pytest.raises(RunError, match="columns = 3: expected a string"):
+        read_run_file(run_file)
