@@ -87,7 +87,7 @@ class MissionFile:
         at the item (s). Item 0 is the take-off point above home, the last where the vehicle lands.
 
         No take-off item: the vehicle takes off to the first position's height. A return (RTL) flies
-        home at the height it has and lands there; a land item flies to its spot at the height it has
+        home at the height it has, at the default cruise speed, and lands there; a land item flies to its spot at the height it has
         and lands; a mission that ends otherwise lands at its last position."""
         base = self.cruise_speed if self.cruise_speed is not None else cruise
         speed = base
@@ -100,7 +100,8 @@ class MissionFile:
             else:
                 if not rows:
                     rows.append([0.0, 0.0, -c.up, speed, 0.0])
-                rows.append([c.north, c.east, -c.up, speed, c.hold_s])
+                # the return flies at the default cruise speed (PX4's RTL does not keep a mission's speed change)
+                rows.append([c.north, c.east, -c.up, base if c.command == CMD_RTL else speed, c.hold_s])
         return np.array(rows, dtype=float)
 
     def duration_s(self, cruise: float, climb: float = 2.5, land_speed: float = 0.7) -> float:
