@@ -96,8 +96,8 @@ def test_grids_by_meaning_resolve_on_dataflash_and_ulog_topics():
         fit, why = applicable(standard, with_phases(load_flight_file(log, allow_corrupt=True)), log.name)
         assert len(fit) == len(standard) and not why
     fit, why = applicable(standard, with_phases(load_flight_file(RFLYMAD)), RFLYMAD.name)
-    # PX4 logs its attitude as a quaternion: the roll/pitch configurations do not apply, the rest do
-    assert len(fit) == 96 and dict(why) == {"attitude.roll not in the log": 32}
+    # PX4 logs its attitude as a quaternion: its roll and pitch (generator.logs.orientation) take the attacks
+    assert len(fit) == len(standard) and not why
 
 
 @needs
@@ -137,12 +137,11 @@ start = [{ condition = "flight_phase", phase = "cruise" }]
     out, err = capsys.readouterr()
     m = open_dataset(ds).manifest
     copies = m[m["mode"] == "csv"]
-    # DataFlash (258 s): all 6 configurations; RflyMAD (36 s): position early and in cruise (no roll, too short)
-    assert len(copies) == 6 + 2 and out.strip().endswith(f"8 attacked copies added to {ds}")
-    lines = [x for x in err.splitlines() if "gave no copy" in x]
-    assert len(lines) == 1, err
-    assert re.search(r"4 of 12 configuration x flight pair\(s\) gave no copy: 3 attitude.roll not in the log; "
-                     r"1 trigger never held", lines[0]), lines[0]
+    # DataFlash (258 s) and RflyMAD (36 s: its attitude from the quaternion; the trigger at 200 s, past the log's
+    # end, moved earlier by generator.logs.logged_time): all 6 configurations each
+    assert len(copies) == 6 + 6 and out.strip().endswith(f"12 attacked copies added to {ds}")
+    assert not [x for x in err.splitlines() if "gave no copy" in x], err
+    assert re.search(r"all 12 configuration x flight pair\(s\) applied", err), err
     # labels are exactly the event windows
     for fid in copies["flight_id"]:
         flight = open_dataset(ds).flight(fid, columns=["Timestamp", "Is_Anomaly"])
