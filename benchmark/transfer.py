@@ -227,10 +227,9 @@ def name_flights(ids: Iterable[str], source_of: dict[str, str] | None = None, ro
         copies[key] = copies.get(key, 0) + (key != f)
     names = []
     for key, n in copies.items():
-        if key in listed:
-            names.append(key + (f" ({roles[key]})" if key in roles else "") + (f" and its {n} attacked cop{'y' if n == 1 else 'ies'}" if n else ""))
-        else:
-            names.append(f"{n} attacked cop{'y' if n == 1 else 'ies'} of {key}" + (f" ({roles[key]})" if key in roles else ""))
+        role = f" ({roles[key]})" if key in roles else ""
+        some = f"{n} attacked cop{'y' if n == 1 else 'ies'}"
+        names.append(key + role + (f" and its {some}" if n else "") if key in listed else f"{some} of {key}{role}")
     more = len(names) - limit
     return ", ".join(names[:limit]) + (f" and {more} more" if more > 0 else "")
 
