@@ -87,8 +87,8 @@ class MissionFile:
         at the item (s). Item 0 is the take-off point above home, the last where the vehicle lands.
 
         No take-off item: the vehicle takes off to the first position's height. A return (RTL) flies
-        home at the height it has, at the default cruise speed, and lands there; a land item flies to its spot at the height it has
-        and lands; a mission that ends otherwise lands at its last position."""
+        home at the height it has, at the default cruise speed, and lands there; a land item flies to
+        its spot at the height it has and lands; a mission that ends otherwise lands at its last position."""
         base = self.cruise_speed if self.cruise_speed is not None else cruise
         speed = base
         rows: list[list[float]] = []
@@ -105,13 +105,13 @@ class MissionFile:
         return np.array(rows, dtype=float)
 
     def duration_s(self, cruise: float, climb: float = 2.5, land_speed: float = 0.7) -> float:
-        """A generous bound of the flight's length (s): ground phase, legs at 70 % of their speed,
-        holds, climbs and the landing (the flights' time limit)."""
+        """A generous bound of the flight's length (s): ground phase, legs at 70 % of their speed plus
+        the braking into each item, holds, climbs and the landing (the flights' time limit)."""
         items = self.navigator_items(cruise)
         t = 30.0 + 10.0 + (-items[0, 2]) / 1.0  # ground phase, take-off hold, the take-off climb (~1 m/s)
         for a, b in zip(items[:-1], items[1:]):
             t += math.hypot(b[0] - a[0], b[1] - a[1]) / (0.7 * b[3]) + abs(b[2] - a[2]) / min(climb, 1.5)
-            t += b[4] + 5.0
+            t += b[3] / 1.5 + b[4] + 5.0
         return t + (-items[-1, 2]) / land_speed + 30.0
 
 
