@@ -24,8 +24,8 @@ from scart_bench.generator.logs.offline import auto_counts, auto_split_line, aut
 
 FLEET = Path(__file__).parents[1].parent / "shared/data/dataflash/fleet"
 #: name in the test -> (fleet log, bytes kept): EKF1 with GPS (two), EKF1 without GPS, NKF1 without GPS
-LOGS = {"ekf_gps": ("arducopter_8-10-2014_11.bin", 250_000), "ekf_gps_b": ("arducopter_10-11-2014_105.bin", 250_000),
-        "ekf_nogps": ("arducopter_25-9-2014_1.bin", 200_000), "nkf_nogps": ("erlebrain_24.bin", 600_000)}
+LOGS = {"ekf_gps": ("arducopter_8-10-2014_11.bin", 160_000), "ekf_gps_b": ("arducopter_10-11-2014_105.bin", 160_000),
+        "ekf_nogps": ("arducopter_25-9-2014_1.bin", 120_000), "nkf_nogps": ("erlebrain_24.bin", 400_000)}
 needs_fleet = pytest.mark.skipif(not all((FLEET / f).exists() for f, _ in LOGS.values()),
                                  reason=f"shared fleet logs not found in {FLEET}")
 
@@ -99,17 +99,19 @@ def test_a_transfer_run_names_the_flight_whose_missing_quantity_it_drops(fleet, 
     """Train on the EKF1 flights with GPS, test on a GPS flight and the GPS-less NKF1 flight: every
     position quantity is dropped (not in every flight), and a line says which flight lacks it."""
     train, test = tmp_path / "train", tmp_path / "test"
-    assert main(["import", str(fleet["ekf_gps"]), "--out", str(train), "--split", "train"]) == 0
-    assert main(["import", str(fleet["ekf_gps_b"]), "--out", str(train), "--split", "validation"]) == 0
-    assert main(["import", str(fleet["ekf_gps"]), str(fleet["nkf_nogps"]), "--out", str(test), "--split", "test",
-                 "--start", "1"]) == 0
+    flights = fleet["ds"] / "flights"  # the imported flights, imported again (their folders read fast)
+    assert main(["import", str(flights / "log-ekf_gps"), "--out", str(train), "--split", "train"]) == 0
+    assert main(["import", str(flights / "log-ekf_gps_b"), "--out", str(train), "--split", "validation"]) == 0
+    assert main(["import", str(flights / "log-ekf_gps"), str(flights / "log-nkf_nogps"), "--out", str(test),
+                 "--split", "test", "--start", "1"]) == 0
     lines: list[str] = []
     run = open_transfer(train, open_dataset(test), note=lines.append)
     assert "gps.north" not in run.plan.columns and "velocity.vn" in run.plan.columns
-    assert run.plan.lacking["gps.north"] == ["log-nkf_nogps-1s-end"]
+    gpsless = "log-log-nkf_nogps-1s-end"
+    assert run.plan.lacking["gps.north"] == [gpsless]
     named = [x for x in lines if x.startswith("transfer: dropped for every flight") and "gps.north" in x]
-    assert len(named) == 1 and "log-nkf_nogps-1s-end (test" in named[0], lines
-    assert run.plan.to_dict()["lacking"]["position.north"] == ["log-nkf_nogps-1s-end"]
+    assert len(named) == 1 and f"{gpsless} (test" in named[0], lines
+    assert run.plan.to_dict()["lacking"]["position.north"] == [gpsless]
 
 
 @needs_fleet
