@@ -48,7 +48,6 @@ ZOO: dict[str, str] = {
     "usad": "scart_bench.detectors.zoo_deepod:USAD",
     "deepsvdd_ts": "scart_bench.detectors.zoo_deepod:DeepSVDDTS",
     "dif_ts": "scart_bench.detectors.zoo_deepod:DIFTS",
-    "timesnet": "scart_bench.detectors.zoo_deepod:TimesNet",
 }
 
 #: name -> "module:Class" of every built-in: the paper's eight, then the zoo.

@@ -30,10 +30,11 @@ The models, with their papers:
 - ``deepsvdd_ts``: Ruff et al., "Deep one-class classification", ICML 2018, on windows through a
   temporal convolutional network.
 - ``dif_ts``: Xu et al., "Deep isolation forest for anomaly detection", IEEE TKDE 2023.
-- ``timesnet``: Wu et al., "TimesNet: temporal 2D-variation modeling for general time series
-  analysis", ICLR 2023.
 
-Left out, measured on 2 CPU cores for issue 50: AnomalyTransformer (its fixed 512-wide network
+Left out, measured on 2 CPU cores for issue 50: TimesNet (it picks its periods from the spectrum
+averaged over a batch, so a window's score depends on the windows batched with it; scored one
+window per batch to stay causal, it was by far the slowest here: one check scoring an 800-row
+flight with DeepOD took 9 min on the shared 2 cores), AnomalyTransformer (its fixed 512-wide network
 took 56 s for one epoch of 20 batches), TranAD (fails with torch 2.x: its encoder layer lacks
 ``is_causal``), COUTA (uses ``np.NAN``, gone in numpy 2).
 """
@@ -55,9 +56,8 @@ try:
     from deepod.models.time_series import DeepIsolationForestTS as _DIF
     from deepod.models.time_series import DeepSVDDTS as _DeepSVDDTS
     from deepod.models.time_series import TcnED as _TcnED
-    from deepod.models.time_series import TimesNet as _TimesNet
 except ImportError as exc:  # one clear line instead of a traceback
-    raise DetectorError(f"the DeepOD time-series detectors (tcned, usad, deepsvdd_ts, dif_ts, timesnet) need deepod, "
+    raise DetectorError(f"the DeepOD time-series detectors (tcned, usad, deepsvdd_ts, dif_ts) need deepod, "
                         f"which is not installed ({exc}): {DEEPOD_INSTALL}") from exc
 
 #: Windows per scoring call: a long flight is scored in chunks of about this many windows (whole
@@ -265,30 +265,3 @@ class DIFTS(_DeepODSeriesDetector):
     _model_class = _DIF
     _model_defaults = {"n_ensemble": 8, "hidden_dims": "32", "rep_dim": 32}
     _trained = False
-
-
-class TimesNet(_DeepODSeriesDetector):
-    """TimesNet (Wu et al. 2023): error reconstructing a window's last row through 2D period blocks.
-
-    DeepOD ``TimesNet`` with a small network (``d_model`` and ``d_ff`` 16, one layer, 3 periods,
-    3 kernels; DeepOD: 64, 64, 2, 5, 6). TimesNet picks its periods from the spectrum averaged over
-    a batch, so a window's score depends on the windows batched with it: windows are scored one
-    per batch (``score_batch_size`` is 1), which keeps the score of a row causal.
-    """
-
-    name = "timesnet"
-    relative_cost = 1500.0  # us per row, conformance flights (scheduling hint)
-    description = "TimesNet (Wu et al. 2023, DeepOD) on windows: last-row reconstruction error"
-    _model_class = _TimesNet
-    _model_defaults = {"d_model": 16, "d_ff": 16, "e_layers": 1, "top_k": 3, "num_kernels": 3, "epoch_steps": -1}
-
-    def _scoring_batch(self) -> int:
-        return 1
-
-    def library_scores(self, series: np.ndarray) -> np.ndarray:
-        b = self.model_.batch_size
-        self.model_.batch_size = 1
-        try:
-            return super().library_scores(series)
-        finally:
-            self.model_.batch_size = b

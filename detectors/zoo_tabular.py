@@ -299,9 +299,9 @@ class LOF(WindowFeatureDetector):
 
 # -- PyOD ------------------------------------------------------------------------------------------
 
-#: How to install PyOD: its dependencies (numpy, scipy, scikit-learn, numba, joblib, matplotlib) come
-#: with scart-bench; ``--no-deps`` keeps pip from touching them.
-PYOD_INSTALL = "pip install --no-deps pyod==3.6.7"
+#: How to install PyOD (a dependency of scart-bench; its own dependencies, numpy, scipy, scikit-learn,
+#: numba, joblib and matplotlib, are scart-bench's too, and it needs no torch).
+PYOD_INSTALL = "pip install pyod"
 
 
 def _pyod_hbos() -> type:
