@@ -33,6 +33,7 @@ from scart_bench.dataset import (
     open_dataset,
     replacing,
 )
+from scart_bench.generator.logs.copies import copy_record
 from scart_bench.generator.logs.importers import load_flight_file
 from scart_bench.generator.logs.logged_time import (
     LoggedClock,
@@ -436,7 +437,7 @@ def import_logs(paths: list[str | Path], out: str | Path, split: str = "train", 
 
 def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tuple[str, ...] = ("test",),
                    seed: int = 0, say: Callable[[str], None] | None = None,
-                   progress: Progress | None = None) -> list[str]:
+                   progress: Progress | None = None, full_copies: bool = False) -> list[str]:
     """Add labelled attacked copies of the dataset's normal flights of split ``sources`` to it.
 
     Every configuration of the scenario (or grid) file that applies to a source flight is replayed on
@@ -446,7 +447,9 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
     lacks, a trigger that never held, an action that needs the closed loop). When no configuration
     applies to any flight, the first refusal is raised in full before anything is written; when
     none starts, DatasetError. Returns the ids added. ``progress`` counts the source flights
-    ``read`` and the copies ``replayed`` (written, or found never to start).
+    ``read`` and the copies ``replayed`` (written, or found never to start). A copy stores what the
+    attack changed and reads its untouched fields from its source flight's file (generator.logs.copies);
+    ``full_copies``: every copy written whole, as before (perf/attack_speed.py compares the two).
     """
     say = say or (lambda msg: None)
     _say_pruned(prune_orphans(dataset), lambda m: say(f"attack: {m}"))
@@ -498,14 +501,14 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                     continue
                 say(f"attack: {fid} x {_config_id(job)} -> {cid}")
                 added.append(cid)
-                yield csv_record(cid, tables, result, job, copy_seed(seed, job), fid,
-                                 {"input": f"{ds.path}/flights/{fid}", "source_flight": fid,
-                                  "logged_time": time_record(clock, notes)})
+                yield (csv_record if full_copies else copy_record)(
+                    cid, tables, result, job, copy_seed(seed, job), fid,
+                    {"input": f"{ds.path}/flights/{fid}", "source_flight": fid, "logged_time": time_record(clock, notes)})
             if moved_any:
                 say(f"attack: {fid}: {len(moved_any)} trigger(s) moved on the log's time, e.g. {moved_any[0]} "
                     "(each copy's raw/config.json lists its own)")
 
-    append_flights(ds.path, records())
+    append_flights(ds.path, records(), share_sources=not full_copies)
     say(summary_line(reasons, (len(jobs) + n_closed) * len(flights)))
     if not added:
         raise DatasetError(f"{scenario_path}: the attack never started on any source flight; nothing was added "

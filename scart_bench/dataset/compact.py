@@ -15,11 +15,18 @@ it from the navigator file. Likewise a simulator topic with the navigator's rows
 timestamps) stores only the fields that differ (layout version 2): an attack on a topic usually
 alters a few of its fields, and the span names the fields read from the navigator file. Sharing
 is decided bit for bit, so every value reads back exactly as written.
+
+An attacked copy of a dataset's flight (``scart-bench attack --dataset``) shares the same way with
+its source flight (layout version 3, written only by such copies): a topic with the source's rows
+stores its timestamps, its labels and the fields the attack changed; every other field is read from
+the source flight's navigator file, named ``../<source flight id>/navigator`` (:func:`view_file`).
+A copy of an all-topic log thus costs what its attacked topics cost.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -30,10 +37,16 @@ import pyarrow.parquet as pq
 from scart_bench.dataset.schema import TOPICS, TRUTH_FIELDS
 from scart_bench.errors import ScartBenchError
 from scart_bench.jsonfile import JsonFileError, loads_bounded
+from scart_bench.names import IdError, check_id
 
 META_KEY = b"scart_bench"
-#: Bumped when the compact file's layout changes; a reader refuses newer versions.
-COMPACT_VERSION = 2
+#: Bumped when the compact file's layout changes; a reader refuses newer versions. Version 3 (fields
+#: kept in another flight's file) is written only by files that do so; the others stay version 2.
+COMPACT_VERSION = 3
+#: Nested references (a view kept in a view kept in ...) followed before a file is called damaged.
+_MAX_DEPTH = 4
+_SAME_FLIGHT = re.compile(r"[a-z][a-z0-9_]*")
+_OTHER_FLIGHT = re.compile(r"\.\./([^/\\]+)/([a-z][a-z0-9_]*)")
 SHARED_COLUMNS = ("Timestamp", "Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
 #: Quantities that keep float64: float32 would round a latitude or longitude to about a metre.
 _WIDE_QUANTITIES = ("latitude", "longitude")
@@ -61,6 +74,36 @@ def float32_safe(topic: str, field: str) -> bool:
 
 def _column_key(topic: str, col: str) -> str:
     return col if col in SHARED_COLUMNS else f"{topic}.{col}"
+
+
+def other_flight_ref(flight_id: str, view: str = "navigator") -> str:
+    """How a view file names a view of another flight of the same dataset (its source flight)."""
+    return f"../{flight_id}/{view}"
+
+
+def view_file(path: Path, ref: str) -> Path:
+    """The file a view file at ``path`` means by ``ref``: a view of the same flight (``navigator``)
+    or of another flight of the dataset (``../<flight id>/navigator``); CompactError naming ``path``
+    for anything else (metadata is data: it must not name a file outside the dataset)."""
+    ref = str(ref)
+    if _SAME_FLIGHT.fullmatch(ref):
+        return Path(path).parent / f"{ref}.parquet"
+    m = _OTHER_FLIGHT.fullmatch(ref)
+    if m:
+        try:
+            fid = check_id(m.group(1), f"{path}: flight id in the view reference {ref!r}")
+        except IdError as exc:
+            raise CompactError(str(exc)) from None
+        return Path(path).parent.parent / fid / f"{m.group(2)}.parquet"
+    raise CompactError(f"{path}: its metadata names the view {ref!r}; expected a view name (navigator) or "
+                       "../<flight id>/<view> (damaged or not written by scart-bench)")
+
+
+def referenced_flights(meta: dict) -> list[str]:
+    """The other flights whose files a view file's metadata reads (an attacked copy's source), sorted."""
+    refs = [str(v) for v in meta.get("reuse", {}).values()]
+    refs += [str(s["shared"]["view"]) for s in meta.get("stored", []) if isinstance(s, dict) and s.get("shared")]
+    return sorted({m.group(1) for r in refs if (m := _OTHER_FLIGHT.fullmatch(r))})
 
 
 def _arrow(values: pd.Series, key: str, downcast: bool) -> pa.Array:
@@ -155,7 +198,9 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
             parts.append(pa.nulls(total - at, types[key]))
         arrays.append(pa.concat_arrays(parts) if parts else pa.array([], types[key]))
         names.append(key)
-    meta = {"version": COMPACT_VERSION, "topics": list(topics), "stored": spans, "reuse": reuse}
+    refs = [*reuse.values(), *(view for view, _ in shared.values())]
+    version = 3 if any(_OTHER_FLIGHT.fullmatch(str(r)) for r in refs) else 2  # version 2 files stay byte for byte
+    meta = {"version": version, "topics": list(topics), "stored": spans, "reuse": reuse}
     return pa.Table.from_arrays(arrays, names=names), meta
 
 
@@ -208,11 +253,14 @@ def read_meta(path: Path) -> dict:
 
 
 def read_topics(path: Path, names: list[str] | None = None, meta: dict | None = None,
-                arrays: bool = False) -> dict[str, pd.DataFrame]:
+                arrays: bool = False, _depth: int = 0) -> dict[str, pd.DataFrame]:
     """The stored topic tables of a view file (all, or those in ``names``), exactly as written
     except that float32 fields come back as float64 (their float32 values); fields shared with
-    another view are read from that view's file beside this one. ``arrays``: each topic as a dict
-    of column arrays (no table is built)."""
+    another view are read from that view's file (beside this one, or in the source flight's folder
+    for an attacked copy). ``arrays``: each topic as a dict of column arrays (no table is built)."""
+    if _depth > _MAX_DEPTH:
+        raise CompactError(f"{path}: its views name each other in a loop (more than {_MAX_DEPTH} files deep); "
+                           "damaged or not written by scart-bench")
     meta = meta or read_meta(path)
     spans = {s["name"]: s for s in meta["stored"]}
     want = [n for n in (names if names is not None else list(spans)) if n in spans]
@@ -223,7 +271,7 @@ def read_topics(path: Path, names: list[str] | None = None, meta: dict | None = 
     for n in want:
         shared = spans[n].get("shared")
         if shared:
-            if f"{shared['view']}.parquet" == path.name:
+            if view_file(path, shared["view"]) == Path(path):
                 raise CompactError(f"{path}: topic {n!r} names its own file as the one holding its fields")
             elsewhere.setdefault(shared["view"], []).append(n)
         for col, _ in spans[n]["columns"]:
@@ -234,8 +282,14 @@ def read_topics(path: Path, names: list[str] | None = None, meta: dict | None = 
         table = pq.read_table(path, columns=keys)
     except Exception as exc:
         raise CompactError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from None
-    others = {n: got for view, topics in elsewhere.items()
-              for n, got in read_topics(path.parent / f"{view}.parquet", topics, arrays=True).items()}
+    others = {}
+    for view, topics in elsewhere.items():
+        other_path = view_file(path, view)
+        if not other_path.exists():
+            raise CompactError(f"{path}: keeps fields of topic(s) {', '.join(sorted(topics)[:5])} in {other_path}, "
+                               "which is missing" + (" (the source flight of this attacked copy: restore it, or remove "
+                                                     "the copy and attack again)" if view.startswith("../") else ""))
+        others.update(read_topics(other_path, topics, arrays=True, _depth=_depth + 1))
     out = {}
     for n in want:
         span = spans[n]

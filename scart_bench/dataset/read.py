@@ -123,6 +123,40 @@ class Dataset:
             check_flight_row(self.manifest_path, str(flight_id), row, self._labels(flight_id),
                              self.flight_dir(flight_id) / "raw" / "events.csv")
         self._verified.add(flight_id)
+        try:
+            for source in self.sources(flight_id):  # an attacked copy reads its untouched fields there
+                self.verify(source)
+        except DatasetError as exc:
+            self._verified.discard(flight_id)
+            raise DatasetError(f"{exc} (attacked copy {flight_id!r} keeps its untouched fields in that flight's "
+                               "files)") from None
+
+    def sources(self, flight_id: str) -> list[str]:
+        """The flights whose files this flight's views read (an attacked copy written by ``attack --dataset``
+        shares its untouched fields with its source flight); none for every other flight. DatasetError
+        when such a flight is not in the dataset (removed?), naming both."""
+        root = self.flight_dir(flight_id)
+        if not self.is_compact(flight_id):
+            return []
+        found: set[str] = set()
+        for view in TOPIC_VIEWS:
+            path = root / f"{view}.parquet"
+            if not path.exists():
+                continue
+            try:
+                meta = compact.read_meta(path)
+                found.update(compact.referenced_flights(meta))
+            except compact.CompactError as exc:
+                raise DatasetError(f"{exc}; regenerate or remove flight {flight_id!r}") from None
+        if self._rows is None:
+            self._rows = {str(r["flight_id"]): r for r in self.manifest.to_dict("records")}
+        for source in sorted(found):
+            if source not in self._rows or not self.flight_dir(source).is_dir():
+                where = "the manifest" if source not in self._rows else "the dataset's flights folder"
+                raise DatasetError(f"{root}: attacked copy {flight_id!r} keeps its untouched fields in flight "
+                                   f"{source!r}, which is not in {where}; restore that flight, or remove the copy "
+                                   "and attack again")
+        return sorted(found)
 
     def _labels(self, flight_id: str) -> Labels:
         """Where the flight's own labels put its attack: the compact layout's stored windows (which the
@@ -284,7 +318,10 @@ def read_view(flight_dir: Path, view: str, names: list[str] | None = None,
             if n not in here and n in meta.get("reuse", {}):
                 elsewhere.setdefault(meta["reuse"][n], []).append(n)
         for other, wanted in elsewhere.items():
-            here.update(compact.read_topics(Path(flight_dir) / f"{other}.parquet", wanted, arrays=arrays))
+            other_path = compact.view_file(path, other)
+            if not other_path.exists():
+                raise DatasetError(f"{path}: keeps topic(s) {', '.join(wanted[:5])} in {other_path}, which is missing")
+            here.update(compact.read_topics(other_path, wanted, arrays=arrays))
     except compact.CompactError as exc:
         raise DatasetError(str(exc)) from None
     except (KeyError, TypeError, IndexError, AttributeError) as exc:  # spans of the wrong shape

@@ -85,10 +85,15 @@ class DatasetWriter:
     at ``out`` (a new one if there is none): its format is kept, a flight id already there is
     refused before anything is written, and the manifest is replaced atomically at ``close``,
     so the dataset is complete before and after; ``abort`` removes the flights it wrote.
+    ``share_sources`` (appending, compact layout, no workers): a flight whose manifest
+    ``source_flight`` is a normal flight already in the dataset (an attacked copy) stores only
+    the fields that differ from that flight's navigator view and reads the others from its file
+    (:class:`SourceView`), so a copy costs what its attack changed, not what the log holds.
     """
 
     def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
-                 overwrite: bool = False, workers: int = 0, append: bool = False, layout: str | None = None):
+                 overwrite: bool = False, workers: int = 0, append: bool = False, layout: str | None = None,
+                 share_sources: bool = False):
         if fmt not in FORMATS:
             raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
         self.out = Path(out)
@@ -98,8 +103,10 @@ class DatasetWriter:
         self.existing: pd.DataFrame | None = None
         self.written: list[str] = []
         self._lock = dataset_lock(self.out).acquire() if append else None
+        self._dataset = None
+        self._source: SourceView | None = None
         if append and is_dataset(self.out):
-            ds = open_dataset(self.out)
+            ds = self._dataset = open_dataset(self.out)
             self.existing = ds.manifest
             self.fmt = ds.info.get("format", "csv" if (self.out / "manifest.csv").exists() else "parquet")
             self.layout = ds.info.get("layout", "paper")  # datasets from before the compact layout
@@ -113,6 +120,7 @@ class DatasetWriter:
         (self.out / "flights").mkdir(parents=True, exist_ok=True)
         self.ids: set[str] = set() if self.existing is None else set(self.existing["flight_id"].astype(str))
         self.rows: list[dict] = []
+        self.share_sources = bool(share_sources) and self.layout == "compact" and self._dataset is not None
         self.workers = int(workers)
         self._pending: list = []
         self._pool = None
@@ -134,11 +142,26 @@ class DatasetWriter:
         if self.existing is not None:  # a folder left by an append that never finished
             shutil.rmtree(inside(self.out / "flights", record.flight_id), ignore_errors=True)
         if self._pool is None:
-            self.rows.append(write_flight(self.out, self.fmt, record, self.layout))
+            source = self._source_of(record) if self.share_sources else None
+            self.rows.append(write_flight(self.out, self.fmt, record, self.layout, source))
             return
         while len(self._pending) >= 2 * self.workers:  # bound the records held in memory
             self.rows.append(self._pending.pop(0).result())
         self._pending.append(self._pool.submit(write_flight, self.out, self.fmt, record, self.layout))
+
+    def _source_of(self, record: FlightRecord) -> SourceView | None:
+        """The source flight a copy may share its untouched fields with: a normal flight of the
+        dataset as it was opened, stored compact, checked (checksum) and itself sharing with none."""
+        fid = str(record.manifest.get("source_flight") or "")
+        if self._source is not None and self._source.flight_id == fid:
+            return self._source
+        ds = self._dataset
+        rows = ds.manifest[ds.manifest["flight_id"].astype(str) == fid] if fid else ds.manifest.iloc[:0]
+        if rows.empty or str(rows["mode"].iloc[0]) != "normal" or not ds.is_compact(fid) or ds.sources(fid):
+            return None
+        ds.verify(fid)  # a copy must not inherit damage: the source's checksum is compared first
+        self._source = SourceView(ds.flight_dir(fid) / "navigator.parquet", fid)
+        return self._source
 
     def add_written(self, rows: list[dict]) -> None:
         """Take the manifest rows of flights written into this dataset by another process (after
@@ -225,8 +248,69 @@ def _views(record: FlightRecord) -> list[tuple[str, dict[str, pd.DataFrame]]]:
     return views
 
 
-def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper") -> dict:
-    """Write one flight (raw folder plus its views, in ``layout``); returns its manifest row."""
+class SourceView:
+    """The navigator view of a dataset's flight as stored (column arrays, bit for bit), against which an
+    attacked copy's topics are compared: a field the copy holds unchanged, for the same rows, is
+    read from this file instead of being written again (:mod:`scart_bench.dataset.compact`)."""
+
+    def __init__(self, path: Path, flight_id: str):
+        self.path = Path(path)
+        self.flight_id = flight_id
+        self.ref = compact.other_flight_ref(flight_id, "navigator")
+        self._stacked: dict[tuple, np.ndarray] = {}
+        try:
+            meta = compact.read_meta(self.path)
+            self.arrays = compact.read_topics(self.path, list(meta["topics"]), meta, arrays=True)
+            self.dtypes = {s["name"]: dict(map(tuple, s["columns"])) for s in meta["stored"]}
+        except compact.CompactError as exc:
+            raise DatasetError(f"{exc}; the source flight {flight_id!r} of the copies cannot be read") from None
+
+    def fields(self, name: str, df: pd.DataFrame) -> list[str]:
+        """The numeric fields of ``df`` (topic ``name``) that this flight's same topic holds bit for
+        bit in the same dtype for the same timestamps (empty when the rows differ)."""
+        base = self.arrays.get(name)
+        if base is None or "Timestamp" not in df.columns or "Timestamp" not in base:
+            return []
+        if len(df) != len(base["Timestamp"]) or not _same_array(df["Timestamp"].to_numpy(), base["Timestamp"]):
+            return []
+        dtypes = self.dtypes.get(name, {})
+        kinds = df.dtypes
+        cols = [str(c) for c in df.columns]
+        wanted = [c for c in cols if c not in compact.SHARED_COLUMNS and c in base and str(kinds[c]) == dtypes.get(c)]
+        floats = [c for c in wanted if kinds[c] == np.float64]
+        same = set()
+        if floats:  # a log's fields: one array operation for the topic
+            x = df.iloc[:, [cols.index(c) for c in floats]].to_numpy().view(np.uint64)
+            y = self._floats(name, floats).view(np.uint64)
+            same.update(c for c, eq in zip(floats, (x == y).all(axis=0)) if eq)
+        same.update(c for c in wanted if c not in floats and _same_array(df[c].to_numpy(), base[c]))
+        return [c for c in wanted if c in same]
+
+    def _floats(self, name: str, cols: list[str]) -> np.ndarray:
+        """The topic's float64 fields ``cols`` as one (rows x fields) array, kept for the next copy."""
+        key = (name, tuple(cols))
+        if key not in self._stacked:
+            self._stacked = {k: v for k, v in self._stacked.items() if k[0] != name}
+            self._stacked[key] = np.column_stack([np.asarray(self.arrays[name][c], dtype=np.float64) for c in cols])
+        return self._stacked[key]
+
+
+def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two numeric arrays hold the same bits in the same dtype (0.0 and -0.0, or NaN payloads, differ)."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype != b.dtype or a.shape != b.shape or a.dtype.kind not in "biuf":
+        return False
+    width = np.dtype(f"u{a.dtype.itemsize}") if a.dtype.itemsize in (1, 2, 4, 8) else None
+    if width is None:
+        return a.tobytes() == b.tobytes()
+    return bool(np.array_equal(np.ascontiguousarray(a).view(width), np.ascontiguousarray(b).view(width)))
+
+
+def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper",
+                 source: SourceView | None = None) -> dict:
+    """Write one flight (raw folder plus its views, in ``layout``); returns its manifest row.
+    ``source`` (compact layout): a flight of the same dataset whose stored fields this one reads
+    where it holds the same values (an attacked copy and its source flight)."""
     if not any(k not in TRUTH_TOPICS for k in record.navigator):
         raise DatasetError(f"flight {record.flight_id!r}: cannot combine a flight with no topics")
     root = inside(out / "flights", check_id(record.flight_id, "flight id"))
@@ -239,7 +323,7 @@ def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper
     with writing(root / "raw" / "events.csv"):
         events.to_csv(root / "raw" / "events.csv", index=False)
     if layout == "compact":
-        _write_compact(root, record)
+        _write_compact(root, record, source)
     else:
         _write_paper(root, fmt, record)
     row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
@@ -280,19 +364,34 @@ def _write_paper(root: Path, fmt: str, record: FlightRecord) -> None:
                 write_table(df, root / "combined" / f"{view}_{table}", fmt)
 
 
-def _write_compact(root: Path, record: FlightRecord) -> None:
+def _share_with_navigator(name: str, df: pd.DataFrame, record: FlightRecord, reuse: dict, shared: dict) -> None:
+    """A simulator topic the attack did not touch is the navigator's: stored once."""
+    same = compact.shared_fields(df, record.navigator[name]) if name in record.navigator else None
+    if same is None:
+        return
+    if same == list(df.columns) == list(record.navigator[name].columns):
+        reuse[name] = "navigator"
+    elif same:
+        shared[name] = ("navigator", same)
+
+
+def _write_compact(root: Path, record: FlightRecord, source: SourceView | None = None) -> None:
     windows = [list(w) for w in record.windows]
     for view, topics in _views(record):
         reuse, shared = {}, {}
-        if view == "simulator":  # what the attack did not touch is the navigator's: stored once
+        if source is not None:  # an attacked copy: its untouched fields are its source flight's
             for name, df in topics.items():
-                same = compact.shared_fields(df, record.navigator[name]) if name in record.navigator else None
-                if same is None:
+                if view != "navigator" and record.navigator.get(name) is df:
+                    reuse[name] = "navigator"  # the very table: the navigator view's, read from there
                     continue
-                if same == list(df.columns) == list(record.navigator[name].columns):
-                    reuse[name] = "navigator"
-                elif same:
-                    shared[name] = ("navigator", same)
+                fields = source.fields(name, df)
+                if fields:
+                    shared[name] = (source.ref, fields)
+                elif view == "simulator":
+                    _share_with_navigator(name, df, record, reuse, shared)
+        elif view == "simulator":
+            for name, df in topics.items():
+                _share_with_navigator(name, df, record, reuse, shared)
         tmp = root / f".{view}.parquet.tmp"
         with writing(root / f"{view}.parquet"):
             compact.write_view(tmp, topics, windows, reuse, shared)
@@ -300,14 +399,16 @@ def _write_compact(root: Path, record: FlightRecord) -> None:
 
 
 def append_flights(out: str | Path, records: Iterable[FlightRecord], fmt: str = "parquet",
-                   info: dict | None = None, layout: str | None = None) -> Path:
+                   info: dict | None = None, layout: str | None = None, share_sources: bool = False) -> Path:
     """Add flights to the dataset at ``out`` (created when there is none), atomically.
 
     ``records`` may be a generator (one flight in memory at a time). A repeated flight id, or any
     error while the records are made or written, removes the flights written so far and leaves
     the dataset as it was; the manifest is replaced last, in one rename. Returns the manifest path.
+    ``share_sources``: attacked copies keep their untouched fields in their source flight's file
+    (:class:`DatasetWriter`).
     """
-    writer = DatasetWriter(out, fmt=fmt, info=info, append=True, layout=layout)
+    writer = DatasetWriter(out, fmt=fmt, info=info, append=True, layout=layout, share_sources=share_sources)
     try:
         for r in records:
             writer.write(r)
