@@ -18,9 +18,18 @@ A csv-mode flight replaying a train or validation flight (``source_flight``) is 
 detector would have seen the very rows it is asked to flag, and its threshold would be calibrated
 on them.
 
-The operating point (protocol v2, the default):
+The operating point (protocol v3, the default since issue 46; v2 without its first item):
 
-- **Burn-in.** Rows before ``burn_in_s`` (default 8 s) after a flight's arming neither calibrate
+- **The flight's two ends** (``phases = "ends"``). Only the airborne rows from ``phase_margin_s``
+  (default 3 s) after take-off to ``phase_margin_s`` before touchdown calibrate a threshold or
+  raise an alarm: the ground before take-off (start-up, arming, spin-up) and after touchdown, the
+  lift-off and the touchdown transients are left out by one rule at both ends. Take-off and
+  touchdown are read from the flight itself with the phase detection real logs get
+  (:func:`flight_phase_bounds`: the log's land detector and flight mode where it has them, else
+  altitude and vertical speed); a flight without them (no altitude, never airborne) is counted by
+  the burn-in below. ``"cruise"`` leaves the climb and the final descent out too; ``"burn-in"`` is
+  protocol v2's rule, what run folders made before v3 keep.
+- **Burn-in** (v2's rule). Rows before ``burn_in_s`` (default 8 s) after a flight's arming neither calibrate
   a threshold nor raise an alarm, on every flight and for every detector alike: the start-up on
   the ground (sensors starting, the GPS fix, a detector's first windows), the arming step and the
   motors' spin-up are the largest transients of a normal flight and would otherwise set every
@@ -293,6 +302,8 @@ def counted_rows(timestamps: np.ndarray, armed_us: float | None, burn_in_s: floa
 #: from the flight's own phases) and ``"cruise"`` (the rows from the end of the climb plus
 #: ``phase_margin_s`` to ``phase_margin_s`` before the final descent: both transients out whole).
 PHASE_RULES = ("burn-in", "ends", "cruise")
+#: The default counting rule (protocol v3; a run folder that records none counts as v2's "burn-in").
+DEFAULT_PHASES = "ends"
 #: Default margin (seconds) after take-off and before touchdown of the "ends" rule.
 DEFAULT_PHASE_MARGIN_S = 3.0
 #: A flight's phase bounds (microseconds, ``Timestamp``; <NA> where the flight has none) and their source:
@@ -372,21 +383,19 @@ def phase_counted_rows(timestamps: np.ndarray, liftoff_us: float | None, touchdo
 
 def counted_masks(protocol: Protocol, flights: pd.DataFrame,
                   timestamps: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Per flight id (``flights`` indexed by it), the rows the protocol counts. Under the "ends" rule
-    a flight without phase bounds (``liftoff_us`` <NA>: no altitude, never airborne) is counted by
-    the burn-in rule; the flights table must carry the bounds (:data:`PHASE_COLUMNS`)."""
+    """Per flight id (``flights`` indexed by it), the rows the protocol counts. Under the "ends" and
+    "cruise" rules a flight without phase bounds (:data:`PHASE_COLUMNS` <NA> or absent from the table:
+    no altitude, never airborne) is counted by the burn-in rule."""
     armed = (pd.to_numeric(flights["armed_us"], errors="coerce") if "armed_us" in flights.columns
              else pd.Series(np.nan, index=flights.index))
     if protocol.phases != "burn-in":
         first, last = (("liftoff_us", "touchdown_us") if protocol.phases == "ends"
                        else ("climb_end_us", "descent_start_us"))
-        missing = [c for c in (first, last) if c not in flights.columns]
-        if missing:
-            raise ProtocolError(f"the {protocol.phases!r} counting rule needs each flight's phase bounds "
-                                f"({', '.join(missing)} missing); score the run with its dataset at hand "
-                                f"(scart-bench score RUN --phases {protocol.phases})")
-        lo = pd.to_numeric(flights[first], errors="coerce")
-        hi = pd.to_numeric(flights[last], errors="coerce")
+        def bound(col: str) -> pd.Series:  # a table without the column: no flight has bounds
+            return (pd.to_numeric(flights[col], errors="coerce") if col in flights.columns
+                    else pd.Series(np.nan, index=flights.index))
+
+        lo, hi = bound(first), bound(last)
         return {fid: (phase_counted_rows(timestamps[fid], lo[fid], hi[fid], protocol.phase_margin_s)
                       if not pd.isna(lo[fid]) else counted_rows(timestamps[fid], armed[fid], protocol.burn_in_s))
                 for fid in flights.index}
@@ -414,7 +423,7 @@ class Protocol:
     end_transient_s: float = DEFAULT_END_TRANSIENT_S
     alarm_rule: str = "calibrated"
     #: which rows count at the flight's ends (:data:`PHASE_RULES`) and the "ends" rule's margin
-    phases: str = "burn-in"
+    phases: str = DEFAULT_PHASES
     phase_margin_s: float = DEFAULT_PHASE_MARGIN_S
 
     def __post_init__(self) -> None:
