@@ -545,7 +545,7 @@ def logged_columns(ds, flight_id: str) -> frozenset[str]:
             fields = {s["name"]: [c for c, _ in s["columns"]] for s in meta.get("stored", [])}
             for name, other in meta.get("reuse", {}).items():
                 if name not in fields:
-                    elsewhere = compact.read_meta(root / f"{other}.parquet")
+                    elsewhere = compact.read_meta(compact.view_file(path, other))  # (a copy: its source's view)
                     fields.update({s["name"]: [c for c, _ in s["columns"]] for s in elsewhere.get("stored", [])
                                    if s["name"] == name})
             return frozenset(f"{t}.{c}" for t in meta["topics"] if t not in TRUTH_TOPICS for c in fields[t]
