@@ -201,7 +201,7 @@ class TcnED(_DeepODSeriesDetector):
     """
 
     name = "tcned"
-    relative_cost = 60.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 222.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "TCN encoder-decoder (Bai et al. 2018, DeepOD TcnED): last-row reconstruction error"
     _model_class = _TcnED
 
@@ -230,7 +230,7 @@ class USAD(_DeepODSeriesDetector):
     """
 
     name = "usad"
-    relative_cost = 20.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 176.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "USAD (Audibert et al. 2020, DeepOD): adversarial autoencoders' reconstruction error"
     _model_class = USADModel
     _model_defaults = {"hidden_dims": 4, "train_val_pc": 0.0}
@@ -245,7 +245,7 @@ class DeepSVDDTS(_DeepODSeriesDetector):
     """
 
     name = "deepsvdd_ts"
-    relative_cost = 40.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 46.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "Deep SVDD (Ruff et al. 2018, DeepOD DeepSVDDTS) on windows through a TCN"
     _model_class = _DeepSVDDTS
     _model_defaults = {"network": "TCN", "hidden_dims": "32", "rep_dim": 32}
@@ -260,7 +260,7 @@ class DIFTS(_DeepODSeriesDetector):
     """
 
     name = "dif_ts"
-    relative_cost = 80.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 515.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "Deep Isolation Forest (Xu et al. 2023, DeepOD) on windows: forests on random conv embeddings"
     _model_class = _DIF
     _model_defaults = {"n_ensemble": 8, "hidden_dims": "32", "rep_dim": 32}

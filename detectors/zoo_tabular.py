@@ -163,7 +163,7 @@ class IForest(WindowFeatureDetector):
     """
 
     name = "iforest"
-    relative_cost = 40.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 28.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "Isolation Forest (Liu et al. 2008, scikit-learn) on windows: path length of random splits"
 
     def __init__(self, window: int = 25, segments: int = 5, stride: int = 5, max_train_windows: int = 5000,
@@ -190,7 +190,7 @@ class PCAReconstruction(WindowFeatureDetector):
     """
 
     name = "pca"
-    relative_cost = 2.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 10.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "PCA reconstruction error (Shyu et al. 2003, scikit-learn) on windows"
 
     def __init__(self, window: int = 25, segments: int = 5, stride: int = 5, max_train_windows: int = 5000,
@@ -213,7 +213,7 @@ class KMeansDistance(WindowFeatureDetector):
     """Distance to the nearest k-means centre of the training windows (scikit-learn ``KMeans``)."""
 
     name = "kmeans"
-    relative_cost = 3.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 10.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "distance to the nearest k-means centre (scikit-learn) of the training windows"
 
     def __init__(self, window: int = 25, segments: int = 5, stride: int = 5, max_train_windows: int = 5000,
@@ -243,7 +243,7 @@ class KNNDistance(WindowFeatureDetector):
     """
 
     name = "knn"
-    relative_cost = 60.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 41.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "distance to the k-th nearest training window (Ramaswamy et al. 2000, scikit-learn)"
 
     def __init__(self, window: int = 25, segments: int = 5, stride: int = 5, max_train_windows: int = 5000,
@@ -274,7 +274,7 @@ class LOF(WindowFeatureDetector):
     """
 
     name = "lof"
-    relative_cost = 60.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 35.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "Local Outlier Factor (Breunig et al. 2000, scikit-learn) on windows"
 
     def __init__(self, window: int = 25, segments: int = 5, stride: int = 5, max_train_windows: int = 5000,
@@ -390,7 +390,7 @@ class ECOD(_EmpiricalTail):
     """
 
     name = "ecod"
-    relative_cost = 40.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 115.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "ECOD (Li et al. 2022) on windows: empirical tail probability of every feature, as PyOD scores one"
     _rule = "ecod"
 
@@ -399,7 +399,7 @@ class COPOD(_EmpiricalTail):
     """COPOD (Li et al. 2020): empirical-copula tail probability of a window, as PyOD's ``COPOD`` scores one."""
 
     name = "copod"
-    relative_cost = 40.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 102.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "COPOD (Li et al. 2020) on windows: empirical-copula tail probability, as PyOD scores one"
     _rule = "copod"
 
@@ -408,7 +408,7 @@ class HBOS(WindowFeatureDetector):
     """HBOS (Goldstein and Dengel 2012): negative log density of per-feature histograms (PyOD ``HBOS``)."""
 
     name = "hbos"
-    relative_cost = 5.0  # us per row, conformance flights (scheduling hint)
+    relative_cost = 12.0  # us per row (perf.detector_speed, scaled to statistical's 3.6)
     description = "HBOS (Goldstein & Dengel 2012, PyOD) on windows: per-feature histogram density"
     def __init__(self, window: int = 25, segments: int = 5, stride: int = 5, max_train_windows: int = 5000,
                  window_stats: bool = True, n_bins: int = 10,

@@ -45,7 +45,7 @@ DETECTION_PARAMS: dict[str, dict] = {
 #: this small case (docs/results-zoo.md).
 POSITION_TOPICS = ("global_position_int", "local_position_ned", "gps_raw_int")
 ROWS = 1500
-#: Rows left out at the start of each flight, as the protocol's 8 s burn-in after arming leaves them out
+#: Rows left out at the start of each flight (8 s), as the protocol leaves the ground before take-off out
 #: (docs/protocol.md): before take-off the windows barely change, and LOF's density ratio explodes on
 #: such near-duplicates (40 on the normal flights' row 12, 30 at the attack's peak: docs/results-zoo.md).
 BURN_IN_ROWS = 400
