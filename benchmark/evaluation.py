@@ -72,6 +72,8 @@ class Evaluation:
     protocol: Protocol | None = None
     #: "calibrated" (score > threshold) or "own" (the detector's own alarm rule)
     alarm_source: str = "calibrated"
+    #: the small-data operating point (Protocol.hourly_point) when alpha was not attainable, else None
+    hourly: dict | None = None
 
     def test(self, role: str | None = None, mode: str | None = None) -> pd.DataFrame:
         """Test flights, optionally of one role (test_normal / test_attacked) and mode."""
@@ -159,7 +161,9 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
     checked = _checked_scores(detector, scored, truth, scores)
     counted = counted_masks(protocol, scored, {fid: truth[fid][0] for fid in scored.index})
     validation = {fid: checked[fid] for fid in scored.index[scored["role"] == "validation"]}
-    t_flight, t_row = protocol.thresholds(validation, counted)
+    stamps = {fid: truth[fid][0] for fid in validation}
+    t_flight, t_row = protocol.thresholds(validation, counted, stamps)
+    hourly = protocol.hourly_point(validation, {f: counted[f] for f in validation}, stamps)
     own = protocol.alarm_rule == "own" and alarms is not None
     if own:
         for fid in scored.index:
@@ -182,7 +186,7 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
     if own:
         t_flight = t_row = float("nan")
     return Evaluation(detector, scored, rows, t_flight, t_row, float(fit_seconds), float(score_seconds),
-                      int(rows_scored), protocol, "own" if own else "calibrated")
+                      int(rows_scored), protocol, "own" if own else "calibrated", None if own else hourly)
 
 
 #: Per attacked flight, the largest counted score (own rule: 1.0 where a row alarms, else 0.0) in

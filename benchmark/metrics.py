@@ -236,6 +236,8 @@ def _resampled_thresholds(ev: Evaluation, rng: np.random.Generator, n_boot: int)
     (the threshold's own uncertainty); fixed where the rule cannot be (own alarms: 0.5 on 0/1)."""
     if ev.alarm_source == "own":
         return np.full(n_boot, 0.5), np.full(n_boot, 0.5)
+    if ev.hourly is not None:  # calibrated on windows, not flight scores: held fixed
+        return np.full(n_boot, ev.row_threshold), np.full(n_boot, ev.flight_threshold)
     val = ev.flights.loc[ev.flights["role"] == "validation", "score"].to_numpy(np.float64)
     fixed = (np.full(n_boot, ev.row_threshold), np.full(n_boot, ev.flight_threshold))
     if ev.protocol is None or val.size == 0:
@@ -504,6 +506,7 @@ NEAR_ARMING_S = 10.0
 #: Seconds from take-off or touchdown within which a validation maximum counts as "near the ends".
 NEAR_ENDS_S = 3.0
 #: CalibrationPoint's columns that a run without phase bounds leaves empty (and out of metrics.csv)
+HOURLY_METRIC_COLUMNS = ("hourly_rate", "n_windows", "validation_hours")
 PHASE_METRIC_COLUMNS = ("threshold_after_liftoff_s", "threshold_before_touchdown_s", "val_max_near_ends")
 
 
@@ -538,6 +541,19 @@ class CalibrationPoint(Metric):
         return out
 
 
+class HourlyPoint(Metric):
+    """The small-data operating point when alpha was not attainable (Protocol.hourly_point): the
+    stated false alarms per flight-hour, the validation windows and flight-hours it rests on."""
+
+    name = "hourly"
+    columns = HOURLY_METRIC_COLUMNS
+
+    def compute(self, ev: Evaluation) -> dict[str, float]:
+        h = ev.hourly or {}
+        return {"hourly_rate": h.get("rate_per_hour", float("nan")), "n_windows": h.get("windows", float("nan")),
+                "validation_hours": h.get("validation_hours", float("nan"))}
+
+
 class ScoringLatency(Metric):
     """Per-sample scoring latency: total score time / rows scored, in microseconds."""
 
@@ -552,7 +568,7 @@ class ScoringLatency(Metric):
 #: The metrics of metrics.csv, in column order.
 DEFAULT_METRICS: tuple[Metric, ...] = (
     PaperTable(), FlightROCAUC(), ThresholdFree(), PointwisePRF(), RangePRF(), TatbulZeroPRF(), DetectionDelay(),
-    FalseAlarmRate(), CalibrationPoint(), ScoringLatency(),
+    FalseAlarmRate(), CalibrationPoint(), HourlyPoint(), ScoringLatency(),
 )
 
 

@@ -304,6 +304,9 @@ def counted_rows(timestamps: np.ndarray, armed_us: float | None, burn_in_s: floa
 PHASE_RULES = ("burn-in", "ends", "cruise")
 #: The default counting rule (protocol v3; a run folder that records none counts as v2's "burn-in").
 DEFAULT_PHASES = "ends"
+#: Default target of the small-data operating point (false alarms per flight-hour) and its window (s).
+DEFAULT_HOURLY_RATE = 1.0
+DEFAULT_HOURLY_WINDOW_S = 60.0
 #: Default margin (seconds) after take-off and before touchdown of the "ends" rule.
 DEFAULT_PHASE_MARGIN_S = 3.0
 #: A flight's phase bounds (microseconds, ``Timestamp``; <NA> where the flight has none) and their source:
@@ -425,10 +428,19 @@ class Protocol:
     #: which rows count at the flight's ends (:data:`PHASE_RULES`) and the "ends" rule's margin
     phases: str = DEFAULT_PHASES
     phase_margin_s: float = DEFAULT_PHASE_MARGIN_S
+    #: the operating point for small datasets: when the validation flights are too few for alpha, at
+    #: most this many false alarms per flight-hour, calibrated on ``hourly_window_s`` windows of the
+    #: validation flights (0: off, the largest validation score, as before v3)
+    hourly_rate: float = DEFAULT_HOURLY_RATE
+    hourly_window_s: float = DEFAULT_HOURLY_WINDOW_S
 
     def __post_init__(self) -> None:
         if self.phases not in PHASE_RULES:
             raise ProtocolError(f"counting rule {self.phases!r}: expected one of {', '.join(PHASE_RULES)}")
+        if not (math.isfinite(self.hourly_rate) and 0 <= self.hourly_rate <= 3600):
+            raise ProtocolError(f"hourly_rate {self.hourly_rate!r}: expected false alarms per flight-hour in 0..3600")
+        if not (math.isfinite(self.hourly_window_s) and 1 <= self.hourly_window_s <= MAX_PROTOCOL_S):
+            raise ProtocolError(f"hourly_window_s {self.hourly_window_s!r}: expected seconds in 1..{MAX_PROTOCOL_S:g}")
         for name in ("burn_in_s", "end_transient_s", "phase_margin_s"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and 0 <= v <= MAX_PROTOCOL_S):
@@ -441,14 +453,56 @@ class Protocol:
         """The target per-flight false-alarm rate (None for the v1 rules, which state none)."""
         return self.flight_rule.alpha if self.flight_rule.kind == "conformal" else None
 
+    def hourly_point(self, validation_scores: dict[str, np.ndarray], masks: dict[str, np.ndarray],
+                     timestamps: Mapping[str, np.ndarray]) -> dict | None:
+        """The small-data operating point, or None when alpha is attainable (or it is off).
+
+        Each validation flight's counted rows are cut into ``hourly_window_s`` windows from its
+        first counted row; a window's score is its largest. The threshold is the conformal order
+        statistic of the window scores for a per-window rate ``r = hourly_rate * window / 3600``,
+        raised to ``1 / (m + 1)`` (the largest window score) when the m windows cannot reach it:
+        a new normal window exceeds it with probability at most r, i.e. at most
+        ``r * 3600 / window`` windows with an alarm per flight-hour. Returned: the threshold, the
+        stated rate per flight-hour, the windows and the validation flight-hours.
+        """
+        n = len(validation_scores)
+        if self.flight_rule.kind != "conformal" or self.flight_rule.attainable(n) or self.hourly_rate <= 0:
+            return None
+        w_us = int(round(self.hourly_window_s * 1e6))
+        windows, seconds = [], 0.0
+        for f, s in validation_scores.items():
+            c = masks[f]
+            if not c.any():
+                continue
+            t = np.asarray(timestamps[f], dtype=np.int64)[c]
+            v = np.asarray(s, dtype=np.float64)[c]
+            seconds += (t[-1] - t[0]) / 1e6
+            k = (t - t[0]) // w_us
+            starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+            windows.append(np.maximum.reduceat(v, starts))
+        w = np.concatenate(windows) if windows else np.zeros(0)
+        if not w.size:
+            return None
+        rate = max(self.hourly_rate * self.hourly_window_s / 3600.0, 1.0 / (w.size + 1))
+        t = ThresholdRule("conformal", alpha=min(rate, 0.999999)).calibrate(w)
+        return {"threshold": t, "rate_per_hour": rate * 3600.0 / self.hourly_window_s, "windows": int(w.size),
+                "validation_hours": seconds / 3600.0, "target_per_hour": float(self.hourly_rate)}
+
     def thresholds(self, validation_scores: dict[str, np.ndarray],
-                   counted: dict[str, np.ndarray] | None = None) -> tuple[float, float]:
+                   counted: dict[str, np.ndarray] | None = None,
+                   timestamps: Mapping[str, np.ndarray] | None = None) -> tuple[float, float]:
         """(flight threshold, row threshold) from the per-row scores of the validation flights;
-        ``counted`` (flight id -> bool mask) leaves the burn-in rows out."""
+        ``counted`` (flight id -> bool mask) leaves the rows outside the counting rule out. With
+        ``timestamps`` (flight id -> row times) and too few validation flights for alpha, both are
+        the small-data operating point's (:meth:`hourly_point`)."""
         if not validation_scores:
             raise ProtocolError("no validation flight scores to calibrate thresholds on")
         masks = {f: (counted[f] if counted is not None and f in counted else
                      np.ones(np.asarray(s).shape[0], dtype=bool)) for f, s in validation_scores.items()}
+        if timestamps is not None:
+            hourly = self.hourly_point(validation_scores, masks, timestamps)
+            if hourly is not None:
+                return hourly["threshold"], hourly["threshold"]
         flights = np.array([counted_max(s, masks[f]) for f, s in validation_scores.items()])
         t_flight = self.flight_rule.calibrate(flights)
         if self.row_rule.kind in FLIGHT_KINDS:
@@ -463,6 +517,8 @@ class Protocol:
                "alarm_rule": self.alarm_rule}
         if self.phases != "burn-in":  # v2's rules read as they always did
             out.update(phases=self.phases, phase_margin_s=float(self.phase_margin_s))
+        if self.hourly_rate > 0:
+            out.update(hourly_rate=float(self.hourly_rate), hourly_window_s=float(self.hourly_window_s))
         return out
 
     def counting(self) -> str:
@@ -502,4 +558,6 @@ class Protocol:
         return cls(rule(d["flight_rule"]), rule(d["row_rule"]), burn_in_s=float(d.get("burn_in_s", 0.0)),
                    end_transient_s=float(d.get("end_transient_s", 0.0)),
                    alarm_rule=str(d.get("alarm_rule", "calibrated")), phases=str(d.get("phases", "burn-in")),
-                   phase_margin_s=float(d.get("phase_margin_s", DEFAULT_PHASE_MARGIN_S)))
+                   phase_margin_s=float(d.get("phase_margin_s", DEFAULT_PHASE_MARGIN_S)),
+                   hourly_rate=float(d.get("hourly_rate", 0.0)),
+                   hourly_window_s=float(d.get("hourly_window_s", DEFAULT_HOURLY_WINDOW_S)))

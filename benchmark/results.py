@@ -23,6 +23,7 @@ from scart_bench.benchmark.evaluation import (
 )
 from scart_bench.benchmark.metrics import (
     DEFAULT_METRICS,
+    HOURLY_METRIC_COLUMNS,
     NEAR_ARMING_S,
     NEAR_ENDS_S,
     OC_ALPHAS,
@@ -180,7 +181,12 @@ def _metrics_of(done: list[tuple]) -> pd.DataFrame:
                "flight_threshold", "row_threshold", "fit_s", "score_s", "rows"]
     table = pd.DataFrame([row for row, _, _, _ in done], columns=columns)
     # a run without phase bounds (made before protocol v3) keeps metrics.csv's columns as they were
-    return table.drop(columns=list(PHASE_METRIC_COLUMNS)) if table["val_max_near_ends"].isna().all() else table
+    # columns that only some runs fill (phase bounds since v3, the small-data operating point) are left
+    # out when no detector has them, so older runs' metrics.csv keep their columns
+    for group, key in ((PHASE_METRIC_COLUMNS, "val_max_near_ends"), (HOURLY_METRIC_COLUMNS, "hourly_rate")):
+        if table[key].isna().all():
+            table = table.drop(columns=list(group))
+    return table
 
 
 def score_run(path: str | Path, write: bool = True, processes: int | None = None) -> pd.DataFrame:

@@ -217,7 +217,12 @@ def operating_point_line(d) -> str:
     else:
         text = (f"**{d['detector']}**: target alpha {100 * float(alpha):g} % per flight; measured on held-out "
                 f"normal flights {measured}")
-        if not _nan(d.get("alpha_attainable")) and not bool(d.get("alpha_attainable")):
+        if not _nan(d.get("hourly_rate")):
+            text += (f" (**alpha not attainable** with {int(d['n_validation'])} validation flights; the operating "
+                     f"point is per flight-hour instead: at most {float(d['hourly_rate']):.2g} false alarms per "
+                     f"flight-hour, calibrated on {int(d['n_windows'])} windows of "
+                     f"{60 * float(d['validation_hours']):.0f} min of validation flight)")
+        elif not _nan(d.get("alpha_attainable")) and not bool(d.get("alpha_attainable")):
             text += (f" (**alpha not attainable** with {int(d['n_validation'])} validation flights: the threshold "
                      "is the largest validation score)")
         elif not _nan(lo) and not _nan(hi) and not (float(lo) <= float(alpha) <= float(hi)):

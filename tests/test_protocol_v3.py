@@ -140,3 +140,34 @@ def test_resuming_at_another_operating_point_reruns_no_job(run, tmp_path, monkey
     assert (pd.read_csv(copy / "metrics.csv")["alpha"] == 0.2).all()
     # another seed is another run: refused
     assert main(["run", *PAIR, "--dataset", ds, "--out", str(copy), "--seed", "9", "--jobs", "1", "--resume"]) == 2
+
+
+def test_too_few_validation_flights_for_alpha_give_a_stated_rate_per_flight_hour():
+    """3 validation flights cannot reach alpha = 5 % per flight (it needs 19); their 30 min are cut into
+    360 windows of 5 s, and the threshold holds at most 60 false alarms per flight-hour (1 in 12 windows):
+    on 20 held-out flights of the same noise, about that many windows alarm, where the largest
+    validation score (the rule before) would let almost none through."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_protocol_v2 import _evaluation, _table
+
+    from scart_bench.benchmark.metrics import compute_metrics
+    from scart_bench.benchmark.tables import operating_point_line
+
+    rng = np.random.default_rng(1)
+    scores = {f"v{i}": rng.normal(0, 1, 6000) for i in range(3)}  # 600 s at 10 Hz each
+    scores.update({f"n{i}": rng.normal(0, 1, 6000) for i in range(20)})
+    rows = [(f, "validation" if f.startswith("v") else "test_normal", "normal", None, None, 0, None, None)
+            for f in scores]
+    proto = Protocol(hourly_rate=60.0, hourly_window_s=5.0)
+    ev = _evaluation(scores, {}, _table(rows), proto)
+    assert ev.hourly is not None and ev.hourly["windows"] == 3 * 119 and ev.hourly["rate_per_hour"] == 60.0
+    held = [f for f in scores if f.startswith("n")]
+    windows = np.concatenate([ev.rows[f].alarm[80:80 + 118 * 50].reshape(-1, 50).any(axis=1) for f in held])
+    assert 0.03 < windows.mean() < 0.16  # 1 in 12 windows stated: 0.083
+    before = _evaluation(scores, {}, _table(rows), Protocol(hourly_rate=0.0))
+    assert before.hourly is None and before.flight_threshold > ev.flight_threshold
+    d = {"detector": "toy", **compute_metrics(ev)}
+    line = operating_point_line(d)
+    assert "per flight-hour" in line and "at most 60 false alarms per flight-hour" in line and "357 windows" in line
