@@ -30,6 +30,7 @@ over it::
     alarm_rule = "calibrated"                # or "own": the detector's own alarm rule where it has one
     phases = "burn-in"                       # rows counted at the ends: burn-in, ends or cruise
     phase_margin_s = 3.0                     # the margin of ends / cruise after take-off and before touchdown
+    hourly_rate = 1.0                        # too few validation flights for alpha: false alarms per flight-hour
     [protocol.flight_rule]                   # or the rules in full (kind conformal / max / quantile)
     kind = "conformal"
 
@@ -239,7 +240,7 @@ def _checked(p: Path, data: dict) -> dict:
 def protocol_from(p: Path, data: object) -> Protocol:
     """A Protocol from a run file's ``[protocol]`` table (missing keys keep their defaults)."""
     keys = ("flight_rule", "row_rule", "alpha", "burn_in_s", "end_transient_s", "alarm_rule", "phases",
-            "phase_margin_s")
+            "phase_margin_s", "hourly_rate", "hourly_window_s")
     if not isinstance(data, dict):
         raise RunError(f"--config {p}: protocol: expected a table with {', '.join(keys)}")
     unknown = [k for k in data if k not in keys]
@@ -259,7 +260,7 @@ def protocol_from(p: Path, data: object) -> Protocol:
         except ProtocolError as exc:
             raise RunError(f"--config {p}: protocol.{key}: {exc}") from exc
     extra = {}
-    for key in ("burn_in_s", "end_transient_s", "phase_margin_s"):
+    for key in ("burn_in_s", "end_transient_s", "phase_margin_s", "hourly_rate", "hourly_window_s"):
         if key in data:
             v = data[key]
             if isinstance(v, bool) or not isinstance(v, int | float):
