@@ -88,6 +88,10 @@ def add_phase_options(parser) -> None:
                              "of the climb to the final descent); docs/protocol.md")
     parser.add_argument("--phase-margin", type=float, metavar="SECONDS", dest="phase_margin",
                         help=f"margin of --phases ends/cruise at both ends (default {DEFAULT_PHASE_MARGIN_S:g} s)")
+    parser.add_argument("--hourly-rate", type=float, metavar="PER_HOUR", dest="hourly_rate",
+                        help="with too few validation flights for --alpha: at most this many false alarms per "
+                             "flight-hour, calibrated on 60 s windows of the validation flights (default 1; 0: "
+                             "the largest validation score)")
 
 
 def protocol_options(protocol, args: argparse.Namespace):
@@ -113,6 +117,9 @@ def protocol_options(protocol, args: argparse.Namespace):
         if getattr(args, "phase_margin", None) is not None:
             option = f"--phase-margin {args.phase_margin:g}"
             protocol = dataclasses.replace(protocol, phase_margin_s=args.phase_margin)
+        if getattr(args, "hourly_rate", None) is not None:
+            option = f"--hourly-rate {args.hourly_rate:g}"
+            protocol = dataclasses.replace(protocol, hourly_rate=args.hourly_rate)
         if getattr(args, "threshold", None) is not None:
             option = f"--threshold {args.threshold}"
             protocol = dataclasses.replace(protocol, alarm_rule=args.threshold)

@@ -32,13 +32,16 @@ def cmd_score(args: argparse.Namespace) -> int:
     with staged_folder(args.run) as run:  # a run folder at a URL: scored in a local copy, uploaded back
         RunStore(run).read_config()  # a damaged config.json is named before anything else
         RunStore(run).verify()  # labels and scores as the run wrote them, or refused (one line naming the file)
-        if args.alpha is None and args.burn_in is None and args.phases is None and args.phase_margin is None:
+        if all(getattr(args, k) is None for k in ("alpha", "burn_in", "phases", "phase_margin", "hourly_rate")):
             metrics = score_run(run, processes=args.jobs)
             print_tables(run, metrics, shown=str(args.run))
         else:
             protocol = _operating_point(run, args)
-            name = evaluation_name(args.alpha, args.burn_in, protocol.phases if (
-                args.phases is not None or args.phase_margin is not None) else None, args.phase_margin)
+            parts = [] if args.hourly_rate is None else [f"hourly-{args.hourly_rate:g}"]
+            moved = any(getattr(args, k) is not None for k in ("alpha", "burn_in", "phases", "phase_margin"))
+            name = "-".join([evaluation_name(args.alpha, args.burn_in, protocol.phases if (
+                args.phases is not None or args.phase_margin is not None) else None, args.phase_margin)] * moved
+                + parts)
             _, metrics = evaluate_run(run, protocol, name, processes=args.jobs)
             print_tables(run, metrics, shown=f"{str(args.run).rstrip('/')}/evaluations/{name}",
                          label="evaluation folder")
