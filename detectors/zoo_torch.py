@@ -15,13 +15,32 @@ numpy Generator seeded with ``random_state``.
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
+
 import numpy as np
 import torch
 from torch import nn
 
 from scart_bench.detectors.base import MAX_WINDOW_ROWS, Detector, DetectorError
-from scart_bench.detectors.deepod_models import _isolated_global_state
 from scart_bench.detectors.statistical import pad_start
+
+
+@contextlib.contextmanager
+def _torch_threads(n_threads: int) -> Iterator[None]:
+    """Run with ``n_threads`` torch threads (0: the job's share of the cores, ``OMP_NUM_THREADS``)."""
+    before = torch.get_num_threads()
+    if n_threads <= 0:
+        try:
+            n_threads = max(1, int(os.environ.get("OMP_NUM_THREADS", "")))
+        except ValueError:
+            n_threads = max(1, os.cpu_count() or 1)
+    torch.set_num_threads(n_threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 class _LSTMAutoencoder(nn.Module):
@@ -124,7 +143,8 @@ class LSTMAutoencoder(Detector):
         if train.shape[0] > cap:
             train = train[np.sort(rng.choice(train.shape[0], size=cap, replace=False))]
         device = self._device()
-        with _isolated_global_state(int(self.n_threads)), torch.random.fork_rng(devices=[]):
+        cuda = [device.index or 0] if device.type == "cuda" else []
+        with _torch_threads(int(self.n_threads)), torch.random.fork_rng(devices=cuda):
             torch.manual_seed(int(self.random_state))
             net = _LSTMAutoencoder(train.shape[2], int(self.hidden)).to(device)
             opt = torch.optim.Adam(net.parameters(), lr=float(self.lr))
@@ -150,7 +170,7 @@ class LSTMAutoencoder(Detector):
         device = self._device()
         net = self.net_.to(device)
         out = []
-        with _isolated_global_state(int(self.n_threads)), torch.no_grad():
+        with _torch_threads(int(self.n_threads)), torch.no_grad():
             for lo in range(0, wins.shape[0], b):
                 batch = torch.from_numpy(wins[lo : lo + b]).to(device)
                 out.append(torch.mean((net(batch) - batch) ** 2, dim=(1, 2)).cpu())
