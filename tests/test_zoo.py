@@ -83,6 +83,15 @@ def test_all_stays_the_papers_eight_and_zoo_is_a_tag():
     assert [c.name for c in resolve_detectors(["paper"], {})] == list(registry.PAPER)
 
 
+def test_a_run_file_names_the_zoo_by_its_tag_beside_names(tmp_path):
+    from scart_bench.benchmark.config import read_run_file
+    from scart_bench.benchmark.selection import resolve_detectors
+
+    path = tmp_path / "run.toml"
+    path.write_text('detectors = ["goad", "zoo"]\n', encoding="utf-8")
+    assert [c.name for c in resolve_detectors(read_run_file(path)["detectors"], {})] == ["goad", *ZOO]
+
+
 def test_detectors_command_lists_every_builtin_with_its_tag(capsys):
     from scart_bench.cli.main import main
 
