@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol, counted_masks, counted_max
+from scart_bench.benchmark.protocol import ATTACK_MODES, Protocol, counted_masks, counted_max, counted_rows  # noqa: F401 (benchmark.scoring)
 from scart_bench.errors import ScartBenchError
 
 

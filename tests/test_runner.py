@@ -51,7 +51,7 @@ def snapshot(folder: Path) -> dict[str, tuple[str, int]]:
 
 def test_run_folder_layout(reference_run, dataset):
     names = {str(p.relative_to(reference_run)) for p in reference_run.rglob("*") if p.is_file()}
-    expected = {"config.json", "flights.csv", "truth.parquet", "arming.csv", "results.csv", "metrics.csv",
+    expected = {"config.json", "flights.csv", "truth.parquet", "arming.csv", "phases.csv", "results.csv", "metrics.csv",
                 "metrics.md", "breakdown.csv", "flight_scores.csv", "calibration.csv", ".lock", "checksums.json"}
     for det in ("zscore_test", "diff_test"):
         expected |= {f"jobs/{det}/{f}" for f in ("status.json", "params.json", "scores.npz", "log.txt")}
