@@ -75,7 +75,7 @@ def commands(run: Path, tmp_path: Path, dataset: Path) -> dict[str, list[str]]:
 
 def test_a_run_records_the_checksum_of_every_file_it_trusts(made_run):
     record = json.loads((made_run / CHECKSUMS_FILE).read_text())
-    assert set(record["files"]) == {"truth.parquet", "arming.csv", "flights.csv",
+    assert set(record["files"]) == {"truth.parquet", "arming.csv", "phases.csv", "flights.csv",
                                     *(f"jobs/{d}/{f}" for d in ("zscore_test", "statistical")
                                       for f in ("status.json", "scores.npz")), "jobs/statistical/alarms.npz"}
     assert json.loads((made_run / "config.json").read_text())["checksums"] == CHECKSUMS_FILE
