@@ -510,6 +510,16 @@ HOURLY_METRIC_COLUMNS = ("hourly_rate", "n_windows", "validation_hours")
 PHASE_METRIC_COLUMNS = ("threshold_after_liftoff_s", "threshold_before_touchdown_s", "val_max_near_ends")
 
 
+def _raw_maxima_left_out(ev: Evaluation) -> int:
+    """Validation flights whose largest score (all rows) lies outside the counted rows."""
+    out = 0
+    for fid in ev.flights.index[ev.flights["role"] == "validation"]:
+        fr = ev.rows[fid]
+        if fr.score.size and not fr.kept[int(np.argmax(fr.score))]:
+            out += 1
+    return out
+
+
 class CalibrationPoint(Metric):
     """Where the threshold comes from: seconds after arming of the validation row that sets it,
     how many validation maxima sit within :data:`NEAR_ARMING_S` of arming (over the counted
@@ -527,7 +537,8 @@ class CalibrationPoint(Metric):
         out = {"threshold_after_arming_s": float(sets["max_after_arming_s"].iloc[0]) if len(sets) else float("nan"),
                "val_max_near_arming": int(((cal["max_after_arming_s"] >= 0)
                                            & (cal["max_after_arming_s"] < NEAR_ARMING_S)).sum()),
-               "val_raw_max_in_burn_in": int((raw < burn_in).sum()) if burn_in > 0 else 0,
+               "val_raw_max_in_burn_in": (int((raw < burn_in).sum()) if burn_in > 0 else 0)
+               if ev.protocol is None or ev.protocol.phases == "burn-in" else _raw_maxima_left_out(ev),
                "threshold_after_liftoff_s": float("nan"), "threshold_before_touchdown_s": float("nan"),
                "val_max_near_ends": float("nan")}
         if "max_after_liftoff_s" in cal.columns:

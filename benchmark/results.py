@@ -371,8 +371,9 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | Non
                   "after arming" + (f" ({', '.join(near['detector'].astype(str))})" if len(near) else "") + "; "
                   "per detector and validation flight, calibration.csv says when each maximum occurred.",
                   *(f"- **{r['detector']}**: threshold set {float(r['threshold_after_arming_s']):.1f} s after arming; "
-                    f"{int(r['val_raw_max_in_burn_in'])} of {int(r['n_validation'])} validation maxima fell in the "
-                    f"burn-in and were left out" for _, r in ok.iterrows()
+                    f"{int(r['val_raw_max_in_burn_in'])} of {int(r['n_validation'])} validation maxima fell "
+                    + ("in the burn-in" if proto.get("phases", "burn-in") == "burn-in" else "outside the counted rows")
+                    + " and were left out" for _, r in ok.iterrows()
                     if not pd.isna(r.get("threshold_after_arming_s"))), ""]
     if len(ok) and "val_max_near_ends" in ok.columns:
         lift = pd.to_numeric(ok["threshold_after_liftoff_s"], errors="coerce").abs()
