@@ -28,9 +28,9 @@ import numpy as np
 import pandas as pd
 
 from perf.fresh_false_alarms import _spec
+from perf.phase_rules import scored_flights
 from scart_bench.benchmark.jobs import run_job
 from scart_bench.benchmark.protocol import Protocol, counted_masks
-from scart_bench.benchmark.results import ensure_phases
 from scart_bench.benchmark.store import RunStore
 
 DEEPOD = ("deepsvdd", "rdp", "rca", "goad", "neutral")
@@ -78,12 +78,7 @@ def evaluate(run: Path, detectors: list[str], phases: str | None) -> pd.DataFram
         import dataclasses
 
         protocol = dataclasses.replace(protocol, phases=phases)
-    if protocol.phases != "burn-in":
-        ensure_phases(store, config)
-    flights = store.read_flights()
-    flights["flight_id"] = flights["flight_id"].astype(str)
-    flights = flights[flights["role"].isin(("validation", "test_normal", "test_attacked"))].set_index(
-        "flight_id", drop=False)
+    flights = scored_flights(store)
     truth = store.read_truth()
     counted = counted_masks(protocol, flights, {f: truth[f][0] for f in flights.index})
     metrics = pd.read_csv(run / "metrics.csv").set_index("detector")

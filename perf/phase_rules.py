@@ -118,15 +118,20 @@ def near_ends(flights: pd.DataFrame, truth, scores, counted_alarms_info, rule: R
     return n, setter_near
 
 
+def scored_flights(store: RunStore) -> pd.DataFrame:
+    """The run's scored flights (validation and test) by flight id, with their arming time and phase
+    bounds (read from the run's dataset first for a run made before v3)."""
+    ensure_phases(store, store.read_config())
+    flights = store.read_flights()
+    flights["flight_id"] = flights["flight_id"].astype(str)
+    return flights[flights["role"].isin(("validation", "test_normal", "test_attacked"))].set_index(
+        "flight_id", drop=False)
+
+
 def evaluate(run: Path, rules: list[Rule], alpha: float, detectors: list[str] | None = None) -> pd.DataFrame:
     """One row per (detector, rule) of one run folder."""
     store = RunStore(run)
-    config = store.read_config()
-    ensure_phases(store, config)
-    flights = store.read_flights()
-    flights["flight_id"] = flights["flight_id"].astype(str)
-    flights = flights[flights["role"].isin(("validation", "test_normal", "test_attacked"))].set_index(
-        "flight_id", drop=False)
+    flights = scored_flights(store)
     truth = store.read_truth()
     rows = []
     for det in store.job_names():
