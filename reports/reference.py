@@ -428,7 +428,9 @@ def why(runs: list[RunResults], rule: pd.DataFrame, det: pd.DataFrame, fam: pd.D
             caught = "no attack moves a field by 10 validation standard deviations or more"
         lines.append(f"- The attacks' strength: {caught}; TP falls with the attack's size (all detectors pooled; "
                      + "; ".join(parts) + "). The paper does not give its attacks' sizes relative to normal "
-                     "variation; a grid of strong attacks alone would give its 100 % (table and figure below).")
+                     "variation; a grid of strong attacks alone would give every detector that catches 99 % of "
+                     "them 100 %, the classical ones among them too, so it would not give the paper's ranking "
+                     "(table and figure below).")
     lines.append("- The counting window: without the 8 s burn-in after arming (protocol v1's counting), the "
                  "start-up sets every threshold and TP falls (table below); the paper states no such rule.")
     if len(fam):
