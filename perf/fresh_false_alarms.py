@@ -37,6 +37,14 @@ from scart_bench.dataset import open_dataset
 CHECKED = 3
 
 
+def one_thread() -> None:
+    """One passive torch/OpenMP thread, as a benchmark job has (before torch is first imported, at the
+    first fit): torch's default spinning threads made a refit several times slower on a loaded machine,
+    and a refit with other thread counts can differ from the run's scores in the last digits."""
+    for var, value in (("OMP_NUM_THREADS", "1"), ("MKL_NUM_THREADS", "1"), ("OMP_WAIT_POLICY", "PASSIVE")):
+        os.environ.setdefault(var, value)
+
+
 def fresh_dataset(run_config: dict, out: Path, seed: int, flights: int) -> Path:
     """``flights`` normal flights of the run's profile and another seed (generated once, then reused)."""
     from scart_bench.generator.generate import generate_dataset
@@ -64,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--detectors", help="comma-separated (default: every OK job)")
     p.add_argument("--csv", type=Path)
     args = p.parse_args(argv)
+    one_thread()
     store = RunStore(args.run)
     config = store.read_config()
     ensure_phases(store, config)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from perf.fresh_false_alarms import _spec
+from perf.fresh_false_alarms import _spec, one_thread
 from perf.phase_rules import scored_flights
 from scart_bench.benchmark.jobs import run_job
 from scart_bench.benchmark.protocol import Protocol, counted_masks
@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--phases", choices=("burn-in", "ends", "cruise"), help="counting rule (default: the run's)")
     p.add_argument("--csv", type=Path)
     args = p.parse_args(argv)
+    one_thread()
     table = pd.concat([evaluate(r, args.detectors.split(","), args.phases) for r in args.runs], ignore_index=True)
     if args.csv:
         table.to_csv(args.csv, index=False)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from perf.fresh_false_alarms import _spec
+from perf.fresh_false_alarms import _spec, one_thread
 from perf.phase_rules import Rule, row_alarms
 from scart_bench.benchmark.jobs import run_job
 from scart_bench.benchmark.protocol import Protocol, arming_time_us, flight_phase_bounds
@@ -77,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--phases", choices=("burn-in", "ends", "cruise"))
     p.add_argument("--csv", type=Path)
     args = p.parse_args(argv)
+    one_thread()
     store = RunStore(args.run)
     config = store.read_config()
     protocol = Protocol.from_dict(config["identity"]["protocol"])
