@@ -182,7 +182,7 @@ def _job_threads() -> int:
 
 
 @contextlib.contextmanager
-def _isolated_global_state(n_threads: int) -> Iterator[None]:
+def isolated_global_state(n_threads: int) -> Iterator[None]:
     """Run DeepOD code with ``n_threads`` torch threads (0: as the process is set, i.e. the job's share
     of the cores) and restore every global RNG afterwards."""
     np_state = np.random.get_state()
@@ -341,7 +341,7 @@ class _DeepODDetector(Detector):
             **self._model_defaults,
             **(self.model_params or {}),
         }
-        with _isolated_global_state(int(self.n_threads)):
+        with isolated_global_state(int(self.n_threads)):
             try:
                 model = self._model_class(**kwargs)
             except TypeError as exc:
@@ -362,7 +362,7 @@ class _DeepODDetector(Detector):
         # windows follow it (batch shapes change the kernels' rounding): pad with the last window.
         b = int(getattr(self, "score_batch_size", self.batch_size))  # detectors pickled before it
         padded = np.concatenate([feats, np.repeat(feats[-1:], (-n) % b, axis=0)], axis=0)
-        with _isolated_global_state(int(self.n_threads)):
+        with isolated_global_state(int(self.n_threads)):
             scores = _model_scores(self.model_, padded, b)
         return scores[:n]
 
@@ -373,7 +373,7 @@ class _DeepODDetector(Detector):
         equals the batch score up to rounding (relative ~1e-6; exactly for GOAD here).
         """
         feats = self._features(X[-int(self.window):])[-1:]
-        with _isolated_global_state(int(self.n_threads)):
+        with isolated_global_state(int(self.n_threads)):
             scores = _model_scores(self.model_, feats, 1)
         return float(scores[0])
 

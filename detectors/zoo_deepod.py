@@ -17,7 +17,7 @@ except where they do not run on a CPU in seconds: fewer epochs and smaller netwo
 says which), and DeepSVDD-TS uses DeepOD's TCN network (its default Transformer network fails
 with torch 2.x: DeepOD's layer lacks the ``is_causal`` argument). DeepOD reseeds the global
 numpy / torch / ``random`` generators; the adapters restore them and the torch thread count
-around every call (:func:`scart_bench.detectors.deepod_models._isolated_global_state`).
+around every call (:func:`scart_bench.detectors.deepod_models.isolated_global_state`).
 
 The models, with their papers:
 
@@ -48,7 +48,7 @@ import numpy as np
 import torch
 
 from scart_bench.detectors.base import MAX_WINDOW_ROWS, Detector, DetectorError
-from scart_bench.detectors.deepod_models import DEEPOD_INSTALL, _isolated_global_state
+from scart_bench.detectors.deepod_models import DEEPOD_INSTALL, isolated_global_state
 from scart_bench.detectors.statistical import pad_start
 
 try:
@@ -156,7 +156,7 @@ class _DeepODSeriesDetector(Detector):
         if self._trained:
             kwargs.update(epochs=int(self.epochs), lr=float(self.lr))
         kwargs.update({**self._model_defaults, **(self.model_params or {})})
-        with _isolated_global_state(int(self.n_threads)):
+        with isolated_global_state(int(self.n_threads)):
             try:
                 model = self._model_class(**kwargs)
             except TypeError as exc:
@@ -183,7 +183,7 @@ class _DeepODSeriesDetector(Detector):
         series = np.concatenate([series, np.repeat(series[-1:], (-n) % b, axis=0)], axis=0)  # whole batches
         chunk = b * max(1, _CHUNK_WINDOWS // b)
         out = []
-        with _isolated_global_state(int(self.n_threads)), torch.no_grad():
+        with isolated_global_state(int(self.n_threads)), torch.no_grad():
             for lo in range(0, series.shape[0] - L + 1, chunk):
                 out.append(self.library_scores(series[lo : lo + chunk + L - 1]))
         return np.concatenate(out)[:n]

@@ -171,7 +171,7 @@ class MissionParams:
     wind_max: float = 5.0  # m/s, mean wind drawn uniformly in [0, wind_max]
     gust_sigma_max: float = 0.5  # m/s, gust standard deviation drawn in [0, gust_sigma_max]
     gust_tau: float = 2.0  # s
-    #: missions read from files (generator.mission_files.MissionFile; ``generate --missions``): flight ``i``
+    #: missions read from files (generator.flight_software.mission_files.MissionFile; ``generate --missions``): flight ``i``
     #: flies file ``seed mod len(missions)`` as written instead of the square (empty: the square)
     missions: tuple = ()
 

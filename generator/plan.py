@@ -17,7 +17,7 @@ from scart_bench.dataset import (
 from scart_bench.generator.attacks import csv_applicable, grid_path, strip_labels
 from scart_bench.generator.engine.flight_batch import defaults_summary
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
-from scart_bench.generator.mission_files import mission_for_seed
+from scart_bench.generator.flight_software.mission_files import mission_for_seed
 from scart_bench.generator.profiles import Profile, get_profile
 from scart_bench.generator.scart.grid import load_configurations
 from scart_bench.generator.telemetry.tables import normal_record

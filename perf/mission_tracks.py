@@ -40,7 +40,7 @@ def main() -> None:
     from test_mission_files import CRUISE, PLAN, SEEDS, WPL, _fly_in_sitl
 
     from scart_bench.generator.engine.simulate import FlightConfig, simulate
-    from scart_bench.generator.mission_files import read_missions, with_missions
+    from scart_bench.generator.flight_software.mission_files import read_missions, with_missions
     from scart_bench.generator.params import DT, MissionParams
 
     missions = read_missions([PLAN, WPL])

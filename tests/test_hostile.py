@@ -453,8 +453,9 @@ def test_a_run_without_its_labels_is_named(tmp_path, dataset, capsys):
 
 def test_an_attack_that_never_starts_writes_nothing(tmp_path, flight_csv, capsys):
     scenario = tmp_path / "never.toml"
-    scenario.write_text('[scenario]\nid = "never"\n[[scenario.start]]\ncondition = "time_window"\nstart_s = 5000.0\n'
-                        + _NOISE)
+    # a start condition the flight never meets (a time past a log's end now moves earlier, issue 48)
+    scenario.write_text('[scenario]\nid = "never"\n[[scenario.start]]\ncondition = "altitude_above"\n'
+                        'height = 100000.0\ntopic = "local_position_ned"\n' + _NOISE)
     out = tmp_path / "att"
     assert main(["attack", "--input", str(flight_csv), "--scenario", str(scenario), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()

@@ -13,7 +13,7 @@ import torch
 from scart_bench.benchmark import executors
 from scart_bench.benchmark.jobs import JobSpec
 from scart_bench.detectors.base import DetectorError
-from scart_bench.detectors.deepod_models import DeepSVDD, _isolated_global_state
+from scart_bench.detectors.deepod_models import DeepSVDD, isolated_global_state
 
 
 def test_a_job_gets_its_share_of_threads_and_waits_passively(monkeypatch):
@@ -35,9 +35,9 @@ def test_a_job_gets_its_share_of_threads_and_waits_passively(monkeypatch):
 def test_deepod_n_threads_zero_is_the_jobs_share(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     before = torch.get_num_threads()
-    with _isolated_global_state(0):
+    with isolated_global_state(0):
         assert torch.get_num_threads() == 3
-    with _isolated_global_state(1):
+    with isolated_global_state(1):
         assert torch.get_num_threads() == 1
     assert torch.get_num_threads() == before
     with pytest.raises(DetectorError, match="n_threads"):
@@ -86,7 +86,7 @@ def test_deepod_scores_equal_deepods_own_decision_function(name):
         from deepod.models.tabular import GOAD as DeepODGOAD
 
         det.model_.inference_forward = types.MethodType(DeepODGOAD.inference_forward, det.model_)
-    with _isolated_global_state(1):
+    with isolated_global_state(1):
         theirs = det.model_.decision_function(padded)[: len(feats)]
     det.model_.__dict__.pop("inference_forward", None)
     det.model_.batch_size = 64

@@ -18,7 +18,12 @@ import pytest
 
 from scart_bench.cli.main import main
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
-from scart_bench.generator.mission_files import MissionFileError, read_mission, read_missions, with_missions
+from scart_bench.generator.flight_software.mission_files import (
+    MissionFileError,
+    read_mission,
+    read_missions,
+    with_missions,
+)
 from scart_bench.generator.params import DT, MissionParams
 
 DATA = Path(__file__).resolve().parent / "data" / "missions"

@@ -62,7 +62,7 @@ def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random
 
     Without ``mission.missions`` every flight flies the jittered square (:func:`mission_waypoints`);
     with them, flight ``i`` flies mission file ``seeds[i] mod len(missions)`` as written
-    (:mod:`scart_bench.generator.mission_files`). A flight with fewer items than the batch's longest
+    (:mod:`scart_bench.generator.flight_software.mission_files`). A flight with fewer items than the batch's longest
     repeats its last one; it lands after its own last item all the same.
     """
     if not mission.missions:
@@ -71,7 +71,7 @@ def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random
         table[:, :, :3] = wps
         table[:, :, 3] = cruise[:, None]
         return wps, cruise, table, np.full(len(rngs), wps.shape[1] - 1, dtype=np.int64)
-    from scart_bench.generator.mission_files import mission_for_seed
+    from scart_bench.generator.flight_software.mission_files import mission_for_seed
 
     flown = [mission.missions[mission_for_seed(mission.missions, s)].navigator_items(mission.cruise_speed)
              for s in seeds]

@@ -244,15 +244,14 @@ class MissionProtocol:
 
 
 def file_items(mission, home: tuple[float, float, float]) -> list[MissionItem]:
-    """The items of a mission file (:class:`scart_bench.generator.mission_files.MissionFile`) to upload to a
+    """The items of a mission file (:class:`scart_bench.generator.flight_software.mission_files.MissionFile`) to upload to a
     vehicle whose home is ``home`` (deg, deg, m AMSL), as a ground station would send them.
 
     The mission is moved to the vehicle's home: each position keeps its north/east offset and its height
     above the file's home (the WGS-84 tangent plane, generator.geo), in the frame the file states it
     (global AMSL, global relative or local NED); commands and parameters are the file's. Skipped items
     (camera, gimbal) are not sent."""
-    from scart_bench.generator.geo import latlon_from_ne
-    from scart_bench.generator.mission_files import (
+    from scart_bench.generator.flight_software.mission_files import (
         AMSL_FRAMES,
         CMD_CHANGE_SPEED,
         CMD_LOITER_TIME,
@@ -261,6 +260,7 @@ def file_items(mission, home: tuple[float, float, float]) -> list[MissionItem]:
         FRAME_LOCAL_NED,
         FRAME_MISSION,
     )
+    from scart_bench.generator.geo import latlon_from_ne
 
     lat0, lon0, alt0 = (float(v) for v in home)
     out: list[MissionItem] = []

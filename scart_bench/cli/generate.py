@@ -59,7 +59,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     remove_stale_temp()  # the staging folders of killed commands (a generate to a URL writes in one)
     config = profile.flight_config()
     if args.missions:  # every file read and checked before anything is written
-        from scart_bench.generator.mission_files import read_missions, with_missions
+        from scart_bench.generator.flight_software.mission_files import read_missions, with_missions
 
         config = with_missions(config, read_missions(args.missions))
     from scart_bench.progress import Progress
