@@ -161,9 +161,11 @@ def build_evaluation(detector: str, flights: pd.DataFrame, truth: Mapping[str, t
     checked = _checked_scores(detector, scored, truth, scores)
     counted = counted_masks(protocol, scored, {fid: truth[fid][0] for fid in scored.index})
     validation = {fid: checked[fid] for fid in scored.index[scored["role"] == "validation"]}
-    stamps = {fid: truth[fid][0] for fid in validation}
-    t_flight, t_row = protocol.thresholds(validation, counted, stamps)
-    hourly = protocol.hourly_point(validation, {f: counted[f] for f in validation}, stamps)
+    hourly = protocol.hourly_point(validation, {f: counted[f] for f in validation},
+                                   {fid: truth[fid][0] for fid in validation})
+    # the small-data operating point is computed once here; otherwise the flight-score rules
+    t_flight, t_row = ((hourly["threshold"], hourly["threshold"]) if hourly is not None
+                       else protocol.thresholds(validation, counted))
     own = protocol.alarm_rule == "own" and alarms is not None
     if own:
         for fid in scored.index:

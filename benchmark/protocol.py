@@ -316,15 +316,21 @@ DEFAULT_PHASE_MARGIN_S = 3.0
 PHASE_COLUMNS = ("liftoff_us", "climb_end_us", "descent_start_us", "touchdown_us", "phases_by")
 
 
-def _topic_tables(flight: pd.DataFrame) -> dict[str, pd.DataFrame]:
-    """A flat flight table (``topic.field`` columns on one row grid) as ``{topic: table}`` with its
-    ``Timestamp``, as generator.logs.phases reads a recorded log."""
+#: The topics besides the altitude sources that generator.logs.phases reads: land detectors and flight modes.
+PHASE_DETECTOR_TOPICS = frozenset({"vehicle_land_detected", "extended_sys_state", "ev", "vehicle_status", "mode"})
+
+
+def _topic_tables(flight: pd.DataFrame, wanted: frozenset[str]) -> dict[str, pd.DataFrame]:
+    """The ``wanted`` topics of a flat flight table (``topic.field`` columns on one row grid) as
+    ``{topic: table}`` with its ``Timestamp``, as generator.logs.phases reads a recorded log."""
     ts = flight["Timestamp"].to_numpy(np.int64)
     topics: dict[str, dict[str, np.ndarray]] = {}
     for col in flight.columns:
         if not isinstance(col, str) or "." not in col:
             continue
         topic, _, name = col.rpartition(".")
+        if topic not in wanted:  # only what the phase detector reads: the other columns cost a conversion each
+            continue
         v = pd.to_numeric(flight[col], errors="coerce")
         if v.notna().any():
             topics.setdefault(topic, {"Timestamp": ts})[name] = v.to_numpy(np.float64)
@@ -340,13 +346,14 @@ def flight_phase_bounds(flight: pd.DataFrame) -> dict[str, object]:
     after its last row (``touchdown_us`` <NA>). ``phases_by`` names the sources, or why there are no
     bounds (no altitude in the flight, never airborne): such a flight is counted by the burn-in rule.
     """
-    from scart_bench.generator.logs.phases import CLIMB, PHASES, TAKEOFF, flight_phases
+    from scart_bench.generator.logs.phases import ALTITUDE_SOURCES, CLIMB, PHASES, TAKEOFF, flight_phases
 
     out: dict[str, object] = dict.fromkeys(PHASE_COLUMNS[:-1], pd.NA)
     if "Timestamp" not in flight.columns or not len(flight):
         return {**out, "phases_by": "none: empty flight"}
     try:
-        ph = flight_phases(_topic_tables(flight))
+        wanted = frozenset(t for t, _, _ in ALTITUDE_SOURCES) | PHASE_DETECTOR_TOPICS
+        ph = flight_phases(_topic_tables(flight, wanted))
     except ValueError:
         return {**out, "phases_by": "none: no altitude in the flight"}
     t = ph["Timestamp"].to_numpy(np.int64)
