@@ -129,10 +129,42 @@ def removed_on_failure(out: Path | str) -> Iterator[None]:
         raise
 
 
-def print_tables(path: Path, metrics, shown: str | None = None, label: str = "run folder") -> None:
-    """The paper table and the operating-point lines of a run (stdout); failed jobs and the folder (stderr,
-    ``shown`` as ``label``: an evaluation made after the run names its own folder)."""
-    from scart_bench.benchmark.results import paper_table, transfer_summary
+#: The terminal table's columns (``run``, ``score``): the paper's three, the false alarms beside the stated
+#: alpha and ROC-AUC, so that a row fits a 120-column terminal; ``--wide`` prints every column of metrics.md.
+TERMINAL_COLUMNS = (("TP Simulation", "tp_simulation", "pct_ci"), ("TP CSV", "tp_csv", "pct_ci"),
+                    ("TN No Attack", "tn_no_attack", "pct_ci"), ("False alarms", "far_no_attack", "pct_ci"),
+                    ("ROC-AUC", "roc_auc", "f3"))
+
+
+def aligned(markdown: str) -> str:
+    """A Markdown table with its cells padded to their column's width (still Markdown, readable in a terminal)."""
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in markdown.splitlines()]
+    widths = [max(len(r[i]) for r in rows if r[i].strip("-")) for i in range(len(rows[0]))]
+    out = []
+    for r in rows:
+        if all(not c.strip("-") for c in r):  # the separator line
+            out.append("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+        else:
+            out.append("| " + " | ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) + " |")
+    return "\n".join(out)
+
+
+def terminal_table(metrics, wide: bool = False) -> str:
+    """The table ``run`` and ``score`` print: :data:`TERMINAL_COLUMNS`, aligned; ``wide``: the paper's
+    table of metrics.md with every column, as written there."""
+    from scart_bench.benchmark.results import paper_table
+    from scart_bench.benchmark.tables import markdown_table
+
+    if wide:
+        return paper_table(metrics)
+    return aligned(markdown_table(metrics, TERMINAL_COLUMNS, status=False))
+
+
+def print_tables(path: Path, metrics, shown: str | None = None, label: str = "run folder",
+                 wide: bool = False) -> None:
+    """The terminal table (``wide``: every column) and the operating-point lines of a run (stdout); failed
+    jobs and the folder (stderr, ``shown`` as ``label``: an evaluation made after the run names its own folder)."""
+    from scart_bench.benchmark.results import transfer_summary
     from scart_bench.benchmark.store import RunStore
     from scart_bench.benchmark.tables import rate_summary
 
@@ -140,7 +172,7 @@ def print_tables(path: Path, metrics, shown: str | None = None, label: str = "ru
     train = (config.get("train_dataset") or {}).get("path")
     if train:  # a transfer run: where each number comes from, above the table
         print(f"Trained and calibrated on {train} (thresholds); TP and TN on {config['dataset'].get('path')}")
-    print(paper_table(metrics))
+    print(terminal_table(metrics, wide))
     no_effect = (config.get("dataset") or {}).get("no_effect") or []
     print("\n".join(line for line in rate_summary(metrics, no_effect) if line.startswith("- ")))
     if train:
@@ -148,7 +180,7 @@ def print_tables(path: Path, metrics, shown: str | None = None, label: str = "ru
     failed = metrics[metrics["status"] != "OK"]
     for _, r in failed.iterrows():
         print(f"{r['detector']}: {r['status']}: {r['message']}", file=sys.stderr)
-    print(f"\n{label}: {shown or path} (metrics.csv, metrics.md, breakdown.csv)", file=sys.stderr)
+    print(f"\n{label}: {shown or path} (metrics.csv, metrics.md with every column, breakdown.csv)", file=sys.stderr)
 
 
 def name_failed(command: str, failed, what: str, hint: str) -> int:

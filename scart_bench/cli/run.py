@@ -209,11 +209,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             local_cfg = resume_datasets(dataclasses.replace(cfg, out=staged.path), staged.path, str(cfg.out))
             outcome = run_benchmark(local_cfg, on_job_done=upload)
-            print_tables(outcome.path, outcome.metrics, shown=str(cfg.out))
+            print_tables(outcome.path, outcome.metrics, shown=str(cfg.out), wide=args.wide)
     else:
         remove_stale_temp()
         outcome = run_benchmark(resume_datasets(cfg, cfg.out_path))
-        print_tables(outcome.path, outcome.metrics)
+        print_tables(outcome.path, outcome.metrics, wide=args.wide)
     failed = outcome.metrics[outcome.metrics["status"].isin(("ERROR", "TIMEOUT"))]
     return name_failed("run", failed, "did not finish OK",
                        "everything else is written (rerun with --resume to run only those again)")
@@ -221,6 +221,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def register(sub) -> None:
     r = sub.add_parser("run", help="train and score detectors on a dataset; print and save the tables")
+    r.add_argument("--wide", action="store_true", help="print every column of the paper's table (metrics.md's), "
+                   "not the terminal's six")
     r.add_argument("--config", type=Path, metavar="FILE",
                    help="a run file (TOML: detectors, params, profile or dataset, seed, protocol, ...) or a run "
                         "folder's config.json; the options below override it")

@@ -34,7 +34,7 @@ def cmd_score(args: argparse.Namespace) -> int:
         RunStore(run).verify()  # labels and scores as the run wrote them, or refused (one line naming the file)
         if all(getattr(args, k) is None for k in ("alpha", "burn_in", "phases", "phase_margin", "hourly_rate")):
             metrics = score_run(run, processes=args.jobs)
-            print_tables(run, metrics, shown=str(args.run))
+            print_tables(run, metrics, shown=str(args.run), wide=args.wide)
         else:
             protocol = _operating_point(run, args)
             parts = [] if args.hourly_rate is None else [f"hourly-{args.hourly_rate:g}"]
@@ -44,7 +44,7 @@ def cmd_score(args: argparse.Namespace) -> int:
                 + parts)
             _, metrics = evaluate_run(run, protocol, name, processes=args.jobs)
             print_tables(run, metrics, shown=f"{str(args.run).rstrip('/')}/evaluations/{name}",
-                         label="evaluation folder")
+                         label="evaluation folder", wide=args.wide)
     # as `run` does: tables that look complete must not hide a job without scores
     return name_failed("score", metrics[metrics["status"] != "OK"], "have no usable scores",
                        "their rows show the status (rerun the run with --resume to finish them)")
@@ -54,6 +54,8 @@ def register(sub) -> None:
     s = sub.add_parser("score", help="recompute every metric of a run folder from its saved scores, or evaluate "
                                      "them at another operating point (--alpha, --burn-in)")
     s.add_argument("run", metavar="RUN", help="a run folder (runs/<name>) or its fsspec URL")
+    s.add_argument("--wide", action="store_true", help="print every column of the paper's table (metrics.md's), "
+                   "not the terminal's six")
     s.add_argument("--jobs", type=int, metavar="N",
                    help="detectors scored at a time, each in its own process (default: the run's --jobs); "
                         "the tables are the same for any N")

@@ -1,0 +1,62 @@
+"""The house: the terminal table fits a terminal, ``--wide`` prints every column (issue 49)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+
+from scart_bench.benchmark.results import paper_table
+from scart_bench.benchmark.tables import PAPER_COLUMNS
+from scart_bench.cli.common import terminal_table
+from scart_bench.cli.main import main
+from scart_bench.detectors.registry import BUILTINS
+
+FIXTURE = Path(__file__).parent / "data" / "run_made_before_the_rooms"
+
+
+def _quick_table() -> pd.DataFrame:
+    """A metrics table as the quick profile's run makes it, every detector at its widest numbers."""
+    rows = []
+    for name in BUILTINS:  # the paper's eight and the zoo
+        row = {"detector": name, "status": "OK", "message": ""}
+        for _, key, _ in PAPER_COLUMNS:
+            row |= {key: 1.0, f"{key}_lo": 1.0, f"{key}_hi": 1.0, f"{key}_prior": 0.5}
+        row["delay_median_s"] = 123.45
+        rows.append(row)
+    rows[-1] |= {"status": "TIMEOUT", "message": "ran past 600 s"}
+    return pd.DataFrame(rows)
+
+
+def test_terminal_table_fits_a_120_column_terminal():
+    table = terminal_table(_quick_table())
+    lines = table.splitlines()
+    assert len(lines) == 2 + len(BUILTINS)
+    assert all(len(line) <= 120 for line in lines), max(lines, key=len)
+    columns = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert len(columns) <= 10
+    assert columns == ["Detector", "TP Simulation", "TP CSV", "TN No Attack", "False alarms", "ROC-AUC"]
+    assert "| 100.0 % [100-100] |" in lines[2]
+    assert len({len(line) for line in lines}) == 1  # aligned: every row as wide as the header
+    assert "TIMEOUT" in lines[-1]
+
+
+def test_wide_gives_the_paper_table_with_every_column():
+    metrics = _quick_table()
+    assert terminal_table(metrics, wide=True) == paper_table(metrics)
+    head = [c.strip() for c in paper_table(metrics).splitlines()[0].strip("|").split("|")]
+    assert head == ["Detector", *(c[0] for c in PAPER_COLUMNS), "Status"]
+
+
+def test_score_prints_the_terminal_table_and_wide_every_column(tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURE, run)
+    assert main(["score", str(run)]) == 0
+    short = capsys.readouterr().out.splitlines()
+    assert main(["score", str(run), "--wide"]) == 0
+    wide = capsys.readouterr().out.splitlines()
+    assert short[0].startswith("| Detector    | TP Simulation |") and len(short[0]) <= 120
+    assert wide[0] == paper_table(pd.read_csv(run / "metrics.csv")).splitlines()[0]
+    assert "| Flagged anywhere CSV |" in wide[0] and "Flagged anywhere" not in short[0]
+    assert short[3:] == wide[3:]  # the operating-point lines below the table are the same
