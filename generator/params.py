@@ -174,6 +174,11 @@ class MissionParams:
     #: missions read from files (generator.flight_software.mission_files.MissionFile; ``generate --missions``): flight ``i``
     #: flies file ``seed mod len(missions)`` as written instead of the square (empty: the square)
     missions: tuple = ()
+    #: mission families drawn per flight (generator.flight_software.families, a profile's ``missions`` mix):
+    #: sorted (family, weight) pairs summing to 1; empty: every flight flies the square (or ``missions``)
+    families: tuple = ()
+    #: s, with ``families``: the range of each flight's planned mission duration (drawn log-uniform)
+    duration_range: tuple[float, float] = (60.0, 180.0)
 
 
 #: GPS accuracy levels, a profile's ``gps_accuracy``: the receiver's position errors (SensorParams)
