@@ -681,7 +681,7 @@ def _navigate(s, wps, p, t, out, m):
     """The navigator's mission state machine: the setpoint message (vx, vy, vz, yaw, seq, armed).
 
     ``wps`` (K, 6): per item north, east, down, speed of the leg to it, hold at it (s), braking deceleration
-    towards it (m/s^2; 0: none)."""
+    towards it (m/s^2; 0: none; negative: a fly-through item accepted within -braking m)."""
     k_last = int(s[L.NAV_LAST])
     armed = 1.0 if t >= s[L.ARM_AT] else 0.0
     if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + 0.5:
@@ -694,7 +694,8 @@ def _navigate(s, wps, p, t, out, m):
     d2 = wps[ti, 2] - s[L.NAV_POS + 2]
     dist_h = math.hypot(d0, d1)
     flying = phase == PH_TAKEOFF or phase == PH_MISSION
-    speed = min(wps[ti, 3], p[K_APPROACH] * dist_h)
+    # a fly-through item (braking < 0: an orbit's points, a pilot's stick) is passed at its leg's speed
+    speed = wps[ti, 3] if wps[ti, 5] < 0.0 else min(wps[ti, 3], p[K_APPROACH] * dist_h)
     if wps[ti, 5] > 0.0:  # a mission file's item: slow down so as to stop there
         speed = min(speed, math.sqrt(2.0 * wps[ti, 5] * dist_h))
     if phase == PH_TAKEOFF:
@@ -728,7 +729,7 @@ def _navigate(s, wps, p, t, out, m):
     if flying and dist_h > 3.0 and phase == PH_MISSION:  # turning no faster than MPC_YAWRAUTO_MAX
         turn_by = _clip(_wrap_pi(math.atan2(d1, d0) - s[L.NAV_YAW_SP]), -p[K_YAW_STEP], p[K_YAW_STEP])
         s[L.NAV_YAW_SP] = _wrap_pi(s[L.NAV_YAW_SP] + turn_by)
-    reached = flying and dist_h < p[K_ACCEPT] and abs(d2) < 0.5
+    reached = flying and dist_h < (-wps[ti, 5] if wps[ti, 5] < 0.0 else p[K_ACCEPT]) and abs(d2) < 0.5
     tk = reached and phase == PH_TAKEOFF
     if tk and s[L.HOLD_UNTIL] == 0:
         s[L.HOLD_UNTIL] = t + p[K_TAKEOFF_HOLD]

@@ -60,11 +60,21 @@ def mission_table(mission: MissionParams, seeds: list[int], rngs: list[np.random
     east, down, speed of the leg to the item, hold at it in s, braking deceleration towards it in m/s^2
     or 0) and each flight's last item (N,).
 
-    Without ``mission.missions`` every flight flies the jittered square (:func:`mission_waypoints`);
+    With ``mission.families`` (and no files) each flight flies the mission its seed draws
+    (:func:`scart_bench.generator.flight_software.families.draw_mission`). Without either, every flight
+    flies the jittered square (:func:`mission_waypoints`);
     with them, flight ``i`` flies mission file ``seeds[i] mod len(missions)`` as written
     (:mod:`scart_bench.generator.flight_software.mission_files`). A flight with fewer items than the batch's longest
     repeats its last one; it lands after its own last item all the same.
     """
+    if mission.families and not mission.missions:  # a mix of families (generator.flight_software.families)
+        from scart_bench.generator.flight_software.families import draw_mission
+
+        draws = [draw_mission(s, mission) for s in seeds]
+        k = max(len(d.items) for d in draws)
+        table = np.array([np.vstack([d.items, np.repeat(d.items[-1:], k - len(d.items), axis=0)]) for d in draws])
+        last = np.array([len(d.items) - 1 for d in draws], dtype=np.int64)
+        return table[:, :, :3].copy(), np.array([d.cruise_speed for d in draws]), table, last
     if not mission.missions:
         wps, cruise = mission_waypoints(mission, rngs)
         table = np.zeros(wps.shape[:2] + (6,))
@@ -131,9 +141,10 @@ class Navigator:
         d = target - s.pos
         dist_h = np.hypot(d[:, 0], d[:, 1])
         flying = (s.phase == PHASE_TAKEOFF) | (s.phase == PHASE_MISSION)
-        speed = np.minimum(self.speeds[rows, ti], m.approach_gain * dist_h)
-        # a mission file's item: slow down so as to stop there (sharp turns, faster legs); the square does not
         brake = self.brake[rows, ti]
+        # a fly-through item (brake < 0: an orbit's points, a pilot's stick): passed at the leg's speed
+        speed = np.where(brake < 0, self.speeds[rows, ti], np.minimum(self.speeds[rows, ti], m.approach_gain * dist_h))
+        # a mission file's item: slow down so as to stop there (sharp turns, faster legs); the square does not
         speed = np.where(brake > 0, np.minimum(speed, np.sqrt(2.0 * brake * dist_h)), speed)
         speed = np.where(s.phase == PHASE_TAKEOFF, np.minimum(speed, 1.0), speed)
         dir_h = d[:, :2] / np.maximum(dist_h, 1e-6)[:, None]
@@ -161,7 +172,8 @@ class Navigator:
         step_max = m.yaw_rate_max * dt
         turn_by = np.clip(wrap_pi(np.arctan2(d[:, 1], d[:, 0]) - s.yaw_sp), -step_max, step_max)
         s.yaw_sp = np.where(turn, wrap_pi(s.yaw_sp + turn_by), s.yaw_sp)
-        reached = flying & (dist_h < m.acceptance_radius) & (np.abs(d[:, 2]) < 0.5)
+        radius = np.where(brake < 0, -brake, m.acceptance_radius)  # a fly-through item's own radius
+        reached = flying & (dist_h < radius) & (np.abs(d[:, 2]) < 0.5)
         # take-off item: hold for takeoff_hold_s once reached
         tk = reached & (s.phase == PHASE_TAKEOFF)
         new_hold = tk & (s.hold_until == 0)
