@@ -6,8 +6,11 @@ One import name for the whole project; the source tree keeps the project's top-l
 
 - :mod:`scart_bench.generator`: the flight generator and the SCART attack layer (``generator/``);
 - :mod:`scart_bench.detectors`: the detector protocol, registry and built-in adapters (``detectors/``);
-- :mod:`scart_bench.benchmark`: CLI, protocol, runner, scoring and results store (``benchmark/``);
-- :mod:`scart_bench.reports`: leaderboards and figures (``reports/``);
+- :mod:`scart_bench.dataset`: the dataset format: schema, records, layouts, reading, writing (``scart_bench/dataset/``);
+- :mod:`scart_bench.benchmark`: the run and its evaluation: protocol, runner, jobs, executors, scoring, results
+  store (``benchmark/``);
+- :mod:`scart_bench.reports`: leaderboards, the HTML report and figures (``reports/``);
+- :mod:`scart_bench.cli`: the ``scart-bench`` command line, one module per command (``scart_bench/cli/``);
 - :mod:`scart_bench.data`: the shipped scenario grids and examples (``data/scenarios/``);
 - :mod:`scart_bench.testing`: conformance checks for detector plugins.
 """

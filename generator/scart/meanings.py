@@ -6,7 +6,8 @@ topics passing an injection point of the generator, or the topics of a user's lo
 resolves to every candidate ``topic.field`` the input has: MAVLink names on generated flights,
 PX4 uORB names on ULogs, the generator's sensor topics at the sensor point, and the MAVROS topics of
 the ROS node (generator.ros.topics, ENU). The table below
-is the documented mapping (docs/scenarios.md, "Topics by meaning", is generated from it).
+is the documented mapping (docs/scenarios.md's "Topics by meaning" table is generated from it by
+``python -m scart_bench.cli.doc_tables``; tests/test_doc_tables.py fails when they differ).
 
 An action target that is a topic of the input is that topic (``altitude`` on a generated flight
 is the ALTITUDE message); otherwise a quantity is resolved. A condition's ``topic`` that is a
