@@ -1,0 +1,676 @@
+"""Measure a user's logs and fit the generator to them (``scart-bench generate --like LOG...``).
+
+Per log (:func:`measure_log`, any format :func:`load_flight_file` reads, quantities found by
+meaning through :data:`scart_bench.generator.scart.meanings.QUANTITIES`): its mission
+(:mod:`.tracks`), duration, take-off and landing (time on the ground before take-off, climb rate,
+hover after take-off, descent rate), wind (the estimator's wind states where logged, else the mean
+tilt at hover), sensor noise per axis on its hover and ground segments (the per-sample standard
+deviation after removing a 1 s moving average, as ``perf/realism.py`` measures it), message rates
+and interval jitter per quantity, GPS accuracy (eph/epv) and the site. Anything a log cannot give is
+one line in :attr:`LogMeasure.notes`, and that quantity keeps the generator's default.
+
+Over the fleet (:func:`fit_fleet`) each quantity is the median over the logs that measured it. The
+sensor noise is mapped onto :class:`SensorParams` by flying a few calibration flights with the base
+parameters, measuring them with the same code, and scaling each noise parameter by the ratio log /
+generated (:func:`calibrate_noise`): the generated flights are then measured like the logs, whatever
+filtering the generator's sensor model applies between its noise densities and the written rows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from scart_bench.generator.like import tracks
+from scart_bench.generator.scart.meanings import QUANTITIES
+
+#: figures' clock (Hz) and high-pass window (s), as perf/realism.py
+NOISE_HZ = 50.0
+BARO_HZ = 10.0
+HP_WINDOW_S = 1.0
+#: a hover for the noise figures: in the air, vertical / horizontal speed below these (m/s)
+HOVER_V_M_S = 0.5
+HOVER_H_M_S = 1.0
+#: least still time (s) a noise figure is measured on
+MIN_SEGMENT_S = 2.0
+EDGE_S = 0.5
+#: the estimator's wind states, by meaning (north, east)
+WIND_FIELDS = (("ekf2.VWN", "ekf2.VWE"), ("nkf2.VWN", "nkf2.VWE"), ("xkf2.VWN", "xkf2.VWE"),
+               ("wind_estimate.windspeed_north", "wind_estimate.windspeed_east"),
+               ("wind.windspeed_north", "wind.windspeed_east"),
+               ("estimator_wind.windspeed_north", "estimator_wind.windspeed_east"))
+#: a larger mean tilt at hover is not taken for wind (m/s ~ 9 at the generator's airframe)
+MAX_WIND_TILT_DEG = 8.0
+#: GPS accuracy fields (m), by meaning (horizontal, vertical)
+GPS_ACCURACY_FIELDS = (("vehicle_gps_position.eph", "vehicle_gps_position.epv"), ("sensor_gps.eph", "sensor_gps.epv"),
+                       ("ubx3.hAcc", "ubx3.vAcc"), ("gpa.HAcc", "gpa.VAcc"))
+#: the estimator's velocity (for the still mask), preferred over a GPS velocity
+VELOCITY_FIELDS = (("vehicle_local_position.vx", "vehicle_local_position.vy", "vehicle_local_position.vz"),
+                   ("local_position_ned.vx", "local_position_ned.vy", "local_position_ned.vz"),
+                   ("ekf1.VN", "ekf1.VE", "ekf1.VD"), ("nkf1.VN", "nkf1.VE", "nkf1.VD"),
+                   ("xkf1.VN", "xkf1.VE", "xkf1.VD"))
+#: logical topic -> candidate topics, for the message rates and jitter
+RATE_TOPICS = {
+    "imu": ("highres_imu", "sensor_combined", "imu"),
+    "attitude": ("attitude", "vehicle_attitude", "att"),
+    "local_position": ("local_position_ned", "vehicle_local_position", "ekf1", "nkf1", "xkf1"),
+    "gps": ("gps_raw_int", "vehicle_gps_position", "sensor_gps", "gps"),
+    "baro": ("scaled_pressure", "vehicle_air_data", "baro"),
+    "mag": ("sensor_mag", "vehicle_magnetometer", "mag"),
+}
+AXES = "xyz"
+
+
+@dataclass
+class LogMeasure:
+    """What one log gives (NaN / None: not measured, with a line in ``notes`` saying why)."""
+
+    name: str
+    path: str
+    logged_s: float = math.nan
+    airborne_s: float = math.nan
+    ground_before_s: float = math.nan
+    climb_rate: float = math.nan
+    takeoff_hover_s: float = math.nan
+    descent_rate: float = math.nan
+    cruise_speed: float = math.nan
+    altitude: float = math.nan
+    wind_speed: float = math.nan
+    wind_source: str = ""
+    hover: dict[str, float] = field(default_factory=dict)  # "acc_x" ... "baro_alt": std on the hover
+    hover_s: float = 0.0
+    hover_still: bool = True  # False: no still hover, the noise figures are on every airborne row
+    ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
+    ground_s: float = 0.0
+    rates: dict[str, tuple[float, float]] = field(default_factory=dict)  # logical topic -> (Hz, interval CV)
+    eph: float = math.nan
+    epv: float = math.nan
+    home: tuple[float, float, float] | None = None
+    mag_field_ned: tuple[float, float, float] | None = None
+    mission: list[tracks.Waypoint] | None = None
+    mission_rows: list | None = None  # the log's own mission items (ArduPilot CMD), WPL rows
+    mission_source: str = ""
+    track_error_m: float = math.nan  # the recovered mission's largest distance from the flown track
+    notes: list[str] = field(default_factory=list)
+
+
+# --- series -------------------------------------------------------------------------------------------------
+def _series(tables, candidates, densest: bool = False) -> tuple[str, np.ndarray, np.ndarray] | None:
+    """The first candidate the log has (``densest``: the one with the most samples: a log may hold a raw
+    sensor topic at 1 Hz beside the filtered one at 250 Hz)."""
+    if not densest:
+        return tracks.column(tables, tuple(candidates))
+    hits = [h for h in (tracks.column(tables, (c,)) for c in candidates) if h is not None]
+    return max(hits, key=lambda h: len(h[1])) if hits else None
+
+
+def resample(t: np.ndarray, x: np.ndarray, hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The latest sample at every tick of a ``hz`` clock."""
+    grid = np.arange(t[0], t[-1], 1.0 / hz)
+    idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+    return grid, x[idx]
+
+
+def highpass(x: np.ndarray, hz: float) -> np.ndarray:
+    """``x`` minus its centred moving average over :data:`HP_WINDOW_S`."""
+    w = max(3, int(round(HP_WINDOW_S * hz)) | 1)
+    k = np.ones(w)
+    return x - np.convolve(x, k, mode="same") / np.convolve(np.ones_like(x), k, mode="same")
+
+
+def _shrink(mask: np.ndarray, hz: float) -> np.ndarray:
+    """``mask`` without the samples within :data:`EDGE_S` of a False one (the high-pass edges)."""
+    pad = int(round(EDGE_S * hz))
+    if not pad or not len(mask):
+        return mask
+    bad = np.convolve((~mask).astype(float), np.ones(2 * pad + 1), mode="same") > 0
+    return mask & ~bad
+
+
+def _std_on(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float, float]]) -> tuple[float, float]:
+    """The high-passed standard deviation of ``x`` over ``segments`` (s), and their length (s)."""
+    if len(t) < 10 or not segments:
+        return math.nan, 0.0
+    grid, v = resample(t, x, hz)
+    mask = np.zeros(len(grid), bool)
+    for a, b in segments:
+        mask |= (grid >= a) & (grid <= b)
+    # no sample across a logging gap
+    dt = np.diff(t)
+    for k in np.flatnonzero(dt > 0.5):
+        mask &= ~((grid > t[k]) & (grid < t[k + 1]))
+    mask = _shrink(mask, hz)
+    if mask.sum() < MIN_SEGMENT_S * hz:
+        return math.nan, float(mask.sum() / hz)
+    return float(np.std(highpass(v, hz)[mask])), float(mask.sum() / hz)
+
+
+def _segments(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
+    d = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return [(float(t[a]), float(t[b - 1])) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
+
+
+def noise_series(tables) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+    """The sensor series by meaning: name -> (t s, values, clock Hz); magnetometers in gauss."""
+    out = {}
+    imu = QUANTITIES["imu"]
+    for key, fld in (("acc", "acc"), ("gyro", "gyro")):
+        for a in AXES:
+            hit = _series(tables, imu[f"{a}{fld}"], densest=True)
+            if hit is not None:
+                out[f"{key}_{a}"] = (hit[1], hit[2], NOISE_HZ)
+    for a in AXES:
+        hit = _series(tables, QUANTITIES["mag"][a] + (f"vehicle_magnetometer.magnetometer_ga_{'xyz'.index(a)}",),
+                      densest=True)
+        if hit is not None:
+            out[f"mag_{a}"] = (hit[1], hit[2], NOISE_HZ)
+    norm = [np.median(np.abs(out[f"mag_{a}"][1])) for a in AXES if f"mag_{a}" in out]
+    if norm and max(norm) > 20.0:  # ArduPilot's raw milligauss (logs without FMTU multipliers)
+        for a in AXES:
+            if f"mag_{a}" in out:
+                t, v, hz = out[f"mag_{a}"]
+                out[f"mag_{a}"] = (t, v / 1000.0, hz)
+    hit = _series(tables, QUANTITIES["baro"]["alt"])
+    if hit is not None:
+        out["baro_alt"] = (hit[1], hit[2], BARO_HZ)
+    else:
+        hit = _series(tables, QUANTITIES["baro"]["pressure"])
+        if hit is not None:
+            from scart_bench.generator.geo import altitude_at
+
+            scale = 100.0 if hit[0].startswith(("scaled_pressure", "highres_imu")) else 1.0  # hPa
+            out["baro_alt"] = (hit[1], np.asarray(altitude_at(hit[2] * scale), float), BARO_HZ)
+    return out
+
+
+def _velocity(tables) -> tuple[np.ndarray, np.ndarray] | None:
+    for names in VELOCITY_FIELDS:
+        cols = [_series(tables, (n,)) for n in names]
+        if all(c is not None for c in cols):
+            t = cols[0][1]
+            return t, np.column_stack([np.interp(t, c[1], c[2]) for c in cols])
+    return None
+
+
+def _tilt(tables) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(t, roll, pitch) in radians: ArduPilot's degrees or PX4's quaternion."""
+    r = _series(tables, QUANTITIES["attitude"]["roll"])
+    p = _series(tables, QUANTITIES["attitude"]["pitch"])
+    if r is not None and p is not None:
+        deg = r[0].split(".")[0] in ("att", "ahr2", "ekf1", "nkf1", "xkf1")
+        k = math.pi / 180.0 if deg else 1.0
+        return r[1], k * r[2], k * np.interp(r[1], p[1], p[2])
+    df = tables.get("vehicle_attitude")
+    if df is not None and {"q_0", "q_1", "q_2", "q_3"} <= set(df.columns):
+        w, x, y, z = (df[f"q_{k}"].to_numpy(float) for k in range(4))
+        roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1, 1))
+        return df["Timestamp"].to_numpy(np.int64) / 1e6, roll, pitch
+    return None
+
+
+# --- one log ------------------------------------------------------------------------------------------------
+def measure_log(path: str | Path, base_sensors=None, vehicle=None) -> LogMeasure:
+    """Everything :class:`LogMeasure` holds, from one log of any format ``import`` reads."""
+    from scart_bench.generator.logs.importers import load_flight_file
+    from scart_bench.generator.logs.logged_time import gap_line, log_times, logging_gaps
+    from scart_bench.generator.logs.phases import flight_phases
+
+    tables = load_flight_file(path, allow_corrupt=True)
+    m = LogMeasure(Path(path).name, str(path))
+    times = log_times(tables)
+    gaps = logging_gaps(tables)
+    m.logged_s = float((times[-1] - times[0]) / 1e6 - sum(b - a for a, b in gaps) / 1e6) if len(times) else 0.0
+    if gaps:
+        m.notes.append(f"{gap_line(gaps)}: durations and rates on the logged time only")
+    try:
+        phases = flight_phases(tables)
+    except ValueError as e:
+        m.notes.append(f"no phases ({e}): mission, take-off and landing defaults kept")
+        phases = None
+    track = tracks.flown_track(tables, phases) if phases is not None else None
+    if phases is not None and track is None:
+        m.notes.append("never airborne (or for under 2 s): mission, take-off, landing and hover noise defaults kept")
+    if track is not None:
+        _flight_shape(m, track, phases, tables)
+    _noise(m, tables, phases)
+    _wind(m, tables, phases, vehicle)
+    _rates(m, tables, gaps)
+    _gps(m, tables)
+    _mag_field(m, tables, phases)
+    return m
+
+
+def _flight_shape(m: LogMeasure, track: tracks.Track, phases: pd.DataFrame, tables) -> None:
+    m.notes.extend(track.notes)
+    m.airborne_s = track.landing_s - track.takeoff_s
+    t_ph = phases["Timestamp"].to_numpy(np.int64) / 1e6
+    start = float(t_ph[0])
+    m.ground_before_s = track.takeoff_s - start
+    m.home = track.home
+    rate = phases["climb_rate_m_s"].to_numpy(float)
+    h = phases["altitude_m"].to_numpy(float)
+    first = (t_ph >= track.takeoff_s) & (t_ph <= track.takeoff_s + 60.0) & (rate > 0.3) & (h < np.nanmax(h) + 1)
+    if first.sum() >= 3:
+        m.climb_rate = float(np.median(rate[first]))
+    last = (t_ph >= track.landing_s - 60.0) & (t_ph <= track.landing_s) & (rate < -0.2)
+    if last.sum() >= 3:
+        m.descent_rate = float(np.median(-rate[last]))
+    m.altitude = float(np.median(track.up))
+    if track.has_position:
+        n = pd.Series(track.north).ffill().bfill().to_numpy()
+        e = pd.Series(track.east).ffill().bfill().to_numpy()
+        sp = np.hypot(np.gradient(n, 1 / tracks.TRACK_HZ), np.gradient(e, 1 / tracks.TRACK_HZ))
+        if (sp > 1.0).sum() >= 4:
+            m.cruise_speed = float(np.median(sp[sp > 1.0]))
+    else:
+        m.notes.append("no horizontal position (no GPS fix, no local position): the mission is its altitude "
+                       "profile over home, the cruise speed default kept")
+    # hover after take-off: the first still stretch above 1.5 m
+    still = tracks._holds(track) & (track.up > 1.5)
+    runs = tracks._runs(still, int(tracks.TRACK_HZ))
+    if runs and track.t[runs[0][0]] - track.takeoff_s < 60.0:
+        a, b = runs[0]
+        m.takeoff_hover_s = float(track.t[b] - track.t[a])
+    rows = tracks.mission_from_cmd(tables)
+    if rows is not None:
+        m.mission_rows = rows
+        m.mission_source = f"the log's {len(rows)} mission item(s) (CMD)"
+    else:
+        wps = tracks.recover_mission(track)
+        m.mission = wps
+        m.mission_source = (f"the flown track ({track.horizontal}) simplified to {len(wps)} waypoints"
+                            if track.has_position else f"the altitude profile over home ({len(wps)} waypoints)")
+        m.track_error_m = track_error(track, wps)
+
+
+def track_error(track: tracks.Track, wps: list[tracks.Waypoint]) -> float:
+    """The largest 3-D distance (m) of the flown track from the recovered mission's polyline."""
+    if len(wps) < 2:
+        return math.nan
+    n = pd.Series(track.north if track.has_position else np.zeros(len(track.t))).ffill().bfill().fillna(0.0)
+    e = pd.Series(track.east if track.has_position else np.zeros(len(track.t))).ffill().bfill().fillna(0.0)
+    pts = np.column_stack([n.to_numpy(), e.to_numpy(), track.up])
+    poly = np.array([[w.north, w.east, w.up] for w in wps])
+    best = np.full(len(pts), np.inf)
+    for a, b in zip(poly[:-1], poly[1:]):
+        seg = b - a
+        length2 = float(seg @ seg)
+        s = np.clip((pts - a) @ seg / length2, 0, 1) if length2 > 0 else np.zeros(len(pts))
+        best = np.minimum(best, np.linalg.norm(pts - (a + np.outer(s, seg)), axis=1))
+    return float(best.max())
+
+
+def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
+    series = noise_series(tables)
+    if not series:
+        m.notes.append("no IMU, magnetometer or barometer: sensor noise defaults kept")
+        return
+    hover, ground = [], []
+    if phases is not None:
+        t = phases["Timestamp"].to_numpy(np.int64) / 1e6
+        landed = phases["phase"].to_numpy(object) == "landed"
+        h = phases["altitude_m"].to_numpy(float)
+        v = phases["climb_rate_m_s"].to_numpy(float)
+        air = ~landed & (h > 1.0)
+        still = air & (np.abs(v) < HOVER_V_M_S)
+        vel = _velocity(tables)
+        if vel is not None:
+            vh = np.hypot(np.interp(t, vel[0], vel[1][:, 0]), np.interp(t, vel[0], vel[1][:, 1]))
+            still &= vh < HOVER_H_M_S
+        hover = _segments(t, still)
+        if sum(b - a for a, b in hover) < MIN_SEGMENT_S + 2 * EDGE_S + 1.0:
+            hover = _segments(t, air)
+            m.hover_still = False
+            if hover:
+                m.notes.append("no still hover of 3 s: sensor noise measured on all airborne rows (high-passed)")
+        before = np.flatnonzero(~landed)
+        ground = _segments(t, landed & (np.arange(len(t)) < (before[0] if len(before) else len(t))))
+    for name, (ts, x, hz) in series.items():
+        m.hover[name], hs = _std_on(ts, x, hz, hover)
+        m.ground[name], gs = _std_on(ts, x, hz, ground)
+        if name == "acc_x":
+            m.hover_s, m.ground_s = hs, gs
+    if all(math.isnan(v) for v in m.hover.values()):
+        m.notes.append(f"hover too short to measure sensor noise ({m.hover_s:.1f} s still in the air, "
+                       f"{MIN_SEGMENT_S:g} s needed): defaults kept")
+    missing = [k for k in ("acc", "gyro", "mag", "baro") if not any(n.startswith(k) for n in series)]
+    if missing:
+        m.notes.append(f"no {', '.join(missing)} in the log: {'that' if len(missing) == 1 else 'their'} "
+                       "noise default kept")
+
+
+def _wind(m: LogMeasure, tables, phases: pd.DataFrame | None, vehicle) -> None:
+    if phases is None:
+        return
+    t = phases["Timestamp"].to_numpy(np.int64) / 1e6
+    air = (phases["phase"].to_numpy(object) != "landed") & (phases["altitude_m"].to_numpy(float) > 1.0)
+    if air.sum() < 10:
+        m.notes.append("no airborne rows: wind default kept")
+        return
+    for wn, we in WIND_FIELDS:
+        a, b = _series(tables, (wn,)), _series(tables, (we,))
+        if a is None or b is None:
+            continue
+        sel = (a[1] >= t[air][0]) & (a[1] <= t[air][-1])
+        if sel.sum() < 10:
+            continue
+        speed = np.hypot(a[2][sel], np.interp(a[1][sel], b[1], b[2]))
+        if np.nanmax(speed) > 0.05:  # a wind state the estimator kept at zero (no GPS) says nothing
+            m.wind_speed = float(np.median(speed))
+            m.wind_source = f"the estimator's wind states ({wn.split('.')[0]} {wn.split('.')[1]}/{we.split('.')[1]})"
+            return
+    tilt = _tilt(tables)
+    if tilt is None:
+        m.notes.append("no wind states and no attitude: wind default kept")
+        return
+    tt, roll, pitch = tilt
+    vel = _velocity(tables)
+    still = np.interp(tt, t, air.astype(float)) > 0.5
+    if vel is not None:
+        still &= np.hypot(np.interp(tt, vel[0], vel[1][:, 0]), np.interp(tt, vel[0], vel[1][:, 1])) < tracks.STILL_H_M_S
+    if still.sum() * float(np.median(np.diff(tt))) < 5.0:
+        m.notes.append("under 5 s of hover: wind from the tilt not measured, default kept")
+        return
+    # the mean tilt at hover holds the drag of the wind: m g tan(tilt) = (rotor drag) v + (body drag) v^2
+    tan = math.hypot(math.tan(float(np.mean(roll[still]))), math.tan(float(np.mean(pitch[still]))))
+    if tan > math.tan(math.radians(MAX_WIND_TILT_DEG)):
+        m.notes.append(f"mean tilt at hover {math.degrees(math.atan(tan)):.0f} deg: not wind (an uncalibrated level "
+                       "or no real hover), wind default kept")
+        return
+    from scart_bench.generator.params import GRAVITY, VehicleParams
+
+    veh = vehicle or VehicleParams()
+    omega = math.sqrt(veh.mass * GRAVITY / (4 * veh.motor_constant))
+    k1, k2 = 4 * veh.rotor_drag_coefficient * omega, veh.body_drag
+    f = veh.mass * GRAVITY * tan
+    m.wind_speed = float((-k1 + math.sqrt(k1 * k1 + 4 * k2 * f)) / (2 * k2))
+    m.wind_source = f"the mean tilt at hover ({math.degrees(math.atan(tan)):.1f} deg, drag of the generator's airframe)"
+
+
+def _rates(m: LogMeasure, tables, gaps) -> None:
+    for logical, topics in RATE_TOPICS.items():
+        for topic in topics:
+            df = tables.get(topic)
+            if df is None or len(df) < 20:
+                continue
+            t = np.sort(df["Timestamp"].to_numpy(np.int64)) / 1e6
+            dt = np.diff(t)
+            dt = dt[(dt > 0) & (dt < 2.0)]  # a logging gap is not jitter
+            if len(dt) < 10:
+                continue
+            m.rates[logical] = (float(1.0 / np.median(dt)), float(dt.std() / dt.mean()))
+            break
+
+
+def _gps(m: LogMeasure, tables) -> None:
+    fix = tracks._gps_fixed(tables)
+    if fix is None:
+        m.notes.append("no GPS fix: GPS accuracy (position noise) default kept")
+        return
+    def field_of(name: str):  # a constant accuracy (a simulator's GPS) is a value too
+        topic, _, fld = name.partition(".")
+        df = tables.get(topic)
+        if df is None or fld not in df.columns:
+            return None
+        v = df[fld].to_numpy(float)
+        return name, None, v[np.isfinite(v)]
+
+    for he, ve in GPS_ACCURACY_FIELDS:
+        a, b = field_of(he), field_of(ve)
+        if a is None and b is None:
+            continue
+        if a is not None:
+            m.eph = float(np.median(a[2][(a[2] > 0) & (a[2] < 50)]))
+        if b is not None:
+            m.epv = float(np.median(b[2][(b[2] > 0) & (b[2] < 50)]))
+        return
+    m.notes.append("GPS fix but no accuracy (eph/epv, hAcc/vAcc) logged: GPS accuracy default kept")
+
+
+def _mag_field(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
+    """The Earth field (NED, gauss) at the site: the magnetometer on the ground rotated by the attitude."""
+    series = noise_series(tables)
+    tilt = _tilt(tables)
+    yaw = _series(tables, QUANTITIES["attitude"]["yaw"])
+    if phases is None or tilt is None or yaw is None or not all(f"mag_{a}" in series for a in AXES):
+        return
+    t = phases["Timestamp"].to_numpy(np.int64) / 1e6
+    landed = phases["phase"].to_numpy(object) == "landed"
+    tm = series["mag_x"][0]
+    on_ground = np.interp(tm, t, landed.astype(float)) > 0.5
+    if on_ground.sum() < 20:
+        return
+    tm = tm[on_ground]
+    b = np.column_stack([np.interp(tm, series[f"mag_{a}"][0], series[f"mag_{a}"][1]) for a in AXES])
+    deg = yaw[0].split(".")[0] in ("att", "ahr2", "ekf1", "nkf1", "xkf1")
+    psi = np.interp(tm, yaw[1], yaw[2]) * (math.pi / 180.0 if deg else 1.0)
+    phi, th = np.interp(tm, tilt[0], tilt[1]), np.interp(tm, tilt[0], tilt[2])
+    # body FRD -> NED: R = Rz(psi) Ry(theta) Rx(phi)
+    cp, sp, ct, st, cy, sy = np.cos(phi), np.sin(phi), np.cos(th), np.sin(th), np.cos(psi), np.sin(psi)
+    n = cy * ct * b[:, 0] + (cy * st * sp - sy * cp) * b[:, 1] + (cy * st * cp + sy * sp) * b[:, 2]
+    e = sy * ct * b[:, 0] + (sy * st * sp + cy * cp) * b[:, 1] + (sy * st * cp - cy * sp) * b[:, 2]
+    d = -st * b[:, 0] + ct * sp * b[:, 1] + ct * cp * b[:, 2]
+    field_ned = (float(np.median(n)), float(np.median(e)), float(np.median(d)))
+    # the Earth's field is 0.25-0.65 gauss and points down in the northern hemisphere, up in the southern
+    hemisphere = 1.0 if m.home is None or m.home[0] >= 0 else -1.0
+    if 0.1 < math.hypot(*field_ned) < 1.0 and field_ned[2] * hemisphere > 0:
+        m.mag_field_ned = field_ned
+    else:
+        m.notes.append(f"magnetometer on the ground reads {math.hypot(*field_ned):.2f} gauss, down {field_ned[2]:+.2f}: "
+                       "not the Earth's field (uncalibrated), site field default kept")
+
+
+# --- the fleet ----------------------------------------------------------------------------------------------
+@dataclass
+class Figure:
+    """A fleet figure: the value, how many logs gave it, and where from."""
+
+    value: float
+    n: int
+    source: str
+
+
+def _median(values: list[float]) -> tuple[float, int]:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    return (float(np.median(v)), len(v)) if v else (math.nan, 0)
+
+
+def fleet_figures(logs: list[LogMeasure]) -> dict[str, Figure]:
+    """The fleet's median of every per-log figure."""
+    out: dict[str, Figure] = {}
+    simple = {
+        "logged_s": "logged time (gaps not counted)", "airborne_s": "take-off to landing",
+        "ground_before_s": "log start to take-off", "climb_rate": "median climb rate, first minute after take-off",
+        "takeoff_hover_s": "first still stretch above 1.5 m after take-off",
+        "descent_rate": "median descent rate, last minute before landing",
+        "cruise_speed": "median horizontal speed above 1 m/s", "altitude": "median height above take-off",
+        "wind_speed": "median wind speed in the air", "eph": "median GPS eph (3-D fix)", "epv": "median GPS epv (3-D fix)",
+    }
+    for key, what in simple.items():
+        v, n = _median([getattr(m, key) for m in logs])
+        out[key] = Figure(v, n, what)
+    keys = sorted({k for m in logs for k in m.hover})
+    # the noise of a still hover; the logs without one (hand-flown throughout) only when no log has one
+    still = [m for m in logs if m.hover_still and any(math.isfinite(v) for v in m.hover.values())]
+    for k in keys:
+        v, n = _median([m.hover.get(k, math.nan) for m in still])
+        what = "still hover (speed < 1 m/s horizontal, 0.5 m/s vertical), high-passed per-sample std"
+        if not n:
+            v, n = _median([m.hover.get(k, math.nan) for m in logs])
+            what = "every airborne row (no log has a still hover), high-passed per-sample std"
+        out[f"hover_{k}"] = Figure(v, n, what)
+        v, n = _median([m.ground.get(k, math.nan) for m in logs])
+        out[f"ground_{k}"] = Figure(v, n, "on the ground before take-off, high-passed per-sample std")
+    for logical in RATE_TOPICS:
+        v, n = _median([m.rates[logical][0] for m in logs if logical in m.rates])
+        out[f"rate_{logical}_hz"] = Figure(v, n, "median message rate")
+        v, n = _median([m.rates[logical][1] for m in logs if logical in m.rates])
+        out[f"jitter_{logical}_cv"] = Figure(v, n, "interval coefficient of variation")
+    return out
+
+
+def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, float]:
+    """The hover noise figures of ``n`` generated hover flights of ``config``, measured as a log's."""
+    from scart_bench.generator.engine.simulate import simulate
+    from scart_bench.generator.plan import normal_seeds
+    from scart_bench.generator.telemetry.tables import flight_views
+
+    mission = dataclasses.replace(config.mission, missions=(), takeoff_hold_s=25.0)
+    cfg = dataclasses.replace(config, mission=mission)
+    batch = simulate(normal_seeds(seed, n), cfg)
+    per = []
+    for i in range(n):
+        _, sim = flight_views(batch, i, ())
+        tables = {k: v for k, v in sim.items() if k not in ("truth", "setpoint")}
+        m = LogMeasure(f"calibration-{i}", "")
+        from scart_bench.generator.logs.phases import flight_phases
+
+        _noise(m, tables, flight_phases(tables))
+        per.append(m.hover)
+    keys = {k for p in per for k in p}
+    return {k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}
+
+
+@dataclass
+class Fit:
+    """The fitted parameters (section -> field -> (value, comment)) and the lines said about the logs."""
+
+    values: dict[str, dict[str, tuple[object, str]]]
+    measured: dict[str, tuple[float, str]]
+    missions: list[tuple[str, str]]  # (file name, comment)
+    lines: list[str]
+    logs: list[LogMeasure]
+
+
+def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 3) -> tuple[dict[str, tuple[float, str]], list[str]]:
+    """SensorParams noise fields scaled so that generated hover flights measure like the fleet.
+
+    Each round flies calibration flights with the current fields and multiplies each by fleet / generated
+    (the z accelerometer through ``accel_noise_z_factor``); returns the fields and a comment for each."""
+    s = config.sensors
+    out: dict[str, tuple[float, str]] = {}
+    lines: list[str] = []
+    want = {k[len("hover_"):]: f for k, f in figures.items() if k.startswith("hover_") and f.n}
+    plan = {  # field -> (figures it follows)
+        "accel_noise_density": ("acc_x", "acc_y"), "accel_noise_z_factor": ("acc_z",),
+        "gyro_noise_density": ("gyro_x", "gyro_y", "gyro_z"), "mag_noise": ("mag_x", "mag_y", "mag_z"),
+        "baro_noise_pa": ("baro_alt",),
+    }
+    plan = {f: ks for f, ks in plan.items() if hasattr(s, f) and all(k in want and math.isfinite(want[k].value) for k in ks)}
+    if not plan:
+        return out, ["no hover noise measured in any log: sensor noise defaults kept"]
+    current = {f: float(getattr(s, f)) for f in plan}
+    gen: dict[str, float] = {}
+    for _ in range(rounds):
+        cfg = dataclasses.replace(config, sensors=dataclasses.replace(s, **current))
+        gen = calibration_figures(cfg)
+        for f, ks in plan.items():
+            target = np.mean([want[k].value for k in ks])
+            got = np.nanmean([gen.get(k, math.nan) for k in ks])
+            if not (math.isfinite(got) and got > 0):
+                continue
+            if f == "accel_noise_z_factor":
+                ratio = want["acc_z"].value / gen["acc_z"] if gen.get("acc_z") else 1.0
+                current[f] = float(np.clip(current[f] * ratio, 0.2, 20.0))
+            else:
+                current[f] = float(np.clip(current[f] * target / got, 1e-6, 1e3))
+    for f, ks in plan.items():
+        logs = ", ".join(f"{k} {want[k].value:.4g}" for k in ks)
+        where = "still hover" if want[ks[0]].source.startswith("still") else "airborne"
+        out[f] = (current[f], f"{where} std (median over {min(want[k].n for k in ks)} logs): {logs}; "
+                              f"generated with it: {', '.join(f'{gen.get(k, math.nan):.4g}' for k in ks)}")
+    return out, lines
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.3g}" if math.isfinite(v) else "n/a"
+
+
+def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
+    """The fitted profile of ``logs`` on top of ``config`` (the base FlightConfig)."""
+    figs = fleet_figures(logs)
+    n_logs = len(logs)
+    values: dict[str, dict[str, tuple[object, str]]] = {"sensors": {}, "estimator": {}, "mission": {}}
+    lines: list[str] = []
+
+    def of(key: str) -> str:
+        f = figs[key]
+        return f"{f.source}, median over {f.n} of {n_logs} logs"
+
+    # sensor noise, by flying calibration flights
+    if calibrate:
+        noise, said = calibrate_noise(config, figs)
+        values["sensors"].update(noise)
+        lines.extend(said)
+    fields = {f.name for f in dataclasses.fields(config.sensors)}
+    fm = [m.mag_field_ned for m in logs if m.mag_field_ned is not None]
+    if fm and "mag_field_ned" in fields:
+        med = tuple(round(float(x), 4) for x in np.median(np.array(fm), axis=0))
+        values["sensors"]["mag_field_ned"] = (list(med), f"magnetometer on the ground rotated by the attitude, "
+                                                         f"median over {len(fm)} of {n_logs} logs")
+    else:
+        lines.append(f"magnetic field: no log with a calibrated magnetometer and attitude on the ground "
+                     f"({n_logs} logs): default kept")
+    eph, epv = figs["eph"], figs["epv"]
+    s = config.sensors
+    if eph.n:
+        noise_h = s.gps_noise_h if eph.value < 1.0 else max(s.gps_noise_h, 0.5)
+        values["sensors"]["gps_noise_h"] = (round(noise_h, 3), "white part of the GPS error (m, per axis)")
+        values["sensors"]["gps_bias_h"] = (round(math.sqrt(max(eph.value ** 2 - noise_h ** 2, 0.01)), 3),
+                                           f"eph = hypot(noise, bias) = {eph.value:.2f} m: {of('eph')}")
+        values["estimator"]["gps_max_eph"] = (round(max(3.0, 2.0 * eph.value), 2),
+                                              "EKF2_REQ_EPH: 2 x the fleet's eph, or GPS would not be fused")
+    else:
+        lines.append(f"GPS accuracy: no log with a 3-D fix and eph logged ({n_logs} logs): default kept")
+    if epv.n:
+        noise_v = s.gps_noise_v if epv.value < 1.0 else max(s.gps_noise_v, 1.0)
+        values["sensors"]["gps_noise_v"] = (round(noise_v, 3), "white part of the GPS height error (m)")
+        values["sensors"]["gps_bias_v"] = (round(math.sqrt(max(epv.value ** 2 - noise_v ** 2, 0.01)), 3),
+                                           f"epv = hypot(noise, bias) = {epv.value:.2f} m: {of('epv')}")
+    mp = config.mission
+    mission_map = (("climb_speed", "climb_rate", 0.3, 6.0), ("land_speed", "descent_rate", 0.2, 3.0),
+                   ("takeoff_hold_s", "takeoff_hover_s", 0.0, 120.0), ("cruise_speed", "cruise_speed", 0.5, 20.0))
+    for fld, key, lo, hi in mission_map:
+        f = figs[key]
+        if f.n and hasattr(mp, fld):
+            values["mission"][fld] = (round(float(np.clip(f.value, lo, hi)), 2), of(key))
+        else:
+            lines.append(f"{key.replace('_', ' ')}: no log measured it: default {getattr(mp, fld, 'n/a')} kept")
+    w = figs["wind_speed"]
+    if w.n and hasattr(mp, "wind_max"):
+        src = sorted({m.wind_source.split(" (")[0] for m in logs if m.wind_source})
+        values["mission"]["wind_max"] = (round(float(np.clip(2.0 * w.value, 0.0, 20.0)), 2),
+                                         f"drawn in [0, wind_max]: 2 x the median wind {w.value:.2f} m/s "
+                                         f"({' / '.join(src)}; {w.n} of {n_logs} logs)")
+    else:
+        lines.append("wind: no log gave a wind estimate: default kept")
+    measured: dict[str, tuple[float, str]] = {}
+    for key, f in figs.items():
+        if key.startswith(("ground_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
+                                                                       "altitude"):
+            measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
+    for key, f in figs.items():
+        if key.startswith("hover_"):
+            measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
+    return Fit(values, measured, [], lines, logs)
+
+
+def log_line(m: LogMeasure) -> str:
+    """One line summing up what a log gave."""
+    parts = [f"{m.logged_s:.0f} s logged"]
+    if math.isfinite(m.airborne_s):
+        parts.append(f"{m.airborne_s:.0f} s airborne")
+    if m.mission_source:
+        err = f", within {m.track_error_m:.1f} m of the track" if math.isfinite(m.track_error_m) else ""
+        parts.append(f"mission: {m.mission_source}{err}")
+    if m.wind_source:
+        parts.append(f"wind {m.wind_speed:.1f} m/s from {m.wind_source.split(' (')[0]}")
+    if m.hover_s:
+        parts.append(f"hover {m.hover_s:.0f} s")
+    return f"{m.name}: " + "; ".join(parts)

@@ -1,0 +1,221 @@
+"""Flight profiles as TOML files: what ``generate --like`` writes and ``generate --profile FILE.toml`` reads.
+
+A profile file maps onto the generator's own pieces, section by section, field by field:
+
+- ``[profile]``: ``base`` (a built-in profile: its flight counts, split and attack grid) and any
+  other field of :class:`scart_bench.generator.profiles.Profile` (``gps_accuracy``, ``sensor_profile``,
+  ``timing``, and what the profile gains later), applied first;
+- ``[sensors]``, ``[estimator]``, ``[mission]``, ``[controller]``, ``[vehicle]``: fields of
+  :class:`SensorParams`, :class:`EstimatorParams`, :class:`MissionParams`, :class:`ControllerParams`,
+  :class:`VehicleParams` (any field the dataclass has: a new one is accepted as soon as it exists),
+  over the base profile's values; ``mission.missions`` lists mission files (``.plan`` or WPL), relative
+  to the TOML file, flown as ``generate --missions`` flies them;
+- ``[measured]`` and ``[not_expressible]``: what the logs showed that the generator cannot take yet,
+  for the reader; not applied.
+
+Every value is checked against its field's default (a number for a number, a list of as many numbers
+for a tuple, true/false for a flag, one of the allowed names for a level); a bad one raises
+:class:`ProfileFileError` naming the file, the key and what was expected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from scart_bench.errors import ScartBenchError
+
+#: informational sections: written by ``--like``, never applied
+INFO_SECTIONS = ("measured", "not_expressible", "logs")
+MAX_FILE_BYTES = 1024 * 1024
+
+
+class ProfileFileError(ScartBenchError):
+    """A profile TOML that cannot be used: the file, the key and what was expected."""
+
+
+def _sections():
+    from scart_bench.generator.params import (
+        ControllerParams,
+        EstimatorParams,
+        MissionParams,
+        SensorParams,
+        VehicleParams,
+    )
+
+    return {"sensors": SensorParams, "estimator": EstimatorParams, "mission": MissionParams,
+            "controller": ControllerParams, "vehicle": VehicleParams}
+
+
+#: FlightConfig attribute of each section
+CONFIG_ATTR = {"sensors": "sensors", "estimator": "estimator", "mission": "mission", "controller": "controller",
+               "vehicle": "vehicle"}
+
+
+@dataclass(frozen=True)
+class ProfileFile:
+    """A profile file read and checked: the built-in profile it is based on (with its [profile] fields)
+    and the FlightConfig its flights are flown with."""
+
+    path: str
+    profile: object  # generator.profiles.Profile
+    config: object  # generator.engine.flight_batch.FlightConfig
+
+
+def _fail(path, key: str, expected: str, got) -> ProfileFileError:
+    return ProfileFileError(f"{path}: {key}: expected {expected}, got {got!r}")
+
+
+def _check_value(path, key: str, value, default):
+    """``value`` as the type of ``default`` (a field's default), or ProfileFileError."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise _fail(path, key, "true or false", value)
+        return value
+    if isinstance(default, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise _fail(path, key, "a finite number", value)
+        if value < 0 and default >= 0:
+            raise _fail(path, key, "a number >= 0", value)
+        if isinstance(default, int) and not isinstance(default, bool):
+            if float(value) != int(value):
+                raise _fail(path, key, "a whole number", value)
+            return int(value)
+        return float(value)
+    if isinstance(default, tuple):
+        if not isinstance(value, list) or (default and len(value) != len(default)):
+            n = f"{len(default)} " if default else ""
+            raise _fail(path, key, f"a list of {n}values", value)
+        proto = default[0] if default else None
+        if isinstance(proto, tuple):
+            return tuple(_check_value(path, f"{key}[{i}]", v, proto) for i, v in enumerate(value))
+        if isinstance(proto, (int, float)):
+            return tuple(_check_value(path, f"{key}[{i}]", v, -1.0) for i, v in enumerate(value))
+        return tuple(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise _fail(path, key, "a string", value)
+        return value
+    return value
+
+
+def read_profile(path: str | Path) -> ProfileFile:
+    """Read and check a profile TOML (see the module docstring); nothing is flown or written."""
+    from scart_bench.generator.profiles import PROFILES, Profile
+
+    p = Path(path)
+    try:
+        if p.stat().st_size > MAX_FILE_BYTES:
+            raise ProfileFileError(f"{path}: expected a profile TOML of at most 1 MiB")
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ProfileFileError(f"{path}: no such file (expected a profile TOML, e.g. one `generate --like` wrote)") from None
+    except UnicodeDecodeError:
+        raise ProfileFileError(f"{path}: expected a UTF-8 TOML file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ProfileFileError(f"{path}: expected TOML: {e}") from None
+    except OSError as e:
+        raise ProfileFileError(f"{path}: cannot read the profile ({e.strerror or e})") from None
+    sections = _sections()
+    known = ("profile", *sections, *INFO_SECTIONS)
+    for name, value in doc.items():
+        if name not in known:
+            raise _fail(path, name, f"one of the sections [{'], ['.join(known)}]", name)
+        if not isinstance(value, dict):
+            raise _fail(path, name, "a [section] (a table of keys)", value)
+    head = dict(doc.get("profile", {}))
+    base = head.pop("base", "quick")
+    if base not in PROFILES:
+        raise _fail(path, "profile.base", f"one of {', '.join(PROFILES)}", base)
+    profile = PROFILES[base]
+    pfields = {f.name: f for f in dataclasses.fields(Profile)}
+    changes = {}
+    for key, value in head.items():
+        if key not in pfields or key == "name":
+            raise _fail(path, f"profile.{key}", f"base or a Profile field ({', '.join(k for k in pfields if k != 'name')})",
+                        key)
+        changes[key] = _check_value(path, f"profile.{key}", value, getattr(profile, key))
+    _check_levels(path, changes)
+    profile = dataclasses.replace(profile, **changes)
+    try:
+        config = profile.flight_config()
+    except ValueError as e:
+        raise ProfileFileError(f"{path}: [profile]: {e}") from None
+    missions = ()
+    for section, cls in sections.items():
+        table = doc.get(section, {})
+        names = {f.name for f in dataclasses.fields(cls)}
+        current = getattr(config, CONFIG_ATTR[section])
+        edits = {}
+        for key, value in table.items():
+            if section == "mission" and key == "missions":
+                missions = _missions(path, value)
+                continue
+            if key not in names:
+                raise _fail(path, f"{section}.{key}", f"a field of {cls.__name__} ({', '.join(sorted(names))})", key)
+            edits[key] = _check_value(path, f"{section}.{key}", value, getattr(current, key))
+        config = dataclasses.replace(config, **{CONFIG_ATTR[section]: dataclasses.replace(current, **edits)})
+    if missions:
+        from scart_bench.generator.flight_software.mission_files import with_missions
+
+        config = with_missions(config, missions)
+    return ProfileFile(str(path), profile, config)
+
+
+def _check_levels(path, changes: dict) -> None:
+    from scart_bench.generator.params import GPS_ACCURACY, SENSOR_PROFILES
+    from scart_bench.generator.telemetry.timing import TIMINGS
+
+    for key, allowed in (("gps_accuracy", tuple(GPS_ACCURACY)), ("sensor_profile", tuple(SENSOR_PROFILES)),
+                         ("timing", TIMINGS)):
+        if key in changes and changes[key] not in allowed:
+            raise _fail(path, f"profile.{key}", f"one of {', '.join(allowed)}", changes[key])
+
+
+def _missions(path, value) -> tuple:
+    from scart_bench.generator.flight_software.mission_files import read_missions
+
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        raise _fail(path, "mission.missions", "a list of mission file names (.plan or .waypoints, relative to the "
+                    "profile)", value)
+    folder = Path(path).parent
+    return read_missions([p if Path(p).is_absolute() else folder / p for p in value])
+
+
+# --- writing ---------------------------------------------------------------------------------------------------
+def toml_value(v) -> str:
+    """A TOML literal of a number, string, flag or list of them."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+        return repr(round(v, 6)) if abs(v) >= 1e-3 or v == 0 else f"{v:.6g}"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML literal for {v!r}")
+
+
+def _comment(text: str) -> str:
+    return " ".join(text.split())
+
+
+def render(header: list[str], sections: dict[str, dict[str, tuple[object, str]]]) -> str:
+    """A TOML document: ``header`` comment lines, then each section's ``key = value  # comment``."""
+    out = [f"# {line}" if line else "#" for line in header]
+    for name, table in sections.items():
+        if not table:
+            continue
+        out.append("")
+        out.append(f"[{name}]")
+        for key, (value, comment) in table.items():
+            line = f"{key} = {toml_value(value)}"
+            out.append(f"{line}  # {_comment(comment)}" if comment else line)
+    return "\n".join(out) + "\n"
