@@ -60,3 +60,28 @@ def test_score_prints_the_terminal_table_and_wide_every_column(tmp_path, capsys)
     assert wide[0] == paper_table(pd.read_csv(run / "metrics.csv")).splitlines()[0]
     assert "| Flagged anywhere CSV |" in wide[0] and "Flagged anywhere" not in short[0]
     assert short[3:] == wide[3:]  # the operating-point lines below the table are the same
+
+
+def test_building_the_parser_imports_no_heavy_library():
+    """``scart-bench --help`` starts in a fraction of a second: the parser imports no torch, numba, pandas,
+    numpy or the generator's engine (each command imports what it needs when it runs)."""
+    import json
+    import subprocess
+    import sys
+
+    heavy = ("torch", "numba", "pandas", "numpy", "scart_bench.generator.engine", "scart_bench.benchmark.protocol")
+    code = ("import json, sys\nfrom scart_bench.cli.main import build_parser\nbuild_parser()\n"
+            f"print(json.dumps([m for m in {heavy!r} if m in sys.modules]))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert json.loads(out) == []
+
+
+def test_the_parsers_choices_are_the_librarys():
+    from scart_bench.benchmark.protocol import DEFAULT_PHASE_MARGIN_S, PHASE_RULES
+    from scart_bench.cli import common
+    from scart_bench.generator.defense import RESPONSES
+    from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN
+
+    assert (common.PHASE_RULES, common.DEFAULT_PHASE_MARGIN_S) == (PHASE_RULES, DEFAULT_PHASE_MARGIN_S)
+    assert common.RESPONSES == RESPONSES
+    assert (common.PROXY_LISTEN, common.PROXY_FORWARD) == (DEFAULT_LISTEN, DEFAULT_FORWARD)

@@ -28,6 +28,14 @@ class UsageError(ScartBenchError):
 
 #: scart_bench.dataset.LAYOUTS, spelled out here so that the command line starts without pandas
 LAYOUTS = ("compact", "paper")
+#: the library's choices and defaults the parser shows, spelled out here as LAYOUTS is, so that building the
+#: parser (and ``--help``) imports no numpy, pandas or torch; tests/test_house.py checks them against the library
+#: (scart_bench.benchmark.protocol's PHASE_RULES and DEFAULT_PHASE_MARGIN_S, scart_bench.generator.defense's
+#: RESPONSES, scart_bench.generator.mavlink's DEFAULT_LISTEN and DEFAULT_FORWARD)
+PHASE_RULES = ("burn-in", "ends", "cruise")
+DEFAULT_PHASE_MARGIN_S = 3.0
+RESPONSES = ("hold", "return", "land", "reject_gps", "reject_gps_then_return")
+PROXY_LISTEN, PROXY_FORWARD = "udp:127.0.0.1:14540", "udp:127.0.0.1:14541"
 LAYOUT_HELP = ("compact (one Parquet file per view per flight; the default for Parquet) | paper (the paper's "
                "per-topic and combined files; the default for CSV)")
 

@@ -7,8 +7,7 @@ import argparse
 import time
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError, log
-from scart_bench.generator.defense import RESPONSES
+from scart_bench.cli.common import RESPONSES, UsageError, log
 
 
 def cmd_defend(args: argparse.Namespace) -> int:

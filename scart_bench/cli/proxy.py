@@ -18,7 +18,7 @@ import threading
 import time
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError, record_folder
+from scart_bench.cli.common import PROXY_FORWARD, PROXY_LISTEN, RESPONSES, UsageError, record_folder
 from scart_bench.names import check_id
 
 
@@ -152,18 +152,16 @@ def cmd_proxy(args: argparse.Namespace) -> int:
 
 
 def register(sub) -> None:
-    from scart_bench.generator.mavlink import DEFAULT_FORWARD, DEFAULT_LISTEN
-
     p = sub.add_parser("proxy", help="live MAVLink man-in-the-middle: run a scenario on an autopilot link",
                        description="A MAVLink 2 proxy between an autopilot (telemetry in on --listen) and a "
                        "mission computer (--forward): the scenario's topics are decoded, attacked by the SCART "
                        "layer and re-encoded; all other traffic, both ways, passes byte-identical. Needs "
                        "pymavlink (pip install scart-bench[mavlink]).")
-    p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="udp:HOST:PORT",
-                   help=f"where the autopilot sends its telemetry (default {DEFAULT_LISTEN}; loopback unless "
+    p.add_argument("--listen", default=PROXY_LISTEN, metavar="udp:HOST:PORT",
+                   help=f"where the autopilot sends its telemetry (default {PROXY_LISTEN}; loopback unless "
                         "told otherwise)")
-    p.add_argument("--forward", default=DEFAULT_FORWARD, metavar="udp:HOST:PORT",
-                   help=f"where the mission computer listens (default {DEFAULT_FORWARD})")
+    p.add_argument("--forward", default=PROXY_FORWARD, metavar="udp:HOST:PORT",
+                   help=f"where the mission computer listens (default {PROXY_FORWARD})")
     p.add_argument("--scenario", required=True, metavar="FILE", help="a scenario file (TOML), points link/command")
     p.add_argument("--seed", type=int, default=0, help="seed of the scenario's random draws (default 0)")
     p.add_argument("--record", metavar="DIR|URL", help="write the flight (both views, labels) into this dataset, "
@@ -179,8 +177,6 @@ def register(sub) -> None:
     p.add_argument("--plugin", action="append", metavar="SPEC",
                    help="load a plugin detector from module:Class or file.py:Class (a run folder's record of "
                         "plugin files is never imported)")
-    from scart_bench.generator.defense import RESPONSES
-
     p.add_argument("--response", choices=RESPONSES,
                    help="defense in the loop: on the detector's anomaly notice send the autopilot this (COMMAND_LONG)")
     p.add_argument("--alarms", type=int, default=1, metavar="N", help="alarm rows before the response (default 1)")

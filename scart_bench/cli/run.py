@@ -7,7 +7,14 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from scart_bench.cli.common import name_failed, print_tables, remove_stale_temp, stage_folder
+from scart_bench.cli.common import (
+    DEFAULT_PHASE_MARGIN_S,
+    PHASE_RULES,
+    name_failed,
+    print_tables,
+    remove_stale_temp,
+    stage_folder,
+)
 from scart_bench.generator.profiles import PROFILES
 
 if TYPE_CHECKING:
@@ -79,7 +86,6 @@ def _trusted_plugins(from_file: list[str], from_command_line: list[str], args: a
 
 def add_phase_options(parser) -> None:
     """``--phases`` and ``--phase-margin`` (run and score)."""
-    from scart_bench.benchmark.protocol import DEFAULT_PHASE_MARGIN_S, PHASE_RULES
 
     parser.add_argument("--phases", choices=PHASE_RULES,
                         help="which rows calibrate and alarm at the flight's ends: burn-in (protocol v2: from "

@@ -14,7 +14,7 @@ import threading
 import time
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError, record_folder
+from scart_bench.cli.common import RESPONSES, UsageError, record_folder
 from scart_bench.names import check_id
 
 DEFAULT_LISTEN = "udp:127.0.0.1:14580"
@@ -171,8 +171,6 @@ def _defense(args: argparse.Namespace):
 
 
 def register(sub) -> None:
-    from scart_bench.generator.defense import RESPONSES
-
     p = sub.add_parser("sitl", help="a simulated PX4-like vehicle any MAVLink tool can fly (SCART layer on its link)",
                        description="One simulated quadrotor (the generator's physics, sensors, estimator and "
                        "controller) behind a MAVLink 2 endpoint that speaks like PX4: heartbeat and telemetry, "
