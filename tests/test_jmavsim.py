@@ -73,7 +73,8 @@ def spoofed_flight(jar):
     from scart_bench.generator.hil.flights import fly_jmavsim
     from scart_bench.generator.scart.scenario import scenario_from_dict
 
-    return fly_jmavsim(jar, seed=1, scenarios=[scenario_from_dict(DRIFT)], mission=SHORT)
+    # over TCP (jMAVSim's -tcp: it serves, the bridge connects); the default flight goes over UDP
+    return fly_jmavsim(jar, seed=1, scenarios=[scenario_from_dict(DRIFT)], mission=SHORT, transport="tcp")
 
 
 def _item_of(flight) -> tuple[np.ndarray, np.ndarray]:
@@ -159,6 +160,100 @@ def test_layer_without_an_active_scenario_changes_nothing(spoofed_flight):
     assert not np.array_equal(attacked, plain)
     first = int(np.argmax(np.any(attacked != plain, axis=1)))
     assert first * 0.004 >= 17.0  # nothing differs before the attack starts
+
+
+#: a short hop for the real-time flight: 4 m up, 1 s of hover, 15 m north, back, land (about 35 s)
+HOP = MissionParams(corners=((15.0, 0.0),), altitude=4.0, takeoff_hold_s=1.0, jitter_m=0.0, jitter_speed=0.0,
+                    max_duration_s=60.0)
+
+
+def test_real_time_flight(jar):
+    """jMAVSim on its own clock (no lockstep): the flight keeps pace with it and lands at home, or, on a
+    machine too loaded to answer in time, the bridge gives up in one line naming the lag (never a
+    silent crash of a controller answering late)."""
+    from scart_bench.generator.hil.errors import HilError
+    from scart_bench.generator.hil.flights import REALTIME_MAX_LAG_S, fly_jmavsim
+
+    try:
+        f = fly_jmavsim(jar, seed=2, mission=HOP, lockstep=False)
+    except HilError as exc:
+        assert "behind the simulator's real-time clock" in str(exc) and "\n" not in str(exc)
+        pytest.skip(f"this machine is too loaded for a real-time flight: {exc}")
+    assert f.status == "landed", f.status
+    assert np.linalg.norm(f.truth[-1, 1:3]) < 2.0
+    # the simulator's clock set the pace: wall time about the flown time (lockstep runs faster)
+    assert 0.7 < f.speed < 1.3, f.speed
+    assert REALTIME_MAX_LAG_S > 0
+
+
+class _ScriptedLink:
+    """A link that delivers prepared batches of messages (a simulator that sends faster than we fly)."""
+
+    def __init__(self, batches):
+        self.batches = list(batches)
+        self.last_heartbeat = 0.0
+
+    def wait_first(self, timeout_s, alive=None):
+        return self.batches.pop(0)
+
+    def receive(self, timeout):
+        if not self.batches:
+            raise AssertionError("the bridge read past the script")
+        return self.batches.pop(0)
+
+    def heartbeat(self, armed):
+        pass
+
+    def request_truth(self, interval_us):
+        pass
+
+    def actuators(self, t_us, controls, armed):
+        pass
+
+
+def test_bridge_gives_up_when_it_falls_behind_a_real_time_simulator():
+    """With a simulator on its own clock, sensor time queued behind the sample being flown is the lag;
+    past ``max_lag_s`` the flight ends with one line, and without the limit (lockstep) it flies on."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from scart_bench.generator.hil.bridge import Bridge
+    from scart_bench.generator.hil.errors import HilError
+    from scart_bench.generator.hil.flights import autopilot_for
+
+    m = mav.MAVLink(None)
+
+    def sensor(t_us):
+        return m.hil_sensor_encode(t_us, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0.2, 0.0, 0.4, 1013.25, 0.0, 0.0, 15.0, 0)
+
+    # 2 s on time (one sample per read), then 100 ms of samples arrive at once
+    batches = [[sensor(4000 * k)] for k in range(500)] + [[sensor(4000 * k) for k in range(500, 525)]]
+    late = Bridge(_ScriptedLink(batches), autopilot_for(0, None, HOP), max_lag_s=0.05)
+    with pytest.raises(HilError, match=r"fell \d+ ms behind the simulator's real-time clock at 2\.0 s"):
+        late.fly(max_s=2.2)
+    calm = Bridge(_ScriptedLink(batches + [[]] * 5), autopilot_for(0, None, HOP))
+    assert calm.fly(max_s=2.1).steps == 525
+
+
+def test_simulator_addresses():
+    """`udp:`/`tcp:` connect, `-listen` waits for the simulator; anything else is one line."""
+    from scart_bench.generator.hil.errors import HilError
+    from scart_bench.generator.hil.link import SimLink, TcpSimLink, open_link, parse_sim_address
+
+    assert parse_sim_address("tcp:127.0.0.1:4560") == ("tcp", ("127.0.0.1", 4560))
+    assert parse_sim_address("udp-listen:0.0.0.0:14560") == ("udp-listen", ("0.0.0.0", 14560))
+    for bad in ("4560", "tcp:4560", "serial:/dev/ttyS0:57600", "tcp:host:99999", "udp:host:port"):
+        with pytest.raises(HilError, match="expected one of udp:HOST:PORT"):
+            parse_sim_address(bad)
+    server = open_link("tcp-listen:127.0.0.1:0")
+    try:
+        assert isinstance(server, TcpSimLink) and server.where().startswith("expected on tcp:127.0.0.1:")
+        with pytest.raises(HilError, match="never connected in 0.5 s"):
+            server.wait_first(0.5)
+    finally:
+        server.close()
+    client = open_link("udp:127.0.0.1:9")
+    assert type(client) is SimLink
+    client.close()
 
 
 def test_missing_jar_and_silent_simulator(tmp_path, monkeypatch):

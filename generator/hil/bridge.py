@@ -87,15 +87,21 @@ class Bridge:
 
     ``truth_interval_us``: how often the simulator is asked for HIL_STATE_QUATERNION (0: never).
     ``timeout_s``: the longest wall-clock silence of the simulator before the flight is given up.
+    ``max_lag_s``: with a simulator on its own clock (not lockstep), how far the flight software may
+    fall behind the simulator's sensor time before the flight is given up (a controller that answers
+    late flies a different vehicle: PX4 reports the same as a lost lockstep); None: not checked.
     """
 
     def __init__(self, link: SimLink, autopilot: HilAutopilot, truth_interval_us: int = 20000,
-                 timeout_s: float = 10.0, keep_inputs: bool = True):
+                 timeout_s: float = 10.0, keep_inputs: bool = True, max_lag_s: float | None = None):
         self.link = link
         self.ap = autopilot
         self.truth_interval_us = int(truth_interval_us)
         self.timeout_s = timeout_s
         self.keep_inputs = keep_inputs
+        self.max_lag_s = max_lag_s
+        #: the largest lag measured in the last :meth:`fly` (s; only with ``max_lag_s``)
+        self.worst_lag_s = 0.0
 
     def fly(self, max_s: float = 150.0, first_timeout_s: float = 30.0, alive=None) -> HilFlight:
         """Run until the vehicle has landed (and ``TAIL_S`` more), crashed, or ``max_s`` of simulated time."""
@@ -112,6 +118,7 @@ class Bridge:
         max_steps, tail = int(max_s / 0.004), int(TAIL_S / 0.004)
         landed_at, status = -1, "timeout"
         last_msg = time.monotonic()
+        self.worst_lag_s = 0.0
         while ap.step_index < max_steps:
             msgs = pending or link.receive(0.5)
             pending = []
@@ -124,6 +131,9 @@ class Bridge:
                 link.heartbeat(ap.armed)
                 continue
             last_msg = now
+            # the lag: how much sensor time already waits behind the sample being flown (all waiting
+            # messages are read at once); from 1 s on (a simulator's first messages come in a burst)
+            newest = max((m.time_usec for m in msgs if m.get_type() == "HIL_SENSOR"), default=0)
             for m in msgs:
                 kind = m.get_type()
                 if kind == "HIL_GPS":
@@ -132,6 +142,14 @@ class Bridge:
                     truth.append(np.append(truth_row(m, ap.profile.truth_alt), [ap.step_index, ap.armed]))
                 elif kind == "HIL_SENSOR":
                     s = sensor_sample(m)
+                    if self.max_lag_s is not None and ap.step_index >= 250:
+                        lag = (newest - s.t_us) * 1e-6
+                        self.worst_lag_s = max(self.worst_lag_s, lag)
+                        if lag > self.max_lag_s:
+                            raise HilError(f"the flight software fell {lag * 1e3:.0f} ms behind the simulator's "
+                                           f"real-time clock at {ap.step_index * 0.004:.1f} s (at most "
+                                           f"{self.max_lag_s * 1e3:.0f} ms): fly in lockstep, or on a less "
+                                           "loaded machine")
                     controls = ap.step(s, gps)
                     if self.keep_inputs:
                         inputs.append((s, gps))

@@ -56,6 +56,13 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port free on ``host`` now (the OS's pick)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
 def build(source: str | os.PathLike, dest: str | os.PathLike) -> Path:
     """Copy a jMAVSim checkout ``source`` into ``dest`` and build it with ant; returns the jar.
 
@@ -76,16 +83,22 @@ def build(source: str | os.PathLike, dest: str | os.PathLike) -> Path:
 
 
 class JMavSim:
-    """A jMAVSim process, headless, listening for its flight controller on UDP ``port`` (lockstep).
+    """A jMAVSim process, headless, waiting for its flight controller on ``port`` (lockstep by default).
 
+    ``transport``: ``udp`` (jMAVSim's ``-udp PORT``: it answers whoever sends first) or ``tcp``
+    (``-tcp 127.0.0.1:PORT``: it serves the port and the flight controller connects).
+    ``lockstep`` False: jMAVSim runs on its own clock, in real time, and the bridge follows it.
     Use as a context manager; :meth:`stop` ends it (and only it). Its output goes to ``log_path``.
     """
 
     def __init__(self, jar: str | os.PathLike | None = None, port: int | None = None, lockstep: bool = True,
-                 speed: float = DEFAULT_SPEED, rate_hz: int = 250):
+                 speed: float = DEFAULT_SPEED, rate_hz: int = 250, transport: str = "udp"):
+        if transport not in ("udp", "tcp"):
+            raise HilError(f"jMAVSim transport {transport!r}: expected udp or tcp")
         self.java = find_java()
         self.jar = find_jar(jar)
-        self.port = int(port) if port else free_udp_port()
+        self.transport = transport
+        self.port = int(port) if port else (free_udp_port() if transport == "udp" else free_tcp_port())
         self.lockstep = lockstep
         self.speed = float(speed)
         self.rate_hz = int(rate_hz)
@@ -96,8 +109,14 @@ class JMavSim:
     def address(self) -> tuple[str, int]:
         return ("127.0.0.1", self.port)
 
+    @property
+    def link_address(self) -> str:
+        """Where the bridge reaches this simulator (:func:`scart_bench.generator.hil.link.open_link`)."""
+        return f"{self.transport}:127.0.0.1:{self.port}"
+
     def command(self) -> list[str]:
-        cmd = [self.java, "-Djava.awt.headless=true", "-jar", str(self.jar), "-no-gui", "-udp", str(self.port),
+        where = ["-udp", str(self.port)] if self.transport == "udp" else ["-tcp", f"127.0.0.1:{self.port}"]
+        cmd = [self.java, "-Djava.awt.headless=true", "-jar", str(self.jar), "-no-gui", *where,
                "-r", str(self.rate_hz)]
         return cmd + (["-lockstep"] if self.lockstep else [])
 

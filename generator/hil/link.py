@@ -1,10 +1,17 @@
-"""The flight controller's end of PX4's simulator MAVLink API, over UDP.
+"""The flight controller's end of PX4's simulator MAVLink API, over UDP or TCP.
 
 The simulator (jMAVSim, PX4's Gazebo-classic plugin, AirSim in PX4 mode) sends HIL_SENSOR (IMU,
 magnetometer, pressure), HIL_GPS and, when asked with MAV_CMD_SET_MESSAGE_INTERVAL for message 115,
 HIL_STATE_QUATERNION (its ground truth); the flight controller answers every HIL_SENSOR with
 HIL_ACTUATOR_CONTROLS (motor commands 0..1), which in lockstep is what advances the simulator's
 clock, and sends a HEARTBEAT at least once a second (jMAVSim resets after 3 s without one).
+
+Both transports PX4 uses with its simulators are here: :class:`SimLink` (UDP: jMAVSim's ``-udp``,
+Gazebo classic with ``use_tcp`` false, AirSim with ``"UseTcp": false``) and :class:`TcpSimLink`
+(TCP: jMAVSim's ``-tcp`` serves and the flight controller connects; Gazebo classic's default and
+AirSim with ``"UseTcp": true`` connect to the flight controller, which listens on 4560).
+:func:`open_link` makes either from an address ``udp:HOST:PORT``, ``tcp:HOST:PORT`` (connect) or
+``tcp-listen:HOST:PORT``/``udp-listen:HOST:PORT`` (wait for the simulator).
 """
 
 from __future__ import annotations
@@ -45,6 +52,9 @@ class SimLink:
         else:
             self.sock.bind(("127.0.0.1" if address[0] in ("127.0.0.1", "localhost") else "0.0.0.0", 0))
         self.sock.setblocking(False)
+        self._start_counters()
+
+    def _start_counters(self) -> None:
         self.mav = mavlink.MAVLink(None, srcSystem=SYSTEM, srcComponent=COMPONENT)
         self.mav.robust_parsing = True
         self.sent = 0
@@ -58,6 +68,10 @@ class SimLink:
         self.sock.sendto(msg.pack(self.mav), self.address)
         self.sent += 1
         return True
+
+    def _parse(self, data: bytes) -> list:
+        msgs = self.mav.parse_buffer(data) or []
+        return [m for m in msgs if m.get_type() != "BAD_DATA"]
 
     def heartbeat(self, armed: bool) -> None:
         """A PX4 quadrotor's HEARTBEAT (HIL enabled; the armed flag as the motors are)."""
@@ -91,8 +105,7 @@ class SimLink:
                 break
             if self.listening:
                 self.address = peer[:2]  # answer the simulator that sends
-            msgs = self.mav.parse_buffer(data) or []
-            out.extend(m for m in msgs if m.get_type() != "BAD_DATA")
+            out.extend(self._parse(data))
         self.received += len(out)
         return out
 
@@ -120,3 +133,141 @@ class SimLink:
 
     def close(self) -> None:
         self.sock.close()
+
+
+class TcpSimLink(SimLink):
+    """A TCP stream talking MAVLink 2 to a simulator.
+
+    ``address``: the simulator serves there and we connect (jMAVSim's ``-tcp HOST:PORT``; the
+    connection is retried until :meth:`wait_first`'s timeout, as the simulator may still be starting).
+    ``listen``: we serve there and take the first simulator that connects (PX4's side of TCP 4560,
+    where Gazebo classic and AirSim with ``"UseTcp": true`` connect to).
+    A stream that closes is a :class:`HilError` naming the address.
+    """
+
+    def __init__(self, address: tuple[str, int] | None = None, listen: tuple[str, int] | None = None):
+        if (address is None) == (listen is None):
+            raise ValueError("TcpSimLink needs either the simulator's address or a local address to listen on")
+        self.address = address
+        self.listening = listen is not None
+        self.server: socket.socket | None = None
+        self.sock: socket.socket | None = None
+        if listen is not None:
+            self.server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self.server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.server.bind(listen)
+            self.server.listen(1)
+            self.server.setblocking(False)
+        self._start_counters()
+
+    def _connect(self) -> bool:
+        """Connect (or accept) once; True when the stream is up."""
+        if self.sock is not None:
+            return True
+        if self.server is not None:
+            ready, _, _ = select.select([self.server], [], [], 0.2)
+            if not ready:
+                return False
+            sock, peer = self.server.accept()
+            self.address = peer[:2]
+        else:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            sock.settimeout(1.0)
+            try:
+                sock.connect(self.address)
+            except OSError:
+                sock.close()
+                time.sleep(0.2)
+                return False
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setblocking(False)
+        self.sock = sock
+        return True
+
+    def send(self, msg) -> bool:
+        """Send ``msg`` on the stream; False while it is not connected yet."""
+        if self.sock is None:
+            return False
+        try:
+            self.sock.sendall(msg.pack(self.mav))
+        except BlockingIOError:
+            # a full send buffer: wait for room rather than drop part of a message on a stream
+            self.sock.setblocking(True)
+            try:
+                self.sock.sendall(msg.pack(self.mav))
+            finally:
+                self.sock.setblocking(False)
+        except OSError as exc:
+            raise HilError(f"the simulator ({self.where()}) closed the connection: {exc}") from None
+        self.sent += 1
+        return True
+
+    def receive(self, timeout: float) -> list:
+        """The messages that arrive within ``timeout`` s (all that are waiting once one has)."""
+        if self.sock is None and not self._connect():
+            return []
+        out = []
+        ready, _, _ = select.select([self.sock], [], [], timeout)
+        if not ready:
+            return out
+        while True:
+            try:
+                data = self.sock.recv(65536)
+            except BlockingIOError:
+                break
+            except OSError as exc:
+                raise HilError(f"the simulator ({self.where()}) closed the connection: {exc}") from None
+            if not data:
+                if out:
+                    break
+                raise HilError(f"the simulator ({self.where()}) closed the connection")
+            out.extend(self._parse(data))
+        self.received += len(out)
+        return out
+
+    def wait_first(self, timeout_s: float, alive=None) -> list:
+        """Connect (or wait for the simulator to connect), then as :meth:`SimLink.wait_first`."""
+        end = time.monotonic() + timeout_s
+        while not self._connect():
+            if alive is not None and not alive():
+                raise HilError(f"the simulator ({self.where()}) ended before it took the connection")
+            if time.monotonic() >= end:
+                what = "connected" if self.listening else "accepted the connection"
+                raise HilError(f"the simulator ({self.where()}) never {what} in {timeout_s:g} s "
+                               "(is it running, on this port?)")
+        return super().wait_first(max(end - time.monotonic(), 1.0), alive)
+
+    def where(self) -> str:
+        if self.listening and self.sock is None:
+            host, port = self.server.getsockname()[:2]
+            return f"expected on tcp:{host}:{port}"
+        return f"tcp:{self.address[0]}:{self.address[1]}"
+
+    def close(self) -> None:
+        for s in (self.sock, self.server):
+            if s is not None:
+                s.close()
+
+
+def parse_sim_address(text: str) -> tuple[str, tuple[str, int]]:
+    """``udp:HOST:PORT``, ``tcp:HOST:PORT``, ``udp-listen:HOST:PORT`` or ``tcp-listen:HOST:PORT`` as
+    (kind, (host, port)); a one-line HilError otherwise."""
+    kinds = ("udp", "tcp", "udp-listen", "tcp-listen")
+    kind, _, rest = str(text).partition(":")
+    host, _, port = rest.rpartition(":")
+    lowest = 0 if kind.endswith("-listen") else 1  # a listener may take any free port (0)
+    if kind not in kinds or not host or not port.isdigit() or not lowest <= int(port) < 65536:
+        raise HilError(f"simulator address {text!r}: expected one of {', '.join(k + ':HOST:PORT' for k in kinds)}")
+    return kind, (host, int(port))
+
+
+def open_link(text: str) -> SimLink:
+    """The link to the simulator at ``text`` (see :func:`parse_sim_address`)."""
+    kind, addr = parse_sim_address(text)
+    if kind == "udp":
+        return SimLink(address=addr)
+    if kind == "udp-listen":
+        return SimLink(listen=addr)
+    if kind == "tcp":
+        return TcpSimLink(address=addr)
+    return TcpSimLink(listen=addr)
