@@ -23,7 +23,6 @@ import pickle
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -32,6 +31,7 @@ from pathlib import Path
 
 from scart_bench.benchmark.jobs import JobResult, run_job
 from scart_bench.cluster import CONNECT_TIMEOUT_S
+from scart_bench.dataset.locks import exit_with_parent
 from scart_bench.errors import RunError
 from scart_bench.progress import duration, progress_every_s
 from scart_bench.storage import claim_tempdir, release_tempdir
@@ -380,19 +380,6 @@ class JobProgress:
             self.bar.close()
 
 
-def _watch_parent() -> None:
-    """Exit when the launching process dies (so an orphaned job never runs on)."""
-    parent = os.getppid()
-
-    def watch() -> None:
-        while True:
-            time.sleep(1.0)
-            if os.getppid() != parent:
-                os._exit(3)
-
-    threading.Thread(target=watch, daemon=True, name="parent-watch").start()
-
-
 def _progress_writer(path: Path, every_s: float = 0.5):
     """A run_job ``report`` that keeps ``path`` (JSON) up to date, at most every ``every_s`` seconds."""
     import json
@@ -413,7 +400,7 @@ def _progress_writer(path: Path, every_s: float = 0.5):
 
 def _worker_main(argv: list[str]) -> int:
     spec_path, result_path = argv
-    _watch_parent()
+    exit_with_parent(os.getppid(), period_s=1.0)  # an orphaned job never runs on
     spec = pickle.loads(Path(spec_path).read_bytes())
 
     Path(spec_path).with_name("started").touch()  # the job's timeout counts from here

@@ -65,7 +65,9 @@ class FolderLock:
 
 def exit_with_parent(parent: int, period_s: float = 0.5) -> None:
     """In a worker process: end it as soon as its parent is gone (SIGKILL or SIGTERM of the command
-    leaves no writer behind). Started as the worker pool's initializer."""
+    leaves no writer behind, and no orphaned job runs on). The one watchdog of the project: the dataset
+    writer's pool initializer, csv mode's attack workers and the benchmark's job workers
+    (``benchmark/executors.py``) start it."""
     import threading
     import time
 
