@@ -94,12 +94,17 @@ def _check_value(path, key: str, value, default):
             return tuple(_check_value(path, f"{key}[{i}]", v, proto) for i, v in enumerate(value))
         if isinstance(proto, (int, float)):
             return tuple(_check_value(path, f"{key}[{i}]", v, -1.0) for i, v in enumerate(value))
-        return tuple(value)
+        return _tuples(value)
     if isinstance(default, str):
         if not isinstance(value, str):
             raise _fail(path, key, "a string", value)
         return value
     return value
+
+
+def _tuples(value):
+    """TOML lists as tuples, nested ones too (``families = [["survey", 0.5], ...]``)."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
 def read_profile(path: str | Path) -> ProfileFile:

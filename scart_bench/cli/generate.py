@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 from scart_bench.cli.common import (
     LAYOUT_HELP,
@@ -24,15 +25,26 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
     if getattr(args, "physics", "builtin") == "jmavsim":
         return _generate_jmavsim(args)
-    if args.profile not in PROFILES:
-        raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}")
+    if getattr(args, "sim", None) or getattr(args, "real_time", False):
+        raise UsageError("--sim and --real-time are for --physics jmavsim (the built-in engine has its own physics)")
+    profile_file = None
+    if getattr(args, "like", None):
+        return _generate_like(args)
+    if is_profile_file(args.profile):
+        from scart_bench.generator.like.profile_file import read_profile
+
+        profile_file = read_profile(args.profile)  # checked before anything is written
+        args.profile = profile_file.profile.name
+    elif args.profile not in PROFILES:
+        raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)}, or a profile TOML file "
+                         "(docs/like.md)")
     if args.flights is not None and not 1 <= args.flights <= MAX_FLIGHTS:
         raise UsageError(f"--flights {args.flights}: expected 1 to {MAX_FLIGHTS:,} normal flights (the plan holds a "
                          "seed and a split per flight, and ten million flights are terabytes on disk)")
     check_seed(args.seed)
     from scart_bench.generator.params import GPS_ACCURACY
 
-    profile = PROFILES[args.profile]
+    profile = PROFILES[args.profile] if profile_file is None else profile_file.profile
     if args.gps_accuracy is not None:
         if args.gps_accuracy not in GPS_ACCURACY:
             raise UsageError(f"--gps-accuracy {args.gps_accuracy!r}: expected one of {', '.join(GPS_ACCURACY)}")
@@ -57,7 +69,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if not 1 <= args.jobs <= MAX_JOBS:
         raise UsageError(f"--jobs {args.jobs}: expected 1 to {MAX_JOBS} local dask workers")
     remove_stale_temp()  # the staging folders of killed commands (a generate to a URL writes in one)
-    config = profile.flight_config()
+    config = profile.flight_config() if profile_file is None else _overridden(profile_file.config, args)
     if args.missions:  # every file read and checked before anything is written
         from scart_bench.generator.flight_software.mission_files import read_missions, with_missions
 
@@ -72,6 +84,76 @@ def cmd_generate(args: argparse.Namespace) -> int:
                          scenarios=args.scenarios, config=config, layout=args.layout,
                          uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
                          scheduler=args.scheduler, jobs=args.jobs, progress=progress)
+    print(f"dataset written to {out}")
+    return 0
+
+
+def is_profile_file(value: str) -> bool:
+    """``--profile`` names a TOML file rather than a built-in profile."""
+    return value not in PROFILES and (value.lower().endswith(".toml") or Path(value).is_file())
+
+
+def _overridden(config, args: argparse.Namespace):
+    """A profile file's FlightConfig with the command line's --gps-accuracy / --sensor-profile / --timing on top."""
+    from scart_bench.generator.params import with_gps_accuracy, with_sensor_profile
+
+    if args.gps_accuracy is not None:
+        config = with_gps_accuracy(config, args.gps_accuracy)
+    if args.sensor_profile is not None:
+        config = with_sensor_profile(config, args.sensor_profile)
+    if args.timing is not None:
+        config = dataclasses.replace(config, timing=args.timing)
+    return config
+
+
+def _generate_like(args: argparse.Namespace) -> int:
+    """``generate --like LOG...``: fit a profile to the logs, write it (profile.toml and missions/) and fly
+    ``--flights`` flights of it into ``--out`` (docs/like.md)."""
+    import shutil
+    import tempfile
+
+    from scart_bench.generator.generate import MAX_FLIGHTS, generate_dataset
+    from scart_bench.generator.like.profile_file import read_profile
+    from scart_bench.generator.like.write import MISSION_DIR, PROFILE_NAME, fit_to_folder
+    from scart_bench.generator.logs.importers import LOG_SUFFIXES
+    from scart_bench.storage import is_url, local_path
+
+    if args.missions or args.gps_accuracy or args.sensor_profile or args.timing or is_profile_file(args.profile):
+        raise UsageError("--like fits the missions, sensors, GPS accuracy and timing to the logs: leave out --missions, "
+                         "--gps-accuracy, --sensor-profile, --timing and a profile file (edit the written profile.toml "
+                         "and fly it with --profile FILE.toml)")
+    if args.profile not in PROFILES:
+        raise UsageError(f"--profile {args.profile!r}: expected one of {', '.join(PROFILES)} (the base of the fitted profile)")
+    if is_url(args.out):
+        raise UsageError("--like writes a local folder (the profile and missions beside the dataset): give a path")
+    n = 60 if args.flights is None else args.flights
+    if not 1 <= n <= MAX_FLIGHTS:
+        raise UsageError(f"--flights {n}: expected 1 to {MAX_FLIGHTS:,} normal flights")
+    check_seed(args.seed)
+    for log in args.like:
+        p = Path(log)
+        if not p.exists():
+            raise UsageError(f"--like {log}: no such file or folder (expected a flight log: {', '.join(LOG_SUFFIXES)}, "
+                             ".csv, .parquet or a scart-bench flight folder)")
+    out = local_path(args.out)
+    if out.exists() and any(out.iterdir()) and not args.overwrite:
+        raise UsageError(f"--out {out}: exists and is not empty (use a new folder, or --overwrite)")
+    remove_stale_temp()
+    from scart_bench.progress import Progress
+
+    with tempfile.TemporaryDirectory(prefix="scart-like-") as tmp, removed_on_failure(out):
+        path = fit_to_folder(list(args.like), tmp, base=args.profile, say=lambda line: print(line, flush=True))
+        fitted = read_profile(path)  # the dataset is flown from the file as written
+        with Progress("generate", "flights") as progress:
+            generate_dataset(fitted.profile.name, out, seed=args.seed, fmt=args.format, n_normal=n,
+                             overwrite=args.overwrite, with_attacks=not args.normal_only, log=progress.note,
+                             scenarios=args.scenarios, config=fitted.config, layout=args.layout,
+                             uorb=args.uorb or None, batch_size=args.batch_size, executor=args.executor,
+                             scheduler=args.scheduler, jobs=args.jobs, progress=progress)
+        shutil.copy2(path, out / PROFILE_NAME)
+        shutil.copytree(Path(tmp) / MISSION_DIR, out / MISSION_DIR, dirs_exist_ok=True)
+    print(f"profile written to {out / PROFILE_NAME} (missions in {out / MISSION_DIR}); "
+          f"fly it again with: scart-bench generate --profile {out / PROFILE_NAME} --out DIR")
     print(f"dataset written to {out}")
     return 0
 
@@ -93,7 +175,8 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     out = local_path(args.out)
     with removed_on_failure(out):
         generate_jmavsim(out, args.jmavsim, seed=args.seed, n_normal=n, configs=configs, fmt=args.format,
-                         overwrite=args.overwrite, log=lambda msg: print(msg, flush=True), csv_configs=csv_configs)
+                         overwrite=args.overwrite, log=lambda msg: print(msg, flush=True), csv_configs=csv_configs,
+                         sim=args.sim, lockstep=not args.real_time)
     print(f"dataset written to {out}")
     return 0
 
@@ -101,7 +184,12 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     g = sub.add_parser("generate", help="fly normal and attacked flights and write a dataset")
     g.add_argument("--profile", default="quick",
-                   help=f"{' | '.join(PROFILES)}: flight counts and attack grid (default quick)")
+                   help=f"{' | '.join(PROFILES)}: flight counts and attack grid (default quick); or a profile TOML file "
+                   "(FILE.toml, e.g. the profile.toml --like wrote: its base profile, sensors, mission, missions; docs/like.md)")
+    g.add_argument("--like", nargs="+", default=None, metavar="LOG",
+                   help="fit the flights to these logs (every format import reads): missions recovered from each log, "
+                   "take-off and landing, wind, sensor noise, GPS accuracy; writes --out/profile.toml and "
+                   "--out/missions/ beside the dataset of --flights flights (default 60; docs/like.md)")
     g.add_argument("--out", required=True, help="dataset folder (new, empty, or an existing dataset with --overwrite), or an fsspec URL "
                    "such as s3://bucket/datasets/quick (uploaded with the manifest last; docs/scaling.md)")
     g.add_argument("--seed", type=int, default=0)
@@ -138,4 +226,9 @@ def register(sub) -> None:
                    "attacked flights per mode; docs/jmavsim.md)")
     g.add_argument("--jmavsim", default=None, metavar="PATH", help="with --physics jmavsim: jmavsim_run.jar or "
                    "the jMAVSim checkout it was built in (default $SCART_JMAVSIM)")
+    g.add_argument("--sim", default=None, metavar="ADDR", help="with --physics jmavsim: fly against a simulator "
+                   "already running at udp:HOST:PORT or tcp:HOST:PORT (udp-listen:/tcp-listen: wait for it) instead of "
+                   "starting jMAVSim: jMAVSim, or Gazebo classic / AirSim in PX4 mode elsewhere (docs/jmavsim.md)")
+    g.add_argument("--real-time", action="store_true", help="with --physics jmavsim: the started jMAVSim flies in "
+                   "real time instead of lockstep (a flight that falls 50 ms behind its clock ends with an error)")
     g.set_defaults(func=cmd_generate)
