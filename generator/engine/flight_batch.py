@@ -77,6 +77,9 @@ class FlightConfig:
     timing: str = "realistic"
     #: also write the uORB view (PX4 topic names and units, generator.telemetry.uorb) of each flight; after flying
     uorb: bool = False
+    #: airframes drawn per flight (generator.physics.airframes, a profile's ``airframes`` mix): sorted
+    #: (name, weight) pairs summing to 1; empty: every flight flies ``vehicle`` and ``controller``
+    airframes: tuple = ()
 @dataclass
 class BatchResult:
     """Recorded messages of a batch of flights.
@@ -145,13 +148,18 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     wind = Wind(mean=wind_mean, gust=np.zeros((n, 3)), sigma=m.gust_sigma_max * u[:, 2], tau=m.gust_tau)
     yaw0 = (u[:, 3] - 0.5) * 0.5
     waypoints, cruise, table, last = mission_table(m, seeds, rngs)
+    max_s = m.max_duration_s
+    if m.families and not m.missions:  # the longest of the drawn missions sets the batch's time limit
+        from scart_bench.generator.flight_software.families import time_bound
+
+        max_s = max(max_s, max(time_bound(table[i, :last[i] + 1], m.land_speed) for i in range(n)))
     sensors = Sensors(cfg.sensors, DT)
     vs = VehicleState.zeros(n, yaw0)
     ss = sensors.init_state(n, rngs)
     start = startup_times(seeds, m.ground_phase, m.arm_delay_s)
     ss.fix_at = start[:, 0].copy()
     battery = _battery_init(battery_start(seeds))
-    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(m.max_duration_s * SIM_RATE_HZ),
+    return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(max_s * SIM_RATE_HZ),
                    start, battery, table, last)
 def alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
     """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
@@ -198,3 +206,89 @@ def instance_gps(env: Disturbances, gps: dict) -> dict:
     gps["eph"][gone], gps["epv"][gone] = 99.99, 99.99
     gps["vel"][gone] = 0.0
     return gps
+
+
+def flight_vehicles(seeds: list[int], cfg: FlightConfig) -> list[tuple[str, float]]:
+    """Per flight, the airframe it flies (``""``: the config's own vehicle) and its payload (a fraction of
+    the airframe's mass; with mission families, generator.flight_software.families), both drawn from its seed."""
+    from scart_bench.generator.physics.airframes import airframe_for_seed
+
+    names = [airframe_for_seed(cfg.airframes, s) if cfg.airframes else "" for s in seeds]
+    m = cfg.mission
+    if m.families and not m.missions:
+        from scart_bench.generator.flight_software.families import draw_mission
+
+        return [(name, draw_mission(s, m).payload) for name, s in zip(names, seeds)]
+    return [(name, 0.0) for name in names]
+
+
+def vehicle_groups(seeds: list[int], cfg: FlightConfig) -> list[tuple[FlightConfig, np.ndarray]]:
+    """The batch split by vehicle: per airframe and payload, the config that flies it (its vehicle and
+    controller, no mix left) and the positions of its flights in ``seeds``. The engines take one vehicle
+    a batch (the compiled kernel's parameter vector); a flight's result does not depend on its batch
+    mates, so flying the groups apart gives every flight the bytes it has alone. Without a mix: one
+    group, ``cfg`` itself."""
+    import dataclasses
+
+    from scart_bench.generator.physics.airframes import airframe
+
+    drawn = flight_vehicles(seeds, cfg)
+    if not cfg.airframes and all(p == 0.0 for _, p in drawn):
+        return [(cfg, np.arange(len(seeds)))]
+    groups = []
+    for key in sorted(set(drawn)):
+        name, payload = key
+        vehicle, controller = airframe(name) if name else (cfg.vehicle, cfg.controller)
+        vehicle = dataclasses.replace(vehicle, mass=vehicle.mass * (1.0 + payload))
+        sub = dataclasses.replace(cfg, vehicle=vehicle, controller=controller, airframes=())
+        groups.append((sub, np.array([i for i, d in enumerate(drawn) if d == key], dtype=np.int64)))
+    return groups
+
+
+def _pad_messages(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], where: list[np.ndarray], n: int):
+    """One topic's (steps, values, delivered) of the groups as one batch's: the longest schedule, a
+    shorter group's flights holding their last message (as a finished flight does in a batch)."""
+    steps = max((p[0] for p in parts), key=len)
+    vals = np.empty((n, len(steps), parts[0][1].shape[2]))
+    ok = np.ones((n, len(steps)), dtype=bool)
+    for (st, v, d), idx in zip(parts, where):
+        k = len(st)
+        vals[idx, :k] = v
+        vals[idx, k:] = v[:, k - 1:k] if k else 0.0
+        ok[idx, :k] = d
+    return steps, vals, ok
+
+
+def merge_results(parts: list[BatchResult], where: list[np.ndarray], seeds: list[int]) -> BatchResult:
+    """The groups' results (:func:`vehicle_groups`) as one batch's, flights in ``seeds`` order."""
+    n = len(seeds)
+
+    def topics(get) -> dict:
+        names = get(parts[0]).keys()
+        return {t: _pad_messages([get(p)[t] for p in parts], where, n) for t in names}
+
+    def rows(get, dtype=float) -> np.ndarray:
+        first = np.asarray(get(parts[0]))
+        out = np.zeros((n,) + first.shape[1:], dtype=dtype)
+        for p, idx in zip(parts, where):
+            out[idx] = get(p)
+        return out
+
+    simulator = topics(lambda p: p.simulator)
+    same = all(p.navigator is p.simulator for p in parts)
+    navigator = simulator if same else topics(lambda p: p.navigator)
+    k = max(p.waypoints.shape[1] for p in parts)
+    waypoints = np.zeros((n, k, 3))
+    for p, idx in zip(parts, where):
+        w = p.waypoints
+        waypoints[idx] = np.concatenate([w, np.repeat(w[:, -1:], k - w.shape[1], axis=1)], axis=1)
+    status = [""] * n
+    for p, idx in zip(parts, where):
+        for j, i in enumerate(idx):
+            status[i] = p.status[j]
+    return BatchResult(
+        seeds=[int(s) for s in seeds], simulator=simulator, navigator=navigator,
+        exit_step=rows(lambda p: p.exit_step, np.int64), status=status, waypoints=waypoints,
+        wind=rows(lambda p: p.wind), gps_rejections=rows(lambda p: p.gps_rejections, np.int64),
+        n_steps=max(p.n_steps for p in parts), timing=parts[0].timing, uorb=parts[0].uorb,
+        uorb_streams=topics(lambda p: p.uorb_streams) if parts[0].uorb_streams else {})

@@ -42,6 +42,7 @@ K_ROTOR_DRAG, K_BODY_DRAG, K_ALLOC, K_ALLOC_INV = _I["rotor_drag"], _I["body_dra
 K_GUST_A, K_GUST_B = _I["gust_a"], _I["gust_b"]
 K_A_AB, K_C_AB, K_A_GB, K_C_GB = _I["a_accel_bias"], _I["c_accel_bias"], _I["a_gyro_bias"], _I["c_gyro_bias"]
 K_C_AN, K_C_GN, K_MAG_NOISE, K_MAG_FIELD = _I["c_accel_noise"], _I["c_gyro_noise"], _I["mag_noise"], _I["mag_field"]
+K_ACC_VIB, K_INV_HOVER_ROT = _I["accel_vibration"], _I["inv_hover_rotor"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
@@ -327,10 +328,14 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     # IMU: specific force and rates in the body frame, bias random walks
     a0, a1, a2 = s[L.VACC], s[L.VACC + 1], s[L.VACC + 2] - G
     fs = (a0 * R[0] + a1 * R[3] + a2 * R[6], a0 * R[1] + a1 * R[4] + a2 * R[7], a0 * R[2] + a1 * R[5] + a2 * R[8])
+    # motor vibration (white), scaling with the rotors' mean speed over the hover speed (physics.sensors)
+    vib = (s[L.ROTOR] + s[L.ROTOR + 1] + s[L.ROTOR + 2] + s[L.ROTOR + 3]) / 4.0 * p[K_INV_HOVER_ROT]
     for a in range(3):
         s[L.ACC_BIAS + a] = p[K_A_AB] * s[L.ACC_BIAS + a] + p[K_C_AB] * w[k, NZ_ACC_BIAS + a]
         s[L.GYRO_BIAS + a] = p[K_A_GB] * s[L.GYRO_BIAS + a] + p[K_C_GB] * w[k, NZ_GYRO_BIAS + a]
-        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + p[K_C_AN + a] * w[k, NZ_ACC + a]
+        va = vib * p[K_ACC_VIB + a]
+        sig = math.sqrt(p[K_C_AN + a] * p[K_C_AN + a] + va * va)
+        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + sig * w[k, NZ_ACC + a]
         s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + p[K_C_GN] * w[k, NZ_GYRO + a]
     if due[L.D_MAG, step]:
         m0, m1, m2 = p[K_MAG_FIELD], p[K_MAG_FIELD + 1], p[K_MAG_FIELD + 2]
@@ -719,6 +724,8 @@ def _navigate(s, wps, p, t, out, m):
     side = _clip(-(0.8 * xt + 0.3 * s[L.XT_INT]), -0.7 * speed, 0.7 * speed)
     along = math.sqrt(max(speed ** 2 - side ** 2, 0.0))
     if on_leg:
+        if wps[ti, 5] < 0.0:  # a fly-through leg: along the line itself (its end is passed, not aimed at)
+            dir0, dir1 = u0, u1
         vh0 = along * dir0 + side * nrm0
         vh1 = along * dir1 + side * nrm1
     vz = _clip(1.0 * d2, -p[K_CLIMB], 1.5)
@@ -729,7 +736,10 @@ def _navigate(s, wps, p, t, out, m):
     if flying and dist_h > 3.0 and phase == PH_MISSION:  # turning no faster than MPC_YAWRAUTO_MAX
         turn_by = _clip(_wrap_pi(math.atan2(d1, d0) - s[L.NAV_YAW_SP]), -p[K_YAW_STEP], p[K_YAW_STEP])
         s[L.NAV_YAW_SP] = _wrap_pi(s[L.NAV_YAW_SP] + turn_by)
-    reached = flying and dist_h < (-wps[ti, 5] if wps[ti, 5] < 0.0 else p[K_ACCEPT]) and abs(d2) < 0.5
+    near = dist_h < (-wps[ti, 5] if wps[ti, 5] < 0.0 else p[K_ACCEPT])
+    if wps[ti, 5] < 0.0 and on_leg:  # a fly-through item is also passed once the vehicle is abreast of it
+        near = near or (s[L.NAV_POS] - wps[pi_, 0]) * u0 + (s[L.NAV_POS + 1] - wps[pi_, 1]) * u1 >= leg_len
+    reached = flying and near and abs(d2) < 0.5
     tk = reached and phase == PH_TAKEOFF
     if tk and s[L.HOLD_UNTIL] == 0:
         s[L.HOLD_UNTIL] = t + p[K_TAKEOFF_HOLD]

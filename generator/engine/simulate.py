@@ -22,6 +22,8 @@ from scart_bench.generator.engine.flight_batch import (  # noqa: F401 (re-export
     instance_gps,
     instance_imu,
     instance_value,
+    merge_results,
+    vehicle_groups,
 )
 from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
@@ -36,6 +38,7 @@ from scart_bench.generator.params import (  # noqa: F401 (re-exported)
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NOISE_DIM, NOISE_FIELDS, NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat
+from scart_bench.generator.physics.sensors import vibration_scale
 from scart_bench.generator.physics.vehicle import Vehicle
 from scart_bench.generator.telemetry.schedule import (
     SENSOR_TOPICS,
@@ -104,11 +107,18 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
     cfg = config or FlightConfig()
     check_timing(cfg.timing)
     if engine in ("auto", "kernel"):
-        from scart_bench.generator.engine.compiled import simulate_kernel
-
-        result = simulate_kernel(seeds, cfg, layer, progress)
+        from scart_bench.generator.engine.compiled import simulate_kernel as fly
     else:
-        result = simulate_reference(seeds, cfg, layer, progress)
+        fly = simulate_reference
+    groups = vehicle_groups(seeds, cfg)  # one engine batch per airframe and payload (FlightConfig.airframes)
+    if len(groups) == 1:
+        result = fly(seeds, groups[0][0], layer, progress)
+    elif layer is not None:
+        raise ValueError("a batch with an attack layer flies one airframe and payload: fly the flights of "
+                         "each of generator.engine.flight_batch.vehicle_groups as a batch of their own")
+    else:
+        parts = [fly([seeds[i] for i in idx], sub, None, None) for sub, idx in groups]
+        result = merge_results(parts, [idx for _, idx in groups], seeds)
     result.timing = cfg.timing
     result.uorb = cfg.uorb
     return result
@@ -174,6 +184,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     env: Disturbances | None = None
     max_rotor = cfg.vehicle.max_rot_velocity
     hover_thrust = cfg.vehicle.mass * GRAVITY
+    hover_rotor = float(np.sqrt(hover_thrust / (4 * cfg.vehicle.motor_constant)))  # rad/s
     tail_steps = int(0.5 * SIM_RATE_HZ)
     landed_at = np.full(n, -1, dtype=np.int64)
 
@@ -198,7 +209,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
 
         # sensors -> estimator
         prev_imu = (accel, gyro)
-        accel, gyro = sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, nz["imu"]])
+        accel, gyro = sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, nz["imu"]],
+                                  vibration_scale(vs.rotor_speed, hover_rotor))
         if env is not None and env.sensor_lost:
             accel, gyro = instance_imu(env, accel, gyro, prev_imu)
         sens_msgs: dict[str, np.ndarray] = {}

@@ -27,8 +27,8 @@ from scart_bench.generator.params import MissionParams
 #: navigator imports this module)
 BRAKE = 1.5
 #: m/s^2: the most centripetal acceleration an orbit or a hand-flown turn asks for (PX4's
-#: MPC_ACC_HOR 3 m/s^2, with margin for the wind)
-TURN_ACC = 2.0
+#: MPC_ACC_HOR 3 m/s^2, with margin for the wind and the velocity loop's lag)
+TURN_ACC = 1.2
 #: s between the items of a hand-flown leg (a pilot's stick, sampled)
 STICK_DT = 1.0
 
@@ -142,7 +142,7 @@ def _survey(g, m, alt, v, t):
 def _orbit(g, m, alt, v, t):
     """Laps of a circle flown through points every 15 degrees (fly-through items), entered at its
     nearest point, left there for home."""
-    radius = g.uniform(10.0, 40.0)
+    radius = g.uniform(15.0, 40.0)
     v = min(v, math.sqrt(TURN_ACC * radius))
     dist = g.uniform(radius + 10.0, radius + 50.0)
     phi = g.uniform(0, 2 * np.pi)
@@ -156,8 +156,8 @@ def _orbit(g, m, alt, v, t):
     rows = [_row(0, 0, alt, v), _row(*(centre + radius * np.array([math.cos(a0), math.sin(a0)])), alt, v)]
     for k in range(1, n + 1):
         a = a0 + turn * k * step
-        rows.append(_row(*(centre + radius * np.array([math.cos(a), math.sin(a)])), alt, v, 0.0,
-                         BRAKE if k == n else -0.5 * spacing))
+        rows.append(_row(*(centre + radius * np.array([math.cos(a), math.sin(a)])), alt, v * min(1.0, 0.2 + 0.2 * k),
+                         0.0, BRAKE if k == n else -0.5 * spacing))  # speeding up over the first 60 degrees
     rows.append(_row(0, 0, alt, v))
     return rows, {"centre": centre, "radius": radius}
 

@@ -162,7 +162,8 @@ class Navigator:
         s.xt_int = np.where(on_leg, np.clip(s.xt_int + xt * dt * (np.abs(xt) < 5.0), -10.0, 10.0), 0.0)
         side = np.clip(-(0.8 * xt + 0.3 * s.xt_int), -0.7 * speed, 0.7 * speed)
         along = np.sqrt(np.maximum(speed**2 - side**2, 0.0))
-        v_line = along[:, None] * dir_h + side[:, None] * normal
+        # a fly-through leg: along the line itself (its end is passed, not aimed at)
+        v_line = along[:, None] * np.where((brake < 0)[:, None], u, dir_h) + side[:, None] * normal
         vh = np.where(on_leg[:, None], v_line, vh)
         vz = np.clip(1.0 * d[:, 2], -m.climb_speed, 1.5)
         out[:, 0:2] = np.where(flying[:, None], vh, 0.0)
@@ -173,7 +174,9 @@ class Navigator:
         turn_by = np.clip(wrap_pi(np.arctan2(d[:, 1], d[:, 0]) - s.yaw_sp), -step_max, step_max)
         s.yaw_sp = np.where(turn, wrap_pi(s.yaw_sp + turn_by), s.yaw_sp)
         radius = np.where(brake < 0, -brake, m.acceptance_radius)  # a fly-through item's own radius
-        reached = flying & (dist_h < radius) & (np.abs(d[:, 2]) < 0.5)
+        # a fly-through item is also passed once the vehicle is abreast of it
+        abreast = (brake < 0) & on_leg & (np.einsum("ni,ni->n", s.pos[:, :2] - prev[:, :2], u) >= leg_len)
+        reached = flying & ((dist_h < radius) | abreast) & (np.abs(d[:, 2]) < 0.5)
         # take-off item: hold for takeoff_hold_s once reached
         tk = reached & (s.phase == PHASE_TAKEOFF)
         new_hold = tk & (s.hold_until == 0)

@@ -53,11 +53,12 @@ _PX4_RATE_I = (0.2, 0.2, 0.1)
 
 
 def _authority(v: VehicleParams) -> np.ndarray:
-    """Angular acceleration per unit of rotor thrust fraction, per axis (1/s^2): roll, pitch, yaw."""
+    """Angular acceleration per unit of rotor thrust fraction (1/s^2): roll and pitch (their mean, as
+    PX4's allocator normalises them together), yaw."""
     f = v.max_thrust
     x, y = np.abs(v.rotor_x), np.abs(v.rotor_y)
-    return np.array([y.sum() * f / v.inertia[0], x.sum() * f / v.inertia[1],
-                     len(v.rotor_x) * v.moment_constant * f / v.inertia[2]])
+    rp = (y.sum() * f / v.inertia[0] + x.sum() * f / v.inertia[1]) / 2
+    return np.array([rp, rp, len(v.rotor_x) * v.moment_constant * f / v.inertia[2]])
 
 
 def _physical_gains(v: VehicleParams, rate_p: tuple, rate_i: tuple) -> tuple[tuple, tuple]:
