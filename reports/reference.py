@@ -1,28 +1,20 @@
-"""The reference results: the benchmark over several seeds of a profile, beside the paper's printed
+"""The reference results page: the benchmark over several seeds of a profile, beside the paper's printed
 numbers, with single-factor experiments, written as one Markdown page with its figures.
 
     python -m scart_bench.reports.reference --profile paper --seeds 0,1,2 --jobs 2 \\
         --runs runs/reference --out docs/results.md
 
-Per seed it runs (or resumes) ``scart-bench run`` with the paper's eight detectors on the profile's
-dataset (generated when missing). The factor experiments that need no new training are rescorings
-of the same saved scores under another protocol (a copy of each run folder with its protocol
-changed, scored again): the operating point (alpha 1 % and 10 % beside 5 %) and the burn-in after
-arming (none, as protocol v1). The detection rule (in window, in window or its end transient,
-flagged anywhere) is in every run's metrics. Retrained configurations (``TRAINED``: Telemanom on
-TensorFlow, when it is installed) run one detector again on each seed's dataset. The page is rewritten as a whole; the figures go into
-a folder beside it (``<out stem>/``).
+The runs (each seed's benchmark, the rescored factor experiments, the retrained configurations) are
+run or resumed by :mod:`scart_bench.benchmark.reference_runs`; this module renders them. The detection
+rule (in window, in window or its end transient, flagged anywhere) is in every run's metrics. The page is
+rewritten as a whole; the figures go into a folder beside it (``<out stem>/``).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import math
 import platform
-import shutil
-import sys
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -30,106 +22,26 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scart_bench.benchmark.protocol import Protocol
-from scart_bench.benchmark.store import RunStore
+from scart_bench.benchmark import reference_runs
+from scart_bench.benchmark.reference_runs import (  # noqa: F401 (the names reports.report and callers import here)
+    PAPER,
+    TRAINED,
+    VARIANTS,
+    Retrained,
+    finished,
+    protocol_variant,
+    rescored,
+)
 from scart_bench.errors import ReportError
 from scart_bench.jsonfile import read_json
 from scart_bench.reports.leaderboard import leaderboard_of
 from scart_bench.reports.results import RunResults, load_runs
 
-#: The SCART paper's table, in percent: TP simulation mode, TP csv mode, TN (normal flights).
-PAPER: dict[str, tuple[float, float, float]] = {
-    "telemanom": (58.2, 89.6, 90.0),
-    "tsbitmaps": (42.0, 86.2, 100.0),
-    "statistical": (59.7, 86.2, 100.0),
-    "deepsvdd": (100.0, 100.0, 90.0),
-    "rdp": (100.0, 100.0, 100.0),
-    "rca": (100.0, 100.0, 100.0),
-    "goad": (100.0, 100.0, 100.0),
-    "neutral": (100.0, 100.0, 100.0),
-}
 CLASSICAL = ("telemanom", "tsbitmaps", "statistical")
 #: benchmark.tables.detectability_bins's labels, weakest first
 DETECTABILITY_ORDER = ("<1 sd", "1-3 sd", "3-10 sd", ">=10 sd")
 DEEPOD = ("deepsvdd", "rdp", "rca", "goad", "neutral")
 
-#: Rescorings of every run: name -> (what changes, protocol changes).
-VARIANTS: dict[str, tuple[str, dict]] = {
-    "alpha-0.01": ("alpha = 1 %", {"alpha": 0.01}),
-    "alpha-0.10": ("alpha = 10 %", {"alpha": 0.10}),
-    "no-burn-in": ("no burn-in, no end transient (protocol v1's counting)", {"burn_in_s": 0.0,
-                                                                             "end_transient_s": 0.0}),
-}
-
-
-@dataclasses.dataclass(frozen=True)
-class Retrained:
-    """A configuration trained again on every seed's dataset, beside the default run's detector of the
-    same name: other detector parameters and/or another protocol (e.g. the detector's own alarm rule)."""
-
-    what: str
-    detector: str
-    params: dict = dataclasses.field(default_factory=dict)
-    needs: str | None = None  # the module it needs; left out (with a line) when it is not installed
-    protocol: dict = dataclasses.field(default_factory=dict)
-    short: str = ""  # a few words for the pages that only name it
-
-    def label(self) -> str:
-        return "; ".join(f"{k} = {v!r}" for k, v in {**self.params, **self.protocol}.items())
-
-
-#: Retrained configurations: name -> Retrained.
-TRAINED: dict[str, Retrained] = {
-    "telemanom-tensorflow": Retrained(
-        "Telemanom on Keras 3 / TensorFlow (the paper's stack), the same model and training as our torch default",
-        "telemanom", {"backend": "tensorflow"}, needs="tensorflow", short="Telemanom on TensorFlow"),
-    "telemanom-own-threshold": Retrained(
-        "Telemanom with its own nonparametric dynamic threshold (Hundman et al. 2018; the paper's Telemanom "
-        "alarms this way) instead of the calibrated one, the same model and training as our default",
-        "telemanom", protocol={"alarm_rule": "own"}, short="Telemanom with its own dynamic threshold"),
-}
-
-
-def _log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
-
-
-def _finished(run: Path) -> bool:
-    """The run folder has metrics for every paper detector."""
-    return (run / "metrics.csv").is_file() and set(pd.read_csv(run / "metrics.csv")["detector"]) >= set(PAPER)
-
-
-def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_root: Path) -> list[Path]:
-    """Run (or resume) the benchmark of the paper's detectors once per seed; the run folders."""
-    from scart_bench.benchmark.config import RunConfig
-    from scart_bench.benchmark.runner import run_benchmark
-
-    paths = []
-    for seed in seeds:
-        out = runs_root / f"{profile}-seed{seed}"
-        if _finished(out):
-            _log(f"reference: {out} is complete, reused")
-        else:
-            t0 = time.perf_counter()
-            run_benchmark(RunConfig(detectors=list(PAPER), profile=profile, seed=seed, out=out, resume=out.exists(),
-                                    jobs=jobs, data_root=data_root))
-            (out / "wall_s.json").write_text(json.dumps({"wall_s": time.perf_counter() - t0}))
-        paths.append(out)
-    return paths
-
-
-def protocol_variant(protocol: Protocol, alpha: float | None = None, **changes) -> Protocol:
-    """``protocol`` with another alpha for both thresholds and/or other counting windows."""
-    if alpha is not None:
-        changes["flight_rule"] = dataclasses.replace(protocol.flight_rule, alpha=alpha)
-        changes["row_rule"] = dataclasses.replace(protocol.row_rule, alpha=alpha)
-    return dataclasses.replace(protocol, **changes)
-
-
-def _newer(variant: Path, run: Path) -> bool:
-    """The variant folder was scored after its run (so it is still that run's variant)."""
-    done = variant / "metrics.csv"
-    return done.is_file() and done.stat().st_mtime >= (run / "metrics.csv").stat().st_mtime
 
 
 def wall_s(run: Path) -> float:
@@ -141,48 +53,9 @@ def wall_s(run: Path) -> float:
     return float(value)
 
 
-def rescored(run: Path, name: str, changes: dict) -> Path:
-    """A copy of ``run`` (scores, truth, flights; not its flight cache) scored under the changed protocol."""
-    from scart_bench.benchmark.results import score_run
-
-    out = run.parent / "variants" / f"{run.name}.{name}"
-    config = RunStore(run).read_config()
-    protocol = protocol_variant(Protocol.from_dict(config["identity"]["protocol"]), **changes)
-    if _newer(out, run):
-        return out
-    shutil.rmtree(out, ignore_errors=True)
-    shutil.copytree(run, out, ignore=shutil.ignore_patterns("cache"))
-    config["identity"]["protocol"] = protocol.rules()
-    config["protocol"] = protocol.to_dict()
-    config["name"] = f"{config.get('name') or run.name} ({name})"
-    (out / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True))
-    score_run(out)
-    return out
-
-
 def retrained(run: Path, name: str, jobs: int) -> Path | None:
-    """``run``'s dataset and seed with one detector retrained under other parameters (TRAINED[name]):
-    the variant's run folder, or None when the module it needs is not installed."""
-    import importlib.util
-
-    from scart_bench.benchmark.config import RunConfig
-    from scart_bench.benchmark.runner import run_benchmark
-
-    conf = TRAINED[name]
-    if conf.needs is not None and importlib.util.find_spec(conf.needs) is None:
-        _log(f"reference: {name} left out: {conf.needs} is not installed")
-        return None
-    out = run.parent / "variants" / f"{run.name}.{name}"
-    if _newer(out, run):
-        return out
-    config = RunStore(run).read_config()
-    t0 = time.perf_counter()
-    protocol = dataclasses.replace(Protocol.from_dict(config["protocol"]), **conf.protocol)
-    run_benchmark(RunConfig(detectors=[conf.detector], params={conf.detector: dict(conf.params)},
-                            seed=int(config["seed"]), dataset=Path(config["dataset"]["path"]), out=out,
-                            resume=out.exists(), jobs=jobs, protocol=protocol))
-    (out / "wall_s.json").write_text(json.dumps({"wall_s": time.perf_counter() - t0}))
-    return out
+    """:func:`scart_bench.benchmark.reference_runs.retrained` with this module's ``TRAINED[name]``."""
+    return reference_runs.retrained(run, name, jobs, TRAINED[name])
 
 
 def _trained_lines(board: pd.DataFrame, trained: dict[str, list[RunResults]]) -> list[str]:
@@ -219,7 +92,7 @@ def other_profiles(runs_root: Path, profile: str) -> dict[str, list[Path]]:
         if other == profile:
             continue
         paths = sorted((p for p in runs_root.glob(f"{other}-seed*")
-                        if p.name.removeprefix(f"{other}-seed").isdigit() and _finished(p)),
+                        if p.name.removeprefix(f"{other}-seed").isdigit() and finished(p, PAPER)),
                        key=lambda p: int(p.name.removeprefix(f"{other}-seed")))
         if paths:
             found[other] = paths
@@ -632,15 +505,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     t0 = time.perf_counter()
-    paths = run_seeds(args.profile, seeds, args.jobs, args.runs, args.data)
-    runs = load_runs(paths)
-    variants = {name: load_runs([rescored(path, name, changes) for path in paths])
-                for name, (_, changes) in VARIANTS.items()}
-    trained = {}
-    for name in ([] if args.no_retrained else TRAINED):
-        folders = [retrained(path, name, args.jobs) for path in paths]
-        if all(f is not None for f in folders):
-            trained[name] = load_runs(folders)
+    done = reference_runs.reference_runs(args.profile, seeds, args.jobs, args.runs, args.data,
+                                         {} if args.no_retrained else TRAINED)
+    runs = load_runs(done.runs)
+    variants = {name: load_runs(folders) for name, folders in done.variants.items()}
+    trained = {name: load_runs(folders) for name, folders in done.trained.items()}
     command = (f"python -m scart_bench.reports.reference --profile {args.profile} --seeds {args.seeds} "
                f"--jobs {args.jobs} --runs {args.runs}{' --no-retrained' if args.no_retrained else ''} "
                f"--out {args.out}")

@@ -21,6 +21,7 @@ import pandas as pd
 
 from scart_bench.benchmark.metrics import OC_ALPHAS
 from scart_bench.benchmark.protocol import Protocol
+from scart_bench.benchmark.reference_runs import PAPER
 from scart_bench.benchmark.results import operating_characteristics
 from scart_bench.benchmark.store import atomic_write_text
 from scart_bench.dataset import is_dataset, open_dataset
@@ -28,7 +29,6 @@ from scart_bench.errors import ReportError, ScartBenchError
 from scart_bench.reports import figures as fg
 from scart_bench.reports import html as html_page
 from scart_bench.reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown
-from scart_bench.reports.reference import PAPER
 from scart_bench.reports.results import RunResults, load_runs
 
 
