@@ -67,10 +67,17 @@ class SensorParams:
 
     imu_rate_hz: float = 250.0
     accel_noise_density: float = 0.00126  # m/s^2/sqrt(Hz): 0.020 m/s^2 per 250 Hz sample (Gazebo: 0.004)
-    #: the z (thrust) axis's white noise relative to x/y: motor vibration is strongest along the thrust
-    #: axis (the RflyMAD SIL log at hover: z 0.073 m/s^2, twice x/y's 0.033)
-    accel_noise_z_factor: float = 2.5
-    accel_bias_random_walk: float = 0.006  # m/s^3/sqrt(Hz)
+    #: the z axis's white sensor noise relative to x/y (1: the motors' vibration, stronger along the
+    #: thrust axis, is ``accel_vibration``'s; defaults 4 had 2.5 here standing in for it)
+    accel_noise_z_factor: float = 1.0
+    #: motor vibration on the accelerometer at hover rotor speed, white, m/s^2 per sample, x/y/z; it
+    #: scales with the rotors' mean speed (none with the motors stopped, ~0.4x armed at idle on the
+    #: ground). With the sensor's own 0.020 it gives the RflyMAD SIL log's white noise at hover
+    #: (0.035 / 0.031 / 0.069 at 50 Hz; perf.realism_tells, docs/realism.md "Fixing the tells")
+    accel_vibration: tuple[float, float, float] = (0.029, 0.024, 0.066)
+    #: m/s^3/sqrt(Hz); Gazebo's 0.006 drifted the bias by ~0.02 m/s^2 in 10 s on the ground (lag-1
+    #: autocorrelation 0.3 at 50 Hz there; the PX4 logs' ground windows: 0.0, perf.realism_tells)
+    accel_bias_random_walk: float = 0.0006
     accel_bias_tau: float = 300.0  # s
     gyro_noise_density: float = 0.00018665  # rad/s/sqrt(Hz)
     gyro_bias_random_walk: float = 3.8785e-05  # rad/s^2/sqrt(Hz)

@@ -150,6 +150,8 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "sin_lat0": np.sin(lat0), "cos_lat0": np.cos(lat0), "hover": vp.mass * GRAVITY,
         "tail_steps": int(0.5 * SIM_RATE_HZ), "yaw_step_max": mp.yaw_rate_max * nav_dt,
         "out_decay": 1.0 - dt / ep.output_tau_s,
+        "accel_vibration": sp.accel_vibration,
+        "inv_hover_rotor": 1.0 / float(np.sqrt(vp.mass * GRAVITY / (4 * vp.motor_constant))),
     }
     return K.param_vector(values)
 

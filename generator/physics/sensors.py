@@ -33,6 +33,12 @@ class SensorState:
     fix_at: np.ndarray | None = None  # (N,) s, the receiver's first fix (generator.flight_software.startup); None: from boot
 
 
+def vibration_scale(rotor_speed: np.ndarray, hover_rotor_speed: float) -> np.ndarray:
+    """(N,) the rotors' mean speed (rad/s) over their speed at hover: how hard the motors shake the
+    IMU (0 with the motors stopped, ~0.4 armed at idle on the ground, 1 at hover)."""
+    return np.asarray(rotor_speed).mean(axis=1) * (1.0 / hover_rotor_speed)
+
+
 class Sensors:
     """All sensors of a batch of vehicles; call the sample methods at their own rates."""
 
@@ -56,8 +62,12 @@ class Sensors:
         )
 
     def imu(self, st: SensorState, accel_ned: np.ndarray, omega: np.ndarray, R: np.ndarray,
-            noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Accelerometer (specific force, FRD) and gyro samples; advances the bias random walks."""
+            noise: np.ndarray, vibration: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Accelerometer (specific force, FRD) and gyro samples; advances the bias random walks.
+
+        ``vibration`` (N,): the rotors' mean speed over their hover speed (:func:`vibration_scale`);
+        the motors shake the accelerometer by ``accel_vibration`` times it (white, as the sensor's
+        own noise: one draw of their combined sigma), none with the motors stopped."""
         p, dt = self.params, self.dt
         fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
         a_ab = np.exp(-dt / p.accel_bias_tau)
@@ -65,6 +75,9 @@ class Sensors:
         st.accel_bias = a_ab * st.accel_bias + p.accel_bias_random_walk * np.sqrt(dt) * noise[:, 6:9]
         st.gyro_bias = a_gb * st.gyro_bias + p.gyro_bias_random_walk * np.sqrt(dt) * noise[:, 9:12]
         acc_sigma = p.accel_noise_density * np.sqrt(1 / dt) * np.array([1.0, 1.0, p.accel_noise_z_factor])
+        if vibration is not None:
+            vib = np.asarray(vibration)[:, None] * np.array(p.accel_vibration)
+            acc_sigma = np.sqrt(acc_sigma * acc_sigma + vib * vib)
         acc = fs + st.accel_bias + acc_sigma * noise[:, 0:3]
         gyro = omega + st.gyro_bias + p.gyro_noise_density * np.sqrt(1 / dt) * noise[:, 3:6]
         return acc, gyro

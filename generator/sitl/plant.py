@@ -16,6 +16,7 @@ from scart_bench.generator.flight_software.flight_controller import Controller, 
 from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import (
     DT,
+    GRAVITY,
     NAV_RATE_HZ,
     STEP_US,
     ControllerParams,
@@ -27,7 +28,7 @@ from scart_bench.generator.params import (
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat, quat_to_rot
-from scart_bench.generator.physics.sensors import Sensors
+from scart_bench.generator.physics.sensors import Sensors, vibration_scale
 from scart_bench.generator.physics.vehicle import Vehicle, VehicleState, Wind
 from scart_bench.generator.telemetry.schedule import FCSnapshot, compose
 
@@ -133,7 +134,10 @@ class Plant:
             efficiency = env.motor_efficiency
         R_true = self.vehicle.step(vs, rotor_cmd, wind_now, DT, efficiency)
         self.sensors.push_truth(ss, k, vs.pos, vs.vel)
-        self.accel, self.gyro = self.sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, 0:12])
+        vp = self.vehicle_params
+        hover_rotor = float(np.sqrt(vp.mass * GRAVITY / (4 * vp.motor_constant)))
+        self.accel, self.gyro = self.sensors.imu(ss, vs.accel, vs.omega, R_true, w[:, 0:12],
+                                                 vibration_scale(vs.rotor_speed, hover_rotor))
         mag_due = is_due(self.sensors.params.mag_rate_hz, k)
         baro_due = is_due(self.sensors.params.baro_rate_hz, k)
         gps_due = is_due(self.sensors.params.gps_rate_hz, k)
