@@ -303,3 +303,27 @@ def test_generate_physics_jmavsim(jar, tmp_path):
     inside = (nav["Timestamp"] >= start) & (nav["Timestamp"] < end)
     assert (nav["Is_Anomaly"] == inside.astype(int)).all()
     assert ds.flight("normal-0000", "navigator", "all_sensors")["Is_Anomaly"].sum() == 0
+
+
+def test_generate_against_a_running_simulator(jar, tmp_path):
+    """`generate --physics jmavsim --sim tcp:HOST:PORT` flies a simulator someone else started (here a
+    jMAVSim serving TCP, as Gazebo classic and AirSim do) and writes the dataset; a bad address or
+    --sim without --physics jmavsim is one line, exit 2, nothing written."""
+    from scart_bench.cli.main import main
+    from scart_bench.dataset import open_dataset
+    from scart_bench.generator.hil.jmavsim import JMavSim
+
+    bad = tmp_path / "bad"
+    assert main(["generate", "--physics", "jmavsim", "--sim", "tcp:localhost", "--out", str(bad),
+                 "--normal-only", "--flights", "1"]) == 2
+    assert main(["generate", "--sim", "tcp:127.0.0.1:4560", "--out", str(bad), "--flights", "1"]) == 2
+    assert not bad.exists()
+    out = tmp_path / "external"
+    with JMavSim(jar, transport="tcp") as sim:
+        assert main(["generate", "--physics", "jmavsim", "--sim", sim.link_address, "--out", str(out),
+                     "--normal-only", "--flights", "1", "--seed", "3"]) == 0
+    ds = open_dataset(out)
+    assert list(ds.manifest["mode"]) == ["normal"]
+    truth = ds.topic(ds.manifest["flight_id"].iloc[0], "truth", "simulator")
+    assert len(truth) > 1000
+    assert float(np.hypot(truth["x"].iloc[-1], truth["y"].iloc[-1])) < 2.0  # landed at home

@@ -8,6 +8,7 @@ and the dataset writer take it unchanged: the same topics, labels, manifest and 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,11 +20,16 @@ from scart_bench.generator.attack_effect import attack_effect
 from scart_bench.generator.attacks import csv_applicable, strip_labels
 from scart_bench.generator.engine.flight_batch import BatchResult
 from scart_bench.generator.hil.bridge import HilFlight
-from scart_bench.generator.hil.flights import fly_jmavsim
+from scart_bench.generator.hil.flights import autopilot_for, fly_at, fly_jmavsim
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_record
+from scart_bench.generator.params import MissionParams
 from scart_bench.generator.plan import normal_seeds, splits, versions
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.telemetry.tables import normal_record
+
+#: seconds without a heartbeat between flights against an already running simulator: jMAVSim puts its
+#: vehicle back at home after 3 s without one
+EXTERNAL_RESET_S = 4.0
 
 #: the topics of a dataset flight (the built-in engine's: telemetry, the navigator's setpoints)
 TOPICS = (*TELEMETRY_TOPICS, "setpoint")
@@ -55,7 +61,8 @@ def as_batch(flight: HilFlight, seed: int) -> BatchResult:
 def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8,
                      configs: list[list[Scenario]] | None = None, fmt: str = "parquet", overwrite: bool = False,
                      log: Callable[[str], None] | None = None, physics: str = "jmavsim",
-                     csv_configs: list[list[Scenario]] | None = None) -> Path:
+                     csv_configs: list[list[Scenario]] | None = None, sim: str | None = None,
+                     lockstep: bool = True) -> Path:
     """Fly ``n_normal`` normal flights and one simulation-mode flight per entry of ``configs`` in
     jMAVSim and write them as a dataset at ``out``; returns it.
 
@@ -65,13 +72,22 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
     flights reserved for it (split csv_source), as the built-in generator does.
     ``physics="builtin"`` flies the same seeds and scenarios with the built-in engine instead (one
     flight at a time, ideal timing), for the comparison of docs/jmavsim.md.
+    ``sim``: fly against a simulator already running at this address (``udp:HOST:PORT``,
+    ``tcp:HOST:PORT``, ...: :func:`scart_bench.generator.hil.link.open_link`) instead of starting
+    jMAVSim; it must put its vehicle back on the ground at home between flights (jMAVSim does after
+    3 s without a heartbeat). ``lockstep`` False: the started jMAVSim runs in real time.
     """
-    if physics == "jmavsim":
+    if physics == "jmavsim" and sim is not None:
+        from scart_bench.generator.hil.link import parse_sim_address
+
+        parse_sim_address(sim)  # a bad address is said before anything is flown or written
+        fly = _external_flyer(sim)
+    elif physics == "jmavsim":
         from scart_bench.generator.hil.jmavsim import find_jar, find_java
 
         find_java()
         jar = find_jar(jar)  # what is missing is said before anything is flown or written
-        fly = _jmavsim_flyer(jar)
+        fly = _jmavsim_flyer(jar, lockstep)
     elif physics == "builtin":
         fly = _builtin_flyer
     else:
@@ -86,7 +102,9 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
     sources: list[tuple[str, dict, int]] = []
     info = {"profile": physics, "physics": physics, "seed": int(seed), "n_normal": n_normal,
             "versions": versions(), "timing": "ideal"}
-    config = {"physics": physics, "simulator": "jMAVSim (PX4 simulator MAVLink API, lockstep)"
+    pace = "lockstep" if lockstep else "real time"
+    config = {"physics": physics, "simulator": (f"a simulator at {sim} (PX4 simulator MAVLink API)" if sim else
+                                                f"jMAVSim (PX4 simulator MAVLink API, {pace})")
               if physics == "jmavsim" else "the built-in engine"}
     writer = DatasetWriter(out, fmt=fmt, info=info, overwrite=overwrite)
     try:
@@ -118,9 +136,17 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
     return writer.close()
 
 
-def _jmavsim_flyer(jar):
+def _jmavsim_flyer(jar, lockstep: bool = True):
     def fly(seed: int, scenarios: list[Scenario] | None):
-        flight = fly_jmavsim(jar, seed=seed, scenarios=scenarios)
+        flight = fly_jmavsim(jar, seed=seed, scenarios=scenarios, lockstep=lockstep)
+        return as_batch(flight, seed), flight.autopilot.layer
+    return fly
+
+
+def _external_flyer(address: str):
+    def fly(seed: int, scenarios: list[Scenario] | None):
+        flight = fly_at(address, autopilot_for(seed, scenarios), max_s=MissionParams().max_duration_s)
+        time.sleep(EXTERNAL_RESET_S)  # no heartbeat: jMAVSim puts its vehicle back at home
         return as_batch(flight, seed), flight.autopilot.layer
     return fly
 

@@ -8,10 +8,10 @@ clock, and sends a HEARTBEAT at least once a second (jMAVSim resets after 3 s wi
 
 Both transports PX4 uses with its simulators are here: :class:`SimLink` (UDP: jMAVSim's ``-udp``,
 Gazebo classic with ``use_tcp`` false, AirSim with ``"UseTcp": false``) and :class:`TcpSimLink`
-(TCP: jMAVSim's ``-tcp`` serves and the flight controller connects; Gazebo classic's default and
-AirSim with ``"UseTcp": true`` connect to the flight controller, which listens on 4560).
-:func:`open_link` makes either from an address ``udp:HOST:PORT``, ``tcp:HOST:PORT`` (connect) or
-``tcp-listen:HOST:PORT``/``udp-listen:HOST:PORT`` (wait for the simulator).
+(TCP: jMAVSim's ``-tcp``, Gazebo classic's default and AirSim with ``"UseTcp": true`` serve a port,
+4560 by default, and the flight controller connects, as PX4 does). :func:`open_link` makes either
+from an address ``udp:HOST:PORT``, ``tcp:HOST:PORT`` (connect) or ``udp-listen:HOST:PORT`` /
+``tcp-listen:HOST:PORT`` (wait for a simulator that speaks or connects first).
 """
 
 from __future__ import annotations
@@ -140,8 +140,8 @@ class TcpSimLink(SimLink):
 
     ``address``: the simulator serves there and we connect (jMAVSim's ``-tcp HOST:PORT``; the
     connection is retried until :meth:`wait_first`'s timeout, as the simulator may still be starting).
-    ``listen``: we serve there and take the first simulator that connects (PX4's side of TCP 4560,
-    where Gazebo classic and AirSim with ``"UseTcp": true`` connect to).
+    ``listen``: we serve there and take the first simulator that connects (for a simulator that is a
+    TCP client; jMAVSim, Gazebo classic and AirSim are servers).
     A stream that closes is a :class:`HilError` naming the address.
     """
 
