@@ -22,6 +22,7 @@ import pandas as pd
 
 from scart_bench.dataset import LABEL_COLUMNS, DatasetWriter
 from scart_bench.generator.attack_effect import attack_effect
+from scart_bench.generator.engine.flight_batch import vehicle_groups
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
@@ -72,18 +73,21 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
     for start in _starts(len(order), batch_size, batches):
         idx = order[start:start + batch_size]
         say(f"simulation mode: flying attacked flights {start + 1}-{start + len(idx)} of {len(order)}")
-        batch, layer = simulation_mode([seeds[i] for i in idx], [configs[i] for i in idx], cfg)
-        twins = simulate([seeds[i] for i in idx], cfg)
-        for j, i in enumerate(idx):
-            record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict)
-            points = record.manifest["injection_point"]
-            if any(n in CLOSED_LOOP_ACTIONS for sc in configs[i] for n, _ in sc.actions):
-                points += "+controller"  # a forged command or mission moves the vehicle, not a message
-            record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds, points))
-            twin_truth = truth_table(twins, j)  # the twin's other topics are not used
-            record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
-            record.simulator[TWIN_TOPIC] = twin_truth
-            writer.write(record)
+        # a layer's batch flies one airframe and payload (a profile's mixes: flight_batch.vehicle_groups)
+        for sub, pos in vehicle_groups([seeds[i] for i in idx], cfg):
+            part = [idx[k] for k in pos]
+            batch, layer = simulation_mode([seeds[i] for i in part], [configs[i] for i in part], sub)
+            twins = simulate([seeds[i] for i in part], sub)
+            for j, i in enumerate(part):
+                record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict)
+                points = record.manifest["injection_point"]
+                if any(n in CLOSED_LOOP_ACTIONS for sc in configs[i] for n, _ in sc.actions):
+                    points += "+controller"  # a forged command or mission moves the vehicle, not a message
+                record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, stds, points))
+                twin_truth = truth_table(twins, j)  # the twin's other topics are not used
+                record.manifest.update(impact(record.simulator["truth"], twin_truth, batch.status[j]))
+                record.simulator[TWIN_TOPIC] = twin_truth
+                writer.write(record)
         if advance is not None:
             advance("simulation", len(idx))
 

@@ -15,7 +15,7 @@ from scart_bench.dataset import (
     DatasetError,
 )
 from scart_bench.generator.attacks import csv_applicable, grid_path, strip_labels
-from scart_bench.generator.engine.flight_batch import defaults_summary
+from scart_bench.generator.engine.flight_batch import defaults_summary, flight_summaries
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.flight_software.mission_files import mission_for_seed
 from scart_bench.generator.profiles import Profile, get_profile
@@ -120,6 +120,10 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
     flight_config = dataclasses.asdict(cfg)
     if not cfg.mission.missions:  # the square: the flights' config as it was before mission files
         del flight_config["mission"]["missions"]
+    if not cfg.mission.families:  # ... and before mission families and airframes (the paper profile)
+        del flight_config["mission"]["families"], flight_config["mission"]["duration_range"]
+    if not cfg.airframes:
+        del flight_config["airframes"]
     config_dict = {"flight_config": flight_config, "versions": versions(), "profile": prof.name}
     return GenerationPlan(prof, cfg, config_dict, int(seed), normal_seeds(seed, count),
                           splits(count, n_train, n_val, n_src), with_attacks)
@@ -140,11 +144,15 @@ def fly_normal_batch(writer, plan: GenerationPlan, batch: int, say: Callable[[st
     say(f"flying normal flights {start + 1}-{start + len(chunk)} of {count}")
     flown = simulate(chunk, plan.config)
     missions = plan.config.mission.missions
+    mixed = bool(plan.config.mission.families or plan.config.airframes)
+    flights = flight_summaries(chunk, plan.config) if mixed else None
     for j in range(len(chunk)):
         i = start + j
         config = plan.config_dict
         if missions:  # which file the flight flew (generator.mission_files.mission_for_seed)
             config = {**config, "mission_file": missions[mission_for_seed(missions, plan.seeds[i])].name}
+        if flights is not None:  # what the flight flew under the profile's mixes (flight_batch.flight_summaries)
+            config = {**config, "flight": flights[j]}
         record = normal_record(flown, j, f"normal-{i:04d}", plan.split_of[i], config)
         writer.write(record)
         if plan.split_of[i] in sources:

@@ -292,3 +292,31 @@ def merge_results(parts: list[BatchResult], where: list[np.ndarray], seeds: list
         wind=rows(lambda p: p.wind), gps_rejections=rows(lambda p: p.gps_rejections, np.int64),
         n_steps=max(p.n_steps for p in parts), timing=parts[0].timing, uorb=parts[0].uorb,
         uorb_streams=topics(lambda p: p.uorb_streams) if parts[0].uorb_streams else {})
+
+
+def flight_summaries(seeds: list[int], cfg: FlightConfig) -> list[dict]:
+    """Per flight, what it flies (dataset per-flight metadata, so results can be broken down by it):
+    mission family, airframe, mass with payload, planned altitude, speed, duration and path length,
+    mean wind and gust strength, battery charge at boot; all redrawn from the seeds as the engines draw them."""
+    m = cfg.mission
+    u = np.array([np.random.default_rng(np.random.SeedSequence([int(s), 0x5CA7])).uniform(size=6) for s in seeds])
+    battery = battery_start(seeds)
+    out = []
+    for i, ((name, payload), s) in enumerate(zip(flight_vehicles(seeds, cfg), seeds)):
+        if m.families and not m.missions:
+            from scart_bench.generator.flight_software.families import draw_mission
+
+            row = draw_mission(s, m).summary()
+        else:
+            row = {"family": "mission_file" if m.missions else "square"}
+        mass = cfg.vehicle.mass
+        if name:
+            from scart_bench.generator.physics.airframes import airframe
+
+            mass = airframe(name)[0].mass
+        row.update({"airframe": name or "default", "mass_kg": round(mass * (1.0 + payload), 4),
+                    "wind_ms": round(float(m.wind_max * u[i, 0]), 3),
+                    "gust_sigma_ms": round(float(m.gust_sigma_max * u[i, 2]), 3),
+                    "battery_start": round(float(battery[i]), 4)})
+        out.append(row)
+    return out
