@@ -23,8 +23,10 @@ counted from the first one seen, never decreasing; messages without a timestamp 
 
 from __future__ import annotations
 
+import json
 import math
 import selectors
+import signal
 import socket
 import sys
 import threading
@@ -491,3 +493,110 @@ def stats_line(stats: ProxyStats, wall_s: float) -> str:
     """One line for the log: counters and rate."""
     rate = stats.frames / wall_s if wall_s > 0 and math.isfinite(wall_s) else float("nan")
     return f"{stats.summary()}; {rate:.0f} frames/s"
+
+
+def _stderr(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+@dataclass
+class ProxyRun:
+    """What :func:`run_proxy` did: the seconds it served, its counters, the flight it recorded (id, file)."""
+
+    wall_s: float
+    stats: ProxyStats
+    flight_id: str | None = None
+    path: object = None  # the recorded flight's file (pathlib.Path), None without ``record``
+
+
+def run_proxy(listen: tuple[str, int], forward: tuple[str, int], scenarios: list[Scenario], *, seed: int = 0,
+              record=None, flight_id: str | None = None, monitor=None, defense=None,
+              duration_s: float | None = None, checkpoint_s: float | None = None, fmt: str = "parquet",
+              extra: dict | None = None, detector: dict | None = None, stop: threading.Event | None = None,
+              log: Callable[[str], None] = _stderr) -> ProxyRun:
+    """A live proxy from start to recording, as ``scart-bench proxy`` runs it: serve until ``stop`` is set,
+    ``duration_s`` passes or (from the main thread) SIGINT/SIGTERM, then write the flight.
+
+    ``record``: a :class:`~scart_bench.generator.mavlink.recording.RecordTarget` (flights a killed proxy
+    left as checkpoints are added first; the flight is checkpointed every ``checkpoint_s`` while it
+    flies); ``monitor``: a streaming detector (``benchmark.live.monitor_from_run``) scoring the stream,
+    ``defense``: a :class:`~scart_bench.generator.defense.LiveDefense` answering its alarms;
+    ``extra``: the recording's extra config, ``detector``: its detector entry (name, run), completed
+    with the threshold and the alarm rows.
+    """
+    from scart_bench.dataset import is_dataset
+    from scart_bench.generator.mavlink.recording import (
+        CHECKPOINT_S,
+        RecordingCheckpoint,
+        discard_checkpoints,
+        journal_root,
+        new_flight_id,
+        recover_recordings,
+        save_recording,
+    )
+    from scart_bench.storage import StorageError
+
+    fid = None
+    if record is not None:
+        root = journal_root(record.anchor)  # flights a killed proxy --record left as checkpoints
+        record.add_left(root, lambda ds, remove: recover_recordings(ds, log=log, root=root, remove=remove,
+                                                                     shown=record.shown), discard_checkpoints)
+        fid = flight_id or new_flight_id(taken=record.taken)
+        if fid in record.taken:
+            raise ProxyError(f"--flight-id {fid}: {record.shown} holds a flight {fid} already; give another id")
+    proxy = MavlinkProxy(listen, forward, scenarios, seed=seed, record=record is not None,
+                         listeners=[monitor] if monitor is not None and defense is None else [], log=log,
+                         defense=defense).open()
+    extra = {} if extra is None else extra
+    checkpoint = (RecordingCheckpoint(proxy, record.anchor, fid, extra, log=log,
+                                      period_s=CHECKPOINT_S if checkpoint_s is None else checkpoint_s)
+                  if record is not None else None)
+    stop = threading.Event() if stop is None else stop
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    main_thread = threading.current_thread() is threading.main_thread()  # signals are the main thread's
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)} if main_thread else {}
+    timer = threading.Timer(duration_s, stop.set) if duration_s else None
+    host, port = proxy.listen_address
+    log(f"proxy: listening on udp:{host}:{port}, forwarding to udp:{forward[0]}:{forward[1]}; scenario "
+        f"{', '.join(s.id for s in scenarios)} on {', '.join(sorted(proxy.layer_topics)) or 'no topic'}; "
+        "Ctrl-C stops")
+    t0 = time.monotonic()
+    try:
+        if timer is not None:
+            timer.start()
+        proxy.serve(stop, on_idle=checkpoint.maybe if checkpoint is not None else None)
+    finally:
+        if timer is not None:
+            timer.cancel()
+        for s, h in old.items():
+            signal.signal(s, h)
+        proxy.close()
+    wall = time.monotonic() - t0
+    log(f"proxy: stopped after {wall:.1f} s: {stats_line(proxy.stats, wall)}")
+    for s, e in proxy.windows():
+        log(f"proxy: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
+    if monitor is not None:
+        monitor.flush()
+        log(f"proxy: {monitor.summary()}")
+    outcome = ProxyRun(wall, proxy.stats, fid)
+    if record is not None:
+        if monitor is not None:
+            extra["detector"] = {**(detector or {}), "threshold": monitor.threshold, "alarm_rows": len(monitor.alarms)}
+            if defense is not None:
+                extra["defense"] = {"response": defense.response.action, "alarms": defense.response.alarms,
+                                    "notice_us": defense.notice_us, "response_us": defense.response_us}
+        try:
+            with record.writing() as ds:  # a URL: written in a local copy, published manifest last
+                outcome.path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), ds, fmt=fmt)
+        except (OSError, StorageError):
+            checkpoint.write()  # the whole flight, when the disk takes it (an upload that failed, say)
+            if is_dataset(checkpoint.folder):
+                log(f"proxy: the flight could not be written into {record.shown}; its checkpoint {checkpoint.folder} "
+                    f"keeps it (up to the last checkpoint written), and the next `scart-bench proxy --record "
+                    f"{record.shown}` adds it as flight {fid}, marked incomplete")
+            raise
+        checkpoint.discard()  # written whole: the checkpoint goes (a failed write above keeps it)
+    return outcome

@@ -3,19 +3,16 @@
 The engine is :mod:`scart_bench.generator.mavlink.proxy`; this module parses the options, loads the
 scenario, fits the detector of a benchmark run (runs keep scores, not fitted models: the named
 detector is fitted again on the run's training flights with the run's parameters and seed, and
-its row threshold is calibrated from the run's saved validation scores with the run's protocol),
-runs the proxy until Ctrl-C (or ``--duration``) and writes the recording.
+its row threshold is calibrated from the run's saved validation scores with the run's protocol)
+and calls :func:`scart_bench.generator.mavlink.proxy.run_proxy`, which runs the proxy until Ctrl-C
+(or ``--duration``) and writes the recording (a program calls it the same way, without the command line).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import signal
 import sys
-import threading
-import time
 from pathlib import Path
 
 from scart_bench.cli.common import PROXY_FORWARD, PROXY_LISTEN, RESPONSES, UsageError, record_folder
@@ -37,18 +34,8 @@ def _require_mavlink():
 
 def cmd_proxy(args: argparse.Namespace) -> int:
     px = _require_mavlink()
-    from scart_bench.dataset import is_dataset
-    from scart_bench.generator.mavlink.recording import (
-        RecordingCheckpoint,
-        RecordTarget,
-        discard_checkpoints,
-        journal_root,
-        new_flight_id,
-        recover_recordings,
-        save_recording,
-    )
+    from scart_bench.generator.mavlink.recording import RecordTarget
     from scart_bench.generator.scart.scenario import load_scenarios
-    from scart_bench.storage import StorageError
 
     listen = px.parse_endpoint(args.listen, "--listen")
     forward = px.parse_endpoint(args.forward, "--forward")
@@ -86,68 +73,12 @@ def cmd_proxy(args: argparse.Namespace) -> int:
              f"autopilot is sent {args.response}")
         defense = LiveDefense(monitor, Response(args.response, alarms=args.alarms))
 
-    fid = None
+    detector = {"name": args.detector, "run": str(args.run)} if monitor is not None else None
+    done = px.run_proxy(listen, forward, scenarios, seed=args.seed, record=target, flight_id=args.flight_id,
+                        monitor=monitor, defense=defense, duration_s=args.duration, checkpoint_s=args.checkpoint,
+                        fmt=args.format, extra={"scenario_file": str(args.scenario)}, detector=detector, log=_log)
     if target is not None:
-        root = journal_root(target.anchor)  # flights a killed proxy --record left as checkpoints
-        target.add_left(root, lambda ds, remove: recover_recordings(ds, log=_log, root=root, remove=remove,
-                                                                     shown=target.shown), discard_checkpoints)
-        fid = args.flight_id or new_flight_id(taken=target.taken)
-        if fid in target.taken:
-            raise UsageError(f"--flight-id {fid}: {target.shown} holds a flight {fid} already; give another id")
-    proxy = px.MavlinkProxy(listen, forward, scenarios, seed=args.seed, record=target is not None,
-                            listeners=[monitor] if monitor is not None and defense is None else [], log=_log,
-                            defense=defense).open()
-    extra = {"scenario_file": str(args.scenario)}
-    checkpoint = (RecordingCheckpoint(proxy, target.anchor, fid, extra, period_s=args.checkpoint, log=_log)
-                  if target is not None else None)
-    stop = threading.Event()
-
-    def on_signal(signum, frame):
-        stop.set()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    timer = threading.Timer(args.duration, stop.set) if args.duration else None
-    host, port = proxy.listen_address
-    _log(f"proxy: listening on udp:{host}:{port}, forwarding to udp:{forward[0]}:{forward[1]}; scenario "
-         f"{', '.join(s.id for s in scenarios)} on {', '.join(sorted(proxy.layer_topics)) or 'no topic'}; "
-         "Ctrl-C stops")
-    t0 = time.monotonic()
-    try:
-        if timer is not None:
-            timer.start()
-        proxy.serve(stop, on_idle=checkpoint.maybe if checkpoint is not None else None)
-    finally:
-        if timer is not None:
-            timer.cancel()
-        for s, h in old.items():
-            signal.signal(s, h)
-        proxy.close()
-    wall = time.monotonic() - t0
-    _log(f"proxy: stopped after {wall:.1f} s: {px.stats_line(proxy.stats, wall)}")
-    for s, e in proxy.windows():
-        _log(f"proxy: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
-    if monitor is not None:
-        monitor.flush()
-        _log(f"proxy: {monitor.summary()}")
-    if target is not None:
-        if monitor is not None:
-            extra["detector"] = {"name": args.detector, "run": str(args.run), "threshold": monitor.threshold,
-                                 "alarm_rows": len(monitor.alarms)}
-            if defense is not None:
-                extra["defense"] = {"response": args.response, "alarms": args.alarms,
-                                    "notice_us": defense.notice_us, "response_us": defense.response_us}
-        try:
-            with target.writing() as ds:  # a URL: written in a local copy, published manifest last
-                path = save_recording(proxy.record(fid, json.loads(json.dumps(extra))), ds, fmt=args.format)
-        except (OSError, StorageError):
-            checkpoint.write()  # the whole flight, when the disk takes it (an upload that failed, say)
-            if is_dataset(checkpoint.folder):
-                _log(f"proxy: the flight could not be written into {target.shown}; its checkpoint {checkpoint.folder} "
-                     f"keeps it (up to the last checkpoint written), and the next `scart-bench proxy --record "
-                     f"{target.shown}` adds it as flight {fid}, marked incomplete")
-            raise
-        checkpoint.discard()  # written whole: the checkpoint goes (a failed write above keeps it)
-        print(f"flight {fid} recorded in {target.shown} ({path.name})")
+        print(f"flight {done.flight_id} recorded in {target.shown} ({done.path.name})")
     return 0
 
 
