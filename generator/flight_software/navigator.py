@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.generator.flight_software.startup import takeoff_after_arm
 from scart_bench.generator.params import MissionParams
 from scart_bench.generator.physics.rotation import wrap_pi
 
@@ -132,7 +133,7 @@ class Navigator:
         n = s.phase.shape[0]
         out = np.zeros((n, 6))
         armed = t >= self.arm_s
-        start = (s.phase == PHASE_IDLE) & (t >= self.arm_s + 0.5)
+        start = (s.phase == PHASE_IDLE) & (t >= self.arm_s + takeoff_after_arm(self.m.ground_phase))
         s.phase[start] = PHASE_TAKEOFF
         k_last = self.last
         rows = np.arange(n)
@@ -145,7 +146,7 @@ class Navigator:
         # a fly-through item (brake < 0: an orbit's points, a pilot's stick): passed at the leg's speed
         speed = np.where(brake < 0, self.speeds[rows, ti], np.minimum(self.speeds[rows, ti], m.approach_gain * dist_h))
         # a mission file's item: slow down so as to stop there (sharp turns, faster legs); the square does not
-        speed = np.where(brake > 0, np.minimum(speed, np.sqrt(2.0 * brake * dist_h)), speed)
+        speed = np.where(brake > 0, np.minimum(speed, np.sqrt(2.0 * np.maximum(brake, 0.0) * dist_h)), speed)
         speed = np.where(s.phase == PHASE_TAKEOFF, np.minimum(speed, 1.0), speed)
         dir_h = d[:, :2] / np.maximum(dist_h, 1e-6)[:, None]
         vh = dir_h * speed[:, None]
