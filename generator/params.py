@@ -170,7 +170,10 @@ class MissionParams:
     #: origin, then arm (3.8-16 s on the ground as in real logs); False: GPS from boot, arm at arm_delay_s
     ground_phase: bool = True
     arm_delay_s: float = 1.0  # s, arming time when there is no ground phase
-    takeoff_hold_s: float = 5.0  # s of hover at the take-off point before the mission's first leg
+    #: s of hover at the take-off point before the mission's first leg (was 5 s: from lift-off to the
+    #: first leg the shared logs take 14 s (ArduCopter) and 20 s (RflyMAD), 5 s gave 10 s; 9 s gives
+    #: 14 s: ``python -m perf.realism_tells``, docs/realism.md "Fixing the tells")
+    takeoff_hold_s: float = 9.0
     yaw_rate_max: float = float(np.deg2rad(45.0))  # MPC_YAWRAUTO_MAX, rad/s: the navigator turns no faster
     max_duration_s: float = 150.0
     jitter_m: float = 0.3  # per-flight jitter of waypoints

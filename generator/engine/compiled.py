@@ -33,10 +33,12 @@ from scart_bench.generator.engine.flight_batch import alive, instance_gps, insta
 from scart_bench.generator.engine.pcg_noise import fill_rows, fill_rows_parallel, pcg_states
 from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
+from scart_bench.generator.flight_software.startup import takeoff_after_arm
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import DT, GRAVITY
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block
+from scart_bench.generator.physics.sensors import gps_error_coefficients
 from scart_bench.generator.telemetry.schedule import due_steps
 
 if TYPE_CHECKING:
@@ -93,6 +95,7 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     st["wind_mean"], st["wind_sigma"], st["gust"] = init.wind.mean, init.wind.sigma, init.wind.gust
     st["accel_bias"], st["gyro_bias"], st["baro_offset"] = ss.accel_bias, ss.gyro_bias, ss.baro_offset
     st["gps_bias"], st["satellites_in_view"], st["sensor_temperature"] = ss.gps_bias, ss.satellites, ss.temperature
+    st["gps_drive"] = ss.gps_drive
     st["gps_eph"], st["gps_epv"] = 99.0, 99.0
     q = np.zeros((n, 4))
     q[:, 0], q[:, 3] = np.cos(yaw0 / 2), np.sin(yaw0 / 2)
@@ -119,7 +122,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
     alloc = vp.allocation()
     kf = AxisKF(dt, ep.accel_process_noise, ep.bias_process_noise)
     gust_a = np.exp(-dt / mp.gust_tau)
-    gps_a = np.exp(-(1.0 / sp.gps_rate_hz) / sp.gps_bias_tau)
+    gps_a, gps_bias_c = gps_error_coefficients(sp, 1.0 / sp.gps_rate_hz)
     max_total = 4 * vp.max_thrust
     lat0, lon0 = np.deg2rad(HOME_LAT), np.deg2rad(HOME_LON)
     values = {
@@ -132,7 +135,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "c_accel_noise": sp.accel_noise_density * np.sqrt(1 / dt) * np.array([1.0, 1.0, sp.accel_noise_z_factor]),
         "c_gyro_noise": sp.gyro_noise_density * np.sqrt(1 / dt),
         "mag_noise": sp.mag_noise, "mag_field": sp.mag_field_ned, "baro_noise": sp.baro_noise_pa, "home_alt": HOME_ALT,
-        "gps_a": gps_a, "gps_bias_c": np.sqrt(1 - gps_a * gps_a) * np.array([sp.gps_bias_h, sp.gps_bias_h, sp.gps_bias_v]),
+        "gps_a": gps_a, "gps_bias_c": gps_bias_c,
         "gps_white": (sp.gps_noise_h, sp.gps_noise_h, sp.gps_noise_v), "gps_vel_noise": sp.gps_vel_noise,
         "eph0": np.hypot(sp.gps_noise_h, sp.gps_bias_h), "epv0": np.hypot(sp.gps_noise_v, sp.gps_bias_v),
         "delay": delay, "att_accel_gain": ep.att_accel_gain, "gyro_bias_gain": ep.gyro_bias_gain,
@@ -152,6 +155,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "out_decay": 1.0 - dt / ep.output_tau_s,
         "accel_vibration": sp.accel_vibration,
         "inv_hover_rotor": 1.0 / float(np.sqrt(vp.mass * GRAVITY / (4 * vp.motor_constant))),
+        "takeoff_after_arm": takeoff_after_arm(mp.ground_phase),
     }
     return K.param_vector(values)
 

@@ -19,7 +19,11 @@ from numba import njit, prange
 
 from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.pcg_noise import fill_one
-from scart_bench.generator.flight_software.startup import EPH_SETTLE, EPH_SETTLE_TAU_S, SATS_RAMP
+from scart_bench.generator.flight_software.startup import (
+    EPH_SETTLE,
+    EPH_SETTLE_TAU_S,
+    SATS_RAMP,
+)
 from scart_bench.generator.params import GRAVITY
 from scart_bench.generator.physics.noise import (
     NZ_ACC,
@@ -43,6 +47,7 @@ K_GUST_A, K_GUST_B = _I["gust_a"], _I["gust_b"]
 K_A_AB, K_C_AB, K_A_GB, K_C_GB = _I["a_accel_bias"], _I["c_accel_bias"], _I["a_gyro_bias"], _I["c_gyro_bias"]
 K_C_AN, K_C_GN, K_MAG_NOISE, K_MAG_FIELD = _I["c_accel_noise"], _I["c_gyro_noise"], _I["mag_noise"], _I["mag_field"]
 K_ACC_VIB, K_INV_HOVER_ROT = _I["accel_vibration"], _I["inv_hover_rotor"]
+K_TAKEOFF_AFTER_ARM = _I["takeoff_after_arm"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
@@ -357,7 +362,9 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
             sats = x[L.X_GPS_SATS]
             growth = x[L.X_GPS_GROWTH]
         for a in range(3):
-            s[L.GPS_BIAS + a] = p[K_GPS_A] * s[L.GPS_BIAS + a] + p[K_GPS_BIAS_C + a] * w[k, NZ_GPS_BIAS + a]
+            # a smooth slow error: a first-order lag of a Gauss-Markov drive (physics.sensors.gps_error_coefficients)
+            s[L.GPS_DRIVE + a] = p[K_GPS_A] * s[L.GPS_DRIVE + a] + p[K_GPS_BIAS_C + a] * w[k, NZ_GPS_BIAS + a]
+            s[L.GPS_BIAS + a] = p[K_GPS_A] * s[L.GPS_BIAS + a] + (1.0 - p[K_GPS_A]) * s[L.GPS_DRIVE + a]
             white = p[K_GPS_WHITE + a] * w[k, NZ_GPS_POS + a]
             vel_noise = p[K_GPS_VEL_NOISE] * w[k, NZ_GPS_VEL + a]
             if env:
@@ -689,7 +696,7 @@ def _navigate(s, wps, p, t, out, m):
     towards it (m/s^2; 0: none; negative: a fly-through item accepted within -braking m)."""
     k_last = int(s[L.NAV_LAST])
     armed = 1.0 if t >= s[L.ARM_AT] else 0.0
-    if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + 0.5:
+    if s[L.PHASE] == PH_IDLE and t >= s[L.ARM_AT] + p[K_TAKEOFF_AFTER_ARM]:
         s[L.PHASE] = PH_TAKEOFF
     phase = s[L.PHASE]
     seq = int(s[L.SEQ])

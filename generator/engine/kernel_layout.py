@@ -101,7 +101,9 @@ OUT_ERR = 187  # 6: per axis (N, E, D) [position, velocity] of the output minus 
 MOTOR_CMD = 193  # 4, rad/s: the rotor speeds the rate controller's mixer commanded this step (before a rotor limit)
 # -- the navigator's last mission item (generator.flight_software.navigator.mission_table) --------------
 NAV_LAST = 197
-WIDTH = 198
+# -- the GPS receiver's slow error: the Gauss-Markov drive its smooth error follows (physics.sensors) ----------
+GPS_DRIVE = 198  # 3, m
+WIDTH = 201
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -138,6 +140,7 @@ FIELDS: dict[str, tuple[int, int]] = {
     "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1), "gps_fix_at": (GPS_FIX_AT, 1),
     "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
     "motor_cmd": (MOTOR_CMD, 4), "nav_last": (NAV_LAST, 1),
+    "gps_drive": (GPS_DRIVE, 3),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------
@@ -163,6 +166,7 @@ PARAMS = (
     "rate_p", "rate_i", "thrust_lo", "thrust_hi", "max_thrust", "land_detect_s", "arm_delay", "takeoff_hold",
     "approach_gain", "climb_speed", "land_speed", "acceptance", "lat0", "lon0", "sin_lat0", "cos_lat0",
     "hover", "tail_steps", "yaw_step_max", "out_decay", "accel_vibration", "inv_hover_rotor",
+    "takeoff_after_arm",
 )
 _SIZES = {"alloc": 16, "alloc_inv": 16, "c_accel_noise": 3, "accel_vibration": 3, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
           "vel_p": 3, "vel_i": 3, "att_p": 3, "rate_max": 3, "rate_p": 3, "rate_i": 3}

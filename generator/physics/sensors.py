@@ -25,12 +25,27 @@ class SensorState:
     accel_bias: np.ndarray  # (N, 3) m/s^2
     gyro_bias: np.ndarray  # (N, 3) rad/s
     baro_offset: np.ndarray  # (N,) Pa
-    gps_bias: np.ndarray  # (N, 3) m, NED
+    gps_bias: np.ndarray  # (N, 3) m, NED: the receiver's slow error
+    gps_drive: np.ndarray  # (N, 3) m: the Gauss-Markov process the slow error lags behind (gps_error_coefficients)
     satellites: np.ndarray  # (N,) satellites in view
     truth_buffer: np.ndarray  # (delay_steps, N, 6) true pos/vel, for the GPS delay
     temperature: np.ndarray  # (N,) degC
     last_fix: np.ndarray | None = None  # (N, 3) last fixed position, reported while the fix is lost
     fix_at: np.ndarray | None = None  # (N,) s, the receiver's first fix (generator.flight_software.startup); None: from boot
+
+
+def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.ndarray]:
+    """(a, c): the receiver's slow error is smooth, a first-order lag of a Gauss-Markov drive
+    (both with time constant ``gps_bias_tau``: drive <- a drive + c w, error <- a error + (1 - a) drive).
+
+    A plain Gauss-Markov error steps by ~sqrt(2 dt / tau) sigma at every fix (1.7 cm per 0.1 s at
+    0.3 m, 60 s): the estimator read those steps as 0.17 m/s of velocity noise and the vehicle
+    leaned after them (roll/pitch at hover 6x the SIL log's, docs/realism.md). A receiver's error
+    is smooth from fix to fix. ``c`` makes the error's stationary sigma ``gps_bias_h`` / ``_v``:
+    the lag's variance is (1 + a^2) / (1 + a)^2 of its drive's."""
+    a = float(np.exp(-dt_gps / p.gps_bias_tau))
+    scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
+    return a, np.sqrt(1 - a * a) * (1 + a) / np.sqrt(1 + a * a) * scale
 
 
 def vibration_scale(rotor_speed: np.ndarray, hover_rotor_speed: float) -> np.ndarray:
@@ -55,7 +70,8 @@ class Sensors:
             accel_bias=0.02 * u[:, 0:3],
             gyro_bias=0.002 * u[:, 3:6],
             baro_offset=p.baro_drift_pa * u[:, 6],
-            gps_bias=np.column_stack([p.gps_bias_h * u[:, 7], p.gps_bias_h * u[:, 8], p.gps_bias_v * u[:, 9]]),
+            gps_bias=(bias := np.column_stack([p.gps_bias_h * u[:, 7], p.gps_bias_h * u[:, 8], p.gps_bias_v * u[:, 9]])),
+            gps_drive=bias.copy(),
             satellites=np.clip(np.round(12 + 1.5 * u[:, 10]), 8, 16),
             truth_buffer=np.zeros((self.delay_steps, n, 6)),
             temperature=20.0 + 3.0 * u[:, 11],
@@ -109,9 +125,9 @@ class Sensors:
         """
         p = self.params
         old = st.truth_buffer[(step + 1) % self.delay_steps] if step + 1 >= self.delay_steps else st.truth_buffer[0]
-        a = np.exp(-dt_gps / p.gps_bias_tau)
-        scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
-        st.gps_bias = a * st.gps_bias + np.sqrt(1 - a * a) * scale * noise[:, 0:3]
+        a, c = gps_error_coefficients(p, dt_gps)
+        st.gps_drive = a * st.gps_drive + c * noise[:, 0:3]
+        st.gps_bias = a * st.gps_bias + (1.0 - a) * st.gps_drive
         white = np.array([p.gps_noise_h, p.gps_noise_h, p.gps_noise_v]) * noise[:, 3:6]
         vel_noise = p.gps_vel_noise * noise[:, 6:9]
         sats = st.satellites
