@@ -193,7 +193,7 @@ def _delivery(g, m, alt, v, t):
     """Out to a drop point at cruise height, down to the drop height, hover there, back up, home."""
     drop_alt = g.uniform(2.0, 6.0)
     hold = g.uniform(5.0, 20.0)
-    dist = float(np.clip(v * (t - hold - 2 * (alt - drop_alt) / 1.5) / 2, 30.0, 3000.0))
+    dist = float(np.clip(v * max(t - hold - 2 * (alt - drop_alt) / 1.5, 0.5 * t) / 2, 30.0, 3000.0))
     phi = g.uniform(0, 2 * np.pi)
     drop = dist * np.array([math.cos(phi), math.sin(phi)])
     rows = [_row(0, 0, alt, v), _row(*drop, alt, v), _row(*drop, drop_alt, v, hold), _row(*drop, alt, v),
