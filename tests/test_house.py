@@ -6,6 +6,7 @@ import shutil
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from scart_bench.benchmark.results import paper_table
 from scart_bench.benchmark.tables import PAPER_COLUMNS
@@ -85,3 +86,46 @@ def test_the_parsers_choices_are_the_librarys():
     assert (common.PHASE_RULES, common.DEFAULT_PHASE_MARGIN_S) == (PHASE_RULES, DEFAULT_PHASE_MARGIN_S)
     assert common.RESPONSES == RESPONSES
     assert (common.PROXY_LISTEN, common.PROXY_FORWARD) == (DEFAULT_LISTEN, DEFAULT_FORWARD)
+
+
+def _in_a_thread(fn, stop, after_s: float = 0.5):
+    """Run ``fn`` in a thread (not the main one: no signal handlers), set ``stop`` after ``after_s``; its result."""
+    import threading
+    import time
+
+    out: dict = {}
+    thread = threading.Thread(target=lambda: out.setdefault("result", fn()))
+    thread.start()
+    time.sleep(after_s)
+    stop.set()
+    thread.join(30)
+    assert not thread.is_alive()
+    return out["result"]
+
+
+def test_a_program_runs_a_live_proxy_and_a_sitl_vehicle_without_the_command_line():
+    """The live loops are library functions (issue 49): started from a thread, stopped by an event."""
+    import threading
+
+    pytest.importorskip("pymavlink")
+    from scart_bench.generator.mavlink.proxy import run_proxy
+    from scart_bench.generator.scart.scenario import load_scenarios
+    from scart_bench.generator.sitl.endpoint import bind_udp
+    from scart_bench.generator.sitl.session import run_sitl
+
+    scenarios = load_scenarios(Path(__file__).parents[1] / "data" / "scenarios" / "gps_spoof.toml")
+    stop, lines = threading.Event(), []
+    done = _in_a_thread(lambda: run_proxy(("127.0.0.1", 0), ("127.0.0.1", 9), scenarios, stop=stop,
+                                          log=lines.append), stop)
+    assert done.wall_s > 0 and done.stats.frames == 0 and done.path is None
+    assert any(line.startswith("proxy: listening on udp:127.0.0.1:") for line in lines)
+    assert any(line.startswith("proxy: stopped after") for line in lines)
+
+    sock, stop, lines = bind_udp(("127.0.0.1", 0)), threading.Event(), []
+    try:
+        done = _in_a_thread(lambda: run_sitl(sock.getsockname(), [], sock=sock, speed=None, stop=stop,
+                                             log=lines.append), stop)
+    finally:
+        sock.close()
+    assert done.flown_s == 0 and done.path is None  # lockstep: no client, no step
+    assert any("lockstep" in line for line in lines) and any(line.startswith("sitl: stopped") for line in lines)

@@ -6,28 +6,19 @@
 - ``ros navigator``: the mission computer that flies the default square from the telemetry it receives,
   with an optional live detector whose alarms it publishes as an anomaly notice.
 
-The engines are in :mod:`scart_bench.generator.ros`; this module parses options, joins the ROS master
-and runs a node until Ctrl-C, SIGTERM or ``--duration``.
+The engines are in :mod:`scart_bench.generator.ros`; this module parses options and calls the run loops of
+:mod:`scart_bench.generator.ros.session` (a program calls them the same way, without the command line), which
+join the ROS master and run a node until Ctrl-C, SIGTERM or ``--duration``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import signal
-import threading
-import time
 from pathlib import Path
 
 from scart_bench.cli.common import UsageError, log, record_folder
 from scart_bench.names import check_id
-
-
-def _ros1():
-    from scart_bench.generator.ros import ros1
-
-    return ros1
 
 
 def _positive(value: float | None, option: str) -> None:
@@ -35,24 +26,9 @@ def _positive(value: float | None, option: str) -> None:
         raise UsageError(f"{option} {value}: expected a positive, finite number of seconds")
 
 
-def _run_until(stop: threading.Event, duration: float | None, done: threading.Event | None = None) -> bool:
-    """Wait for Ctrl-C/SIGTERM, ``duration`` wall seconds or ``done``; True when ``done`` was set."""
-    old = {s: signal.signal(s, lambda signum, frame: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    end = time.monotonic() + duration if duration else math.inf
-    try:
-        while not stop.is_set() and time.monotonic() < end:
-            if done is not None and done.is_set():
-                return True
-            stop.wait(0.05)
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-    return done is not None and done.is_set()
-
-
 def cmd_node(args: argparse.Namespace) -> int:
-    from scart_bench.generator.mavlink.recording import RecordTarget, new_flight_id
-    from scart_bench.generator.ros.layer import RosLayer, save_recording
+    from scart_bench.generator.mavlink.recording import RecordTarget
+    from scart_bench.generator.ros.session import run_node
     from scart_bench.generator.scart.scenario import load_scenarios
 
     _positive(args.duration, "--duration")
@@ -67,58 +43,22 @@ def cmd_node(args: argparse.Namespace) -> int:
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and record is not None and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
-    layer = RosLayer(scenarios, seed=args.seed, record=record is not None)
-    ros1 = _ros1()
-    ros1.init_node(args.name)
-    node = ros1.ScartNode(layer, args.input_ns, args.output_ns, log=log).start()
-    log(
-        f"ros node: {args.input_ns} -> {args.output_ns}; scenario {', '.join(s.id for s in scenarios) or 'none'} on "
-        f"{', '.join(sorted(layer.used)) or 'no topic'}; Ctrl-C stops"
-    )
-    t0 = time.monotonic()
-    stop = threading.Event()
-    try:
-        _run_until(stop, args.duration)
-    finally:
-        node.stop()
-    log(
-        f"ros node: stopped after {time.monotonic() - t0:.1f} s: {layer.stats.summary()}; {node.relayed} setpoints, "
-        "commands and states relayed"
-    )
-    for text in layer.log_errors:
-        log(f"ros node: error in the layer ({text}); the message passed unchanged")
-    for s, e in layer.windows():
-        log(f"ros node: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
+    extra = {"scenario_file": args.scenario, "input_ns": args.input_ns, "output_ns": args.output_ns}
+    done = run_node(scenarios, args.input_ns, args.output_ns, name=args.name, seed=args.seed, record=record,
+                    flight_id=args.flight_id, split=args.split, fmt=args.format, extra=extra,
+                    duration_s=args.duration, log=log)
     if record is not None:
-        fid = args.flight_id or new_flight_id(prefix="ros", taken=record.taken)
-        extra = {"scenario_file": args.scenario, "input_ns": args.input_ns, "output_ns": args.output_ns}
-        rec = layer.record(fid, json.loads(json.dumps(extra)), split=args.split)
-        with record.writing() as ds:  # a URL: written in a local copy, published with its manifest last
-            path = save_recording(rec, ds, fmt=args.format)
-        print(f"flight {fid} recorded in {record.shown} ({path.name})")
+        print(f"flight {done.flight_id} recorded in {record.shown} ({done.path.name})")
     return 0
 
 
 def cmd_mavros(args: argparse.Namespace) -> int:
     from scart_bench.generator.mavlink import parse_endpoint
+    from scart_bench.generator.ros.session import run_mavros
 
     _positive(args.duration, "--duration")
     connect = parse_endpoint(args.connect, "--connect")
-    ros1 = _ros1()
-    ros1.init_node(args.name)
-    standin = ros1.MavrosStandIn(connect, ns=args.ns, log=log).start()
-    log(f"mavros stand-in: udp:{connect[0]}:{connect[1]} -> {args.ns}; Ctrl-C stops")
-    stop = threading.Event()
-    reader = threading.Thread(target=standin.spin, args=(stop,), name="mavlink-reader", daemon=True)
-    reader.start()
-    try:
-        _run_until(stop, args.duration)
-    finally:
-        stop.set()
-        reader.join(timeout=2.0)
-        standin.close()
-    counts = ", ".join(f"{k} {v}" for k, v in sorted(standin.counts.items()))
-    log(f"mavros stand-in: stopped; published {counts or 'nothing'}; {standin.setpoints} setpoints sent")
+    run_mavros(connect, ns=args.ns, name=args.name, duration_s=args.duration, log=log)
     return 0
 
 
@@ -135,24 +75,10 @@ def cmd_navigator(args: argparse.Namespace) -> int:
 
         monitor = monitor_from_run(Path(args.run), args.detector, list(args.plugin or []), log=log)
         monitor.add_topics(topic_fields(), {n: t.rate_hz for n, t in MAVROS_TOPICS.items()})
-    ros1 = _ros1()
-    ros1.init_node(args.name)
-    nav = ros1.NavigatorNode(ns=args.ns, monitor=monitor, notice_topic=args.notice_topic, log=log).start()
-    log(f"navigator: flying the square from {args.ns}; Ctrl-C stops")
-    stop = threading.Event()
-    try:
-        done = _run_until(stop, args.timeout, nav.done)
-    finally:
-        nav.close()
-    for t, what in nav.mission.log:
-        log(f"navigator: t={t:.2f} s {what}")
-    if monitor is not None:
-        monitor.flush()
-        log(
-            f"navigator: {monitor.summary()}; {nav.notices} anomaly notices published on {args.notice_topic}"
-        )
-    if not done:
-        log(f"navigator: the mission did not finish (phase {nav.mission.phase})")
+    from scart_bench.generator.ros.session import run_navigator
+
+    if not run_navigator(ns=args.ns, name=args.name, monitor=monitor, notice_topic=args.notice_topic,
+                         timeout_s=args.timeout, log=log):
         return 1
     print("navigator: mission flown, landed and disarmed")
     return 0

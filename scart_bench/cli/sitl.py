@@ -1,17 +1,15 @@
 """``scart-bench sitl``: a simulated PX4-like vehicle that any MAVLink tool can fly, with the SCART layer.
 
 The engine is :mod:`scart_bench.generator.sitl.server`; this module parses the options, loads the
-scenario, runs the vehicle until Ctrl-C (or ``--duration`` of simulated time) and writes the
-recording.
+scenario and the defense, and calls :func:`scart_bench.generator.sitl.session.run_sitl`, which runs the
+vehicle until Ctrl-C (or ``--duration`` of simulated time) and writes the recording (a program calls it
+the same way, without the command line).
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
-import time
 from pathlib import Path
 
 from scart_bench.cli.common import RESPONSES, UsageError, record_folder
@@ -56,104 +54,29 @@ def _check_options(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     try:
-        from scart_bench.generator.sitl.server import SitlServer
+        from scart_bench.generator.sitl.server import SitlServer  # noqa: F401 (pymavlink is there: said before anything runs)
     except ImportError as exc:
         raise UsageError(f"the sitl needs pymavlink, which is not installed: pip install scart-bench[mavlink] "
                          f"({exc})") from exc
-    from scart_bench.generator.mavlink.recording import RecordTarget, new_flight_id, save_recording
+    from scart_bench.generator.mavlink.recording import RecordTarget
     from scart_bench.generator.scart.scenario import load_scenarios
-    from scart_bench.generator.sitl.journal import Journal, discard, journal_root, recover
-    from scart_bench.storage import StorageError
+    from scart_bench.generator.sitl.session import run_sitl
 
     target = RecordTarget(args.record, record_folder) if args.record else None
     scenarios = load_scenarios(args.scenario) if args.scenario else []
     if scenarios and args.split != "test":
         raise UsageError(f"--split {args.split}: an attacked flight (--scenario) is always a test flight")
     defense = _defense(args) if args.detector else None
-    sitl = SitlServer(listen, scenarios, seed=args.seed, remote=remote, record=target is not None, log=_log,
-                      sock=sock, defense=defense)
-    fid = None
     extra = {"scenario_file": args.scenario}
     if defense is not None:
         extra["defense"] = {"detector": args.detector, "run": str(args.run), "threshold": defense.monitor.threshold,
                             "response": args.response, "alarms": args.alarms}
-    if target is not None:
-        root = journal_root(target.anchor)  # flights of earlier recordings that only their journals hold
-        target.add_left(root, lambda ds, remove: recover(ds, lambda rec: save_recording(rec, ds, fmt=args.format),
-                                                         _log, root=root, remove=remove, shown=target.shown),
-                        discard)
-        kept = {p.name for p in root.iterdir()} if root.is_dir() else set()  # journals that could not be added
-        fid = args.flight_id or new_flight_id(prefix="sitl", taken=target.taken | kept)
-        if fid in target.taken:
-            raise UsageError(f"--flight-id {fid}: {target.shown} holds a flight {fid} already; give another id")
-        if fid in kept:
-            raise UsageError(f"--flight-id {fid}: the journal {root / fid} holds flight {fid}, not yet added to "
-                             f"{target.shown} (see the line above); give another id, so that it is kept")
-        sitl.journal = Journal(target.anchor, fid, extra, args.split, _log)
-        try:
-            sitl.journal.start(sitl)
-        except OSError as exc:
-            sitl.journal.remove()
-            raise UsageError(f"--record {target.shown}: its journal {sitl.journal.folder} cannot be written "
-                             f"({exc.strerror or exc}), so a flight whose final write failed would be lost; free "
-                             "space there or record elsewhere") from None
-    stop = threading.Event()
-
-    def on_signal(signum, frame):
-        stop.set()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    host, port = sitl.address
-    pace = "lockstep (as fast as it can, from the first client message)" if args.lockstep else \
-        f"{args.speed:g} x real time"
-    attack = ", ".join(s.id for s in scenarios) or "none"
-    _log(f"sitl: listening on udp:{host}:{port}" + (f", sending to udp:{remote[0]}:{remote[1]}" if remote else "")
-         + f"; PX4-like quadrotor, system 1 component 1; {pace}; scenario {attack}; Ctrl-C stops")
-    t0 = time.monotonic()
-    try:
-        sitl.serve(stop, speed=None if args.lockstep else args.speed, duration_s=args.duration)
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        sitl.close()
-    wall = time.monotonic() - t0
-    if defense is not None:
-        defense.monitor.flush()
-        _log(f"sitl: {defense.monitor.summary()}")
-    _log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
-    for s, e in sitl.windows():
-        _log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
-    if target is None:
-        return 0
-    if sitl.plant.step_index == 0:
-        sitl.journal.remove()
-        _log("sitl: nothing to record: the simulation never ran (no client was heard in --lockstep)")
-        return 0
-    sitl.journal.flush(sitl)
-    try:
-        with target.writing() as ds:  # a URL: written in a local copy, published manifest last
-            path = save_recording(sitl.record(fid, extra, split=args.split), ds, fmt=args.format)
-    except (OSError, StorageError):
-        _kept_or_lost(sitl.journal, target, fid, sitl.time_s)
-        raise
-    sitl.journal.remove()
-    print(f"flight {fid} recorded in {target.shown} ({path.name})")
+    done = run_sitl(listen, scenarios, sock=sock, seed=args.seed, remote=remote, record=target,
+                    flight_id=args.flight_id, split=args.split, fmt=args.format, defense=defense, extra=extra,
+                    speed=None if args.lockstep else args.speed, duration_s=args.duration, log=_log)
+    if done.path is not None:
+        print(f"flight {done.flight_id} recorded in {target.shown} ({done.path.name})")
     return 0
-
-
-def _kept_or_lost(journal, target, fid: str, flown_s: float) -> None:
-    """The final write failed: say exactly what the journal keeps (and that the next --record adds
-    it), or that it keeps nothing and the flight is lost (its empty journal goes)."""
-    kept = journal.kept_us / 1e6
-    if not any(journal.rows.values()):
-        journal.remove()
-        _log(f"sitl: the flight could not be written into {target.shown}, and its journal {journal.folder} could "
-             f"not keep any of it either (its writes failed): the {flown_s:.1f} s flown are lost")
-        return
-    part = "all of it" if not journal.failed else f"its first {kept:.1f} s (the last flush that could be written)"
-    _log(f"sitl: the flight could not be written into {target.shown}; its journal {journal.folder} keeps {part} of "
-         f"the {flown_s:.1f} s flown, and the next `scart-bench sitl --record {target.shown}` adds it as flight "
-         f"{fid}, marked incomplete")
 
 
 def _defense(args: argparse.Namespace):
