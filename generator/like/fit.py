@@ -284,8 +284,9 @@ def _flight_shape(m: LogMeasure, track: tracks.Track, phases: pd.DataFrame, tabl
     else:
         wps = tracks.recover_mission(track)
         m.mission = wps
-        m.mission_source = (f"the flown track ({track.horizontal}) simplified to {len(wps)} waypoints"
-                            if track.has_position else f"the altitude profile over home ({len(wps)} waypoints)")
+        count = f"{len(wps)} waypoint{'' if len(wps) == 1 else 's'}"
+        m.mission_source = (f"the flown track ({track.horizontal}) simplified to {count}"
+                            if track.has_position else f"the altitude profile over home ({count})")
         m.track_error_m = track_error(track, wps)
 
 
@@ -548,11 +549,30 @@ class Fit:
     logs: list[LogMeasure]
 
 
-def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 3) -> tuple[dict[str, tuple[float, str]], list[str]]:
-    """SensorParams noise fields scaled so that generated hover flights measure like the fleet.
+def next_level(history: list[tuple[float, float]], target: float) -> float:
+    """The next noise parameter toward ``target`` from the (parameter, generated figure) pairs so far.
 
-    Each round flies calibration flights with the current fields and multiplies each by fleet / generated
-    (the z accelerometer through ``accel_noise_z_factor``); returns the fields and a comment for each."""
+    A generated figure is the sensor noise and the flight's own motion together, adding in squares:
+    figure^2 = motion^2 + (gain * parameter)^2. One pair: scale by target / figure; two or more: solve
+    for motion and gain from the last two pairs (a secant in the squares) and aim the noise at the rest."""
+    p1, g1 = history[-1]
+    if len(history) >= 2:
+        p0, g0 = history[-2]
+        if abs(p1 - p0) > 1e-12 * max(p0, p1):
+            gain2 = (g1 * g1 - g0 * g0) / (p1 * p1 - p0 * p0)
+            if gain2 > 0:
+                motion2 = g1 * g1 - gain2 * p1 * p1
+                return math.sqrt(max(target * target - motion2, 0.0) / gain2) or 0.05 * p1
+    return p1 * target / g1
+
+
+def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[float, str]], list[str]]:
+    """SensorParams noise fields set so that generated hover flights measure like the fleet.
+
+    Each round flies calibration flights (:func:`calibration_figures`) with the current fields and moves
+    each toward the fleet's figure (:func:`next_level`; the z accelerometer through ``accel_noise_z_factor``,
+    its noise being ``accel_noise_density * accel_noise_z_factor``); a last round measures the result for
+    the comments. Returns field -> (value, comment) and lines on what could not be fitted."""
     s = config.sensors
     out: dict[str, tuple[float, str]] = {}
     lines: list[str] = []
@@ -565,26 +585,39 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 3) -> tupl
     plan = {f: ks for f, ks in plan.items() if hasattr(s, f) and all(k in want and math.isfinite(want[k].value) for k in ks)}
     if not plan:
         return out, ["no hover noise measured in any log: sensor noise defaults kept"]
+    if "accel_noise_z_factor" in plan and "accel_noise_density" not in plan:
+        del plan["accel_noise_z_factor"]
     current = {f: float(getattr(s, f)) for f in plan}
+    effective = dict(current)  # the z accelerometer's own noise level in place of its factor
+    if "accel_noise_z_factor" in plan:
+        effective["accel_noise_z_factor"] = current["accel_noise_z_factor"] * current["accel_noise_density"]
+    history: dict[str, list[tuple[float, float]]] = {f: [] for f in plan}
     gen: dict[str, float] = {}
-    for _ in range(rounds):
+    for r in range(rounds + 1):
         cfg = dataclasses.replace(config, sensors=dataclasses.replace(s, **current))
         gen = calibration_figures(cfg)
+        if r == rounds:
+            break
         for f, ks in plan.items():
-            target = np.mean([want[k].value for k in ks])
-            got = np.nanmean([gen.get(k, math.nan) for k in ks])
-            if not (math.isfinite(got) and got > 0):
-                continue
-            if f == "accel_noise_z_factor":
-                ratio = want["acc_z"].value / gen["acc_z"] if gen.get("acc_z") else 1.0
-                current[f] = float(np.clip(current[f] * ratio, 0.2, 20.0))
-            else:
-                current[f] = float(np.clip(current[f] * target / got, 1e-6, 1e3))
+            target = float(np.mean([want[k].value for k in ks]))
+            got = float(np.nanmean([gen.get(k, math.nan) for k in ks]))
+            if math.isfinite(got) and got > 0:
+                history[f].append((effective[f], got))
+                effective[f] = float(np.clip(next_level(history[f], target), 1e-7, 1e3))
+        current = {f: effective[f] for f in plan}
+        if "accel_noise_z_factor" in plan:
+            current["accel_noise_z_factor"] = float(np.clip(effective["accel_noise_z_factor"]
+                                                            / effective["accel_noise_density"], 0.2, 20.0))
     for f, ks in plan.items():
         logs = ", ".join(f"{k} {want[k].value:.4g}" for k in ks)
         where = "still hover" if want[ks[0]].source.startswith("still") else "airborne"
-        out[f] = (current[f], f"{where} std (median over {min(want[k].n for k in ks)} logs): {logs}; "
-                              f"generated with it: {', '.join(f'{gen.get(k, math.nan):.4g}' for k in ks)}")
+        got = [gen.get(k, math.nan) for k in ks]
+        out[f] = (round(current[f], 8), f"{where} std (median over {min(want[k].n for k in ks)} logs): {logs}; "
+                                        f"generated with it: {', '.join(f'{g:.4g}' for g in got)}")
+        target = float(np.mean([want[k].value for k in ks]))
+        if np.nanmean(got) > 1.5 * target:
+            lines.append(f"{f}: the generated flights' own motion already gives {np.nanmean(got):.3g} at the smallest "
+                         f"noise, above the logs' {target:.3g}")
     return out, lines
 
 
@@ -672,5 +705,5 @@ def log_line(m: LogMeasure) -> str:
     if m.wind_source:
         parts.append(f"wind {m.wind_speed:.1f} m/s from {m.wind_source.split(' (')[0]}")
     if m.hover_s:
-        parts.append(f"hover {m.hover_s:.0f} s")
+        parts.append(f"noise on {m.hover_s:.0f} s of {'still hover' if m.hover_still else 'airborne rows'}")
     return f"{m.name}: " + "; ".join(parts)
