@@ -70,9 +70,9 @@ class SensorParams:
     #: the z axis's white sensor noise relative to x/y (1: the motors' vibration, stronger along the
     #: thrust axis, is ``accel_vibration``'s; defaults 4 had 2.5 here standing in for it)
     accel_noise_z_factor: float = 1.0
-    #: motor vibration on the accelerometer at hover rotor speed, white, m/s^2 per sample, x/y/z; it
-    #: scales with the rotors' mean speed (none with the motors stopped, ~0.4x armed at idle on the
-    #: ground). With the sensor's own 0.020 it gives the RflyMAD SIL log's white noise at hover
+    #: motor vibration on the accelerometer at hover rotor speed, white, m/s^2 per sample, x/y/z;
+    #: none with the motors stopped, as much armed at idle on the ground, more above hover speed
+    #: (physics.sensors.vibration_scale). With the sensor's own 0.020 it gives the RflyMAD SIL log's white noise at hover
     #: (0.035 / 0.031 / 0.069 at 50 Hz; perf.realism_tells, docs/realism.md "Fixing the tells")
     accel_vibration: tuple[float, float, float] = (0.029, 0.024, 0.066)
     #: m/s^3/sqrt(Hz); Gazebo's 0.006 drifted the bias by ~0.02 m/s^2 in 10 s on the ground (lag-1

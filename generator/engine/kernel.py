@@ -23,6 +23,7 @@ from scart_bench.generator.flight_software.startup import (
     EPH_SETTLE,
     EPH_SETTLE_TAU_S,
     SATS_RAMP,
+    TAKEOFF_CLIMB,
 )
 from scart_bench.generator.params import GRAVITY
 from scart_bench.generator.physics.noise import (
@@ -38,6 +39,7 @@ from scart_bench.generator.physics.noise import (
     NZ_MAG,
     NZ_WIND,
 )
+from scart_bench.generator.physics.sensors import VIBRATION_FULL_FROM
 
 _I = L.PARAM_INDEX
 K_DT, K_MASS, K_JX, K_JY, K_JZ = _I["dt"], _I["mass"], _I["Jx"], _I["Jy"], _I["Jz"]
@@ -335,6 +337,7 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     fs = (a0 * R[0] + a1 * R[3] + a2 * R[6], a0 * R[1] + a1 * R[4] + a2 * R[7], a0 * R[2] + a1 * R[5] + a2 * R[8])
     # motor vibration (white), scaling with the rotors' mean speed over the hover speed (physics.sensors)
     vib = (s[L.ROTOR] + s[L.ROTOR + 1] + s[L.ROTOR + 2] + s[L.ROTOR + 3]) / 4.0 * p[K_INV_HOVER_ROT]
+    vib = max(min(vib / VIBRATION_FULL_FROM, 1.0), vib)
     for a in range(3):
         s[L.ACC_BIAS + a] = p[K_A_AB] * s[L.ACC_BIAS + a] + p[K_C_AB] * w[k, NZ_ACC_BIAS + a]
         s[L.GYRO_BIAS + a] = p[K_A_GB] * s[L.GYRO_BIAS + a] + p[K_C_GB] * w[k, NZ_GYRO_BIAS + a]
@@ -793,6 +796,9 @@ def _velocity_control(s, p):
     """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust (50 Hz)."""
     dt = NAV_DT
     armed = s[L.ARMED] > 0.5
+    if armed and s[L.SETPOINT_IN + 2] < -TAKEOFF_CLIMB:
+        s[L.TOOK_OFF] = 1.0
+    idle = armed and s[L.TOOK_OFF] < 0.5  # armed on the ground before the take-off: motors at idle
     dv0 = s[L.SETPOINT_IN] - s[L.CTRL_VEL_SP]
     dv1 = s[L.SETPOINT_IN + 1] - s[L.CTRL_VEL_SP + 1]
     dv2 = s[L.SETPOINT_IN + 2] - s[L.CTRL_VEL_SP + 2]
@@ -813,7 +819,7 @@ def _velocity_control(s, p):
     acc0 *= sc
     acc1 *= sc
     saturated = sc < 1.0
-    arm = 1.0 if armed else 0.0
+    arm = 1.0 if armed and not idle else 0.0
     u0 = 0.0 if saturated else err0 * dt
     u1 = 0.0 if saturated else err1 * dt
     s[L.VEL_INT] = _clip(s[L.VEL_INT] + u0 * arm, -3.0, 3.0)
@@ -838,7 +844,7 @@ def _velocity_control(s, p):
         c0, y0, b0, c1, y1, b1, c2, y2, b2)
     r = L.R_CTRL
     thrust = p[K_MASS] * (f0 * -s[r + 2] + f1 * -s[r + 5] + f2 * -s[r + 8])
-    s[L.THRUST_SP] = _clip(thrust, p[K_THRUST_LO], p[K_THRUST_HI])
+    s[L.THRUST_SP] = p[K_THRUST_LO] if idle else _clip(thrust, p[K_THRUST_LO], p[K_THRUST_HI])
 
 
 @njit(**_HOT)

@@ -103,7 +103,9 @@ MOTOR_CMD = 193  # 4, rad/s: the rotor speeds the rate controller's mixer comman
 NAV_LAST = 197
 # -- the GPS receiver's slow error: the Gauss-Markov drive its smooth error follows (physics.sensors) ----------
 GPS_DRIVE = 198  # 3, m
-WIDTH = 201
+# -- the controller's landed state: 1 once the take-off's climb was asked for (flight_controller.ControllerState)
+TOOK_OFF = 201
+WIDTH = 202
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -140,7 +142,7 @@ FIELDS: dict[str, tuple[int, int]] = {
     "last_fix": (LAST_FIX, 3), "last_fix_set": (LAST_FIX_SET, 1), "gps_fix_at": (GPS_FIX_AT, 1),
     "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
     "motor_cmd": (MOTOR_CMD, 4), "nav_last": (NAV_LAST, 1),
-    "gps_drive": (GPS_DRIVE, 3),
+    "gps_drive": (GPS_DRIVE, 3), "took_off": (TOOK_OFF, 1),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------

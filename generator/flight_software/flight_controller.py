@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scart_bench.generator.flight_software.startup import TAKEOFF_CLIMB
 from scart_bench.generator.params import GRAVITY, ControllerParams, EstimatorParams, VehicleParams
 from scart_bench.generator.physics.rotation import (
     cross,
@@ -270,6 +271,9 @@ class ControllerState:
     disarmed_after_flight: np.ndarray  # (N,) bool
     prev_vel_err: np.ndarray  # (N, 3)
     vel_sp: np.ndarray  # (N, 3) slew-limited velocity setpoint in use
+    #: (N,) bool: the take-off's climb was asked for since arming; before it, armed on the ground,
+    #: the motors idle and the velocity integrators hold (PX4's landed state: no wind-up lifting it)
+    took_off: np.ndarray | None = None
 
 
 class Controller:
@@ -289,13 +293,15 @@ class Controller:
             armed=np.zeros(n, dtype=bool), vel_int=np.zeros((n, 3)), rate_int=np.zeros((n, 3)),
             thrust_sp=np.zeros(n), att_quat_sp=eye, rate_sp=np.zeros((n, 3)), land_time=np.zeros(n),
             disarmed_after_flight=np.zeros(n, dtype=bool), prev_vel_err=np.zeros((n, 3)),
-            vel_sp=np.zeros((n, 3)),
+            vel_sp=np.zeros((n, 3)), took_off=np.zeros(n, dtype=bool),
         )
 
     def velocity_control(self, c: ControllerState, vel_sp: np.ndarray, yaw_sp: np.ndarray,
                          vel_est: np.ndarray, R_est: np.ndarray, dt: float) -> None:
         """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust."""
         p, m = self.p, self.v.mass
+        c.took_off |= c.armed & (vel_sp[:, 2] < -TAKEOFF_CLIMB)
+        idle = c.armed & ~c.took_off  # armed on the ground, before the take-off
         # PX4 smooths setpoints: limit the horizontal and vertical acceleration they ask for
         dv = vel_sp - c.vel_sp
         dvh = np.linalg.norm(dv[:, :2], axis=1)
@@ -320,7 +326,7 @@ class Controller:
         saturated = scale < 1.0
         upd = err * dt
         upd[saturated, :2] = 0.0
-        c.vel_int = np.clip(c.vel_int + upd * c.armed[:, None], -3.0, 3.0)
+        c.vel_int = np.clip(c.vel_int + upd * (c.armed & ~idle)[:, None], -3.0, 3.0)
         f = acc.copy()
         f[:, 2] -= GRAVITY  # desired specific force (points up: negative z)
         f[:, 2] = np.minimum(f[:, 2], -0.3 * GRAVITY)
@@ -331,7 +337,8 @@ class Controller:
         x = cross(y, b3)
         c.att_quat_sp = np.stack([x, y, b3], axis=2)
         thrust = m * np.einsum("ni,ni->n", f, -R_est[:, :, 2])
-        c.thrust_sp = np.clip(thrust, self.p.thrust_min * self.max_total, 0.95 * self.max_total)
+        c.thrust_sp = np.where(idle, self.p.thrust_min * self.max_total,
+                               np.clip(thrust, self.p.thrust_min * self.max_total, 0.95 * self.max_total))
 
     def attitude_control(self, c: ControllerState, R_est: np.ndarray) -> None:
         """Attitude error -> body-rate setpoint (geometric attitude error, PX4 P gains)."""

@@ -29,6 +29,8 @@ ARM_AFTER_ORIGIN_S = (0.5, 3.0)
 #: ``python -m perf.realism_tells``, "armed on the ground before take-off"; PX4's
 #: COM_SPOOLUP_TIME is 1 s, the rest is the operator's or the mission's start)
 TAKEOFF_AFTER_ARM_S = 3.0
+#: upward velocity setpoint (m/s) that ends the controller's idle on the ground: the take-off's climb
+TAKEOFF_CLIMB = 0.2
 #: the old instant start's (``MissionParams(ground_phase=False)``), kept as it was
 TAKEOFF_AFTER_ARM_INSTANT_S = 0.5
 

@@ -48,10 +48,18 @@ def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.nd
     return a, np.sqrt(1 - a * a) * (1 + a) / np.sqrt(1 + a * a) * scale
 
 
+#: rotor speed, as a fraction of the hover speed, from which the motors shake the IMU fully
+VIBRATION_FULL_FROM = 0.3
+
+
 def vibration_scale(rotor_speed: np.ndarray, hover_rotor_speed: float) -> np.ndarray:
-    """(N,) the rotors' mean speed (rad/s) over their speed at hover: how hard the motors shake the
-    IMU (0 with the motors stopped, ~0.4 armed at idle on the ground, 1 at hover)."""
-    return np.asarray(rotor_speed).mean(axis=1) * (1.0 / hover_rotor_speed)
+    """(N,) how hard the motors shake the IMU, 1 at hover: none with the motors stopped, rising with
+    their mean speed to 1 from VIBRATION_FULL_FROM of the hover speed (idle on the ground: 0.39),
+    then as the speed. The ArduCopter logs' vibration armed on the ground is 0.8-1.6x their hover's
+    (sample-to-sample accelerometer noise, perf.realism_tells): a frame on its legs shakes as much
+    at idle as in the air."""
+    r = np.asarray(rotor_speed).mean(axis=1) * (1.0 / hover_rotor_speed)
+    return np.maximum(np.minimum(r / VIBRATION_FULL_FROM, 1.0), r)
 
 
 class Sensors:
