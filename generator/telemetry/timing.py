@@ -60,6 +60,13 @@ REALISTIC.update({
     "vehicle_local_position": (0.059, 0.0, 0.0), "actuator_controls_0": (0.055, 0.0, 0.0),
     "actuator_outputs": (0.055, 0.0, 0.0),
 })
+#: link topics whose timestamps' offset wanders (AR(1) with this correlation from one message to
+#: the next) instead of being drawn afresh per message, at the same interval CV. A stream sampled
+#: by the clock of a sensor it is as fast as keeps its phase for a while: with independent offsets,
+#: a 50 Hz stream read back at 50 Hz (the latest message at each tick) repeated a sample at one tick
+#: in three, which turned the accelerometer's white noise into lag-1 autocorrelation 0.3
+#: (``perf.realism_tells``; the ArduCopter logs' 50 Hz IMU: -0.1 on the ground).
+WANDERING = {"highres_imu": 0.95}
 GPS_FIX_S = startup.GPS_FIX_S
 GLOBAL_AFTER_FIX_S = startup.ORIGIN_AFTER_FIX_S
 GPS_TOPICS = ("gps_raw_int", "global_position_int")
@@ -101,8 +108,16 @@ def message_timing(timing: str, seed: int, topic: str, ts_us: np.ndarray, rate_h
     rate = rate_hz
     period = 1e6 / rate  # nominal: the schedule's own intervals vary on the step clock
     cv, drop_p, late_p = REALISTIC[topic]
-    sigma = cv * period / math.sqrt(2.0)
-    offset = np.clip(_rng(seed, topic, 1).standard_normal(n) * sigma, -_CLIP * period, _CLIP * period)
+    z = _rng(seed, topic, 1).standard_normal(n)
+    rho = WANDERING.get(topic)
+    if rho is None:
+        offset = np.clip(z * cv * period / math.sqrt(2.0), -_CLIP * period, _CLIP * period)
+    else:  # the phase wanders: consecutive messages share most of their offset (AR(1), unit variance)
+        from scipy.signal import lfilter
+
+        phase = lfilter([math.sqrt(1.0 - rho * rho)], [1.0, -rho], z)
+        phase += rho ** np.arange(n) * (z[0] - phase[0])  # start from the stationary state
+        offset = np.clip(phase * cv * period / math.sqrt(2.0 * (1.0 - rho)), -_CLIP * period, _CLIP * period)
     u = _rng(seed, topic, 2).random((n, 2))  # drop/late draw, late amount
     late = (u[:, 0] >= drop_p) & (u[:, 0] < drop_p + late_p)
     offset = np.where(late, (0.5 + 0.4 * u[:, 1]) * period, offset)
