@@ -154,6 +154,8 @@ def fly_normal_batch(writer, plan: GenerationPlan, batch: int, say: Callable[[st
         if flights is not None:  # what the flight flew under the profile's mixes (flight_batch.flight_summaries)
             config = {**config, "flight": flights[j]}
         record = normal_record(flown, j, f"normal-{i:04d}", plan.split_of[i], config)
+        if flights is not None:  # its own items, not padded to its batch's longest mission
+            record.config["waypoints_ned"] = record.config["waypoints_ned"][:flights[j].get("items")]
         writer.write(record)
         if plan.split_of[i] in sources:
             sources[plan.split_of[i]].append((record.flight_id, strip_labels(record.navigator), plan.seeds[i]))

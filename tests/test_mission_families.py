@@ -157,10 +157,12 @@ def test_the_same_seed_gives_byte_identical_datasets_with_the_mix(tmp_path):
     ha, hb = _hashes(Path(a)), _hashes(Path(b))
     assert ha == hb and len(ha) > 8
     # each flight records what it flew
-    flights = [json.loads(p.read_text())["flight"] for p in sorted(Path(a).glob("flights/*/raw/config.json"))]
-    assert len(flights) == 4
-    assert {"family", "airframe", "altitude_m", "cruise_speed_ms", "planned_duration_s", "wind_ms",
-            "gust_sigma_ms", "mass_kg", "battery_start"} <= set(flights[0])
+    configs = [json.loads(p.read_text()) for p in sorted(Path(a).glob("flights/*/raw/config.json"))]
+    assert len(configs) == 4
+    for c in configs:
+        assert {"family", "airframe", "altitude_m", "cruise_speed_ms", "planned_duration_s", "wind_ms",
+                "gust_sigma_ms", "mass_kg", "battery_start"} <= set(c["flight"])
+        assert len(c["waypoints_ned"]) == c["flight"]["items"]  # its own mission, not padded to its batch's
 
 
 def test_the_paper_profile_keeps_the_square():
