@@ -429,6 +429,8 @@ def defend(
     (generator.impact), whether the response was taken and when. ``far_m``: how far from the planned landing
     (the twin's) a flight may end and still complete its mission (default generator.impact.MISSION_TOLERANCE_M).
     """
+    import dataclasses
+
     from scart_bench.generator.defense import DefenseHook
     from scart_bench.generator.engine.simulate import simulate
     from scart_bench.generator.impact import MISSION_TOLERANCE_M, impact
@@ -436,6 +438,8 @@ def defend(
     from scart_bench.generator.scart.layer import AttackLayer
 
     far_m = MISSION_TOLERANCE_M if far_m is None else float(far_m)
+    if flight_config is not None and flight_config.airframes:  # a layer's batch flies one vehicle: no airframe mix
+        flight_config = dataclasses.replace(flight_config, airframes=())
     rows: list[dict] = []
     example: tuple[bool, pd.DataFrame] | None = None
     wall = {"undefended_s": 0.0, "defended_s": 0.0, "scoring_s": 0.0}

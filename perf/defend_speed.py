@@ -17,6 +17,7 @@ detector alarms (on normal flights too) and the responses are flown.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     from scart_bench.generator.scart.scenario import load_scenarios
     from scart_bench.generator.telemetry.tables import flight_views
 
-    cfg = get_profile(args.profile).flight_config()
+    cfg = dataclasses.replace(get_profile(args.profile).flight_config(), airframes=())  # a layer flies one vehicle
     fit = simulate([9001, 9002], cfg)
     tables = [combine(flight_views(fit, i)[0], [])["most_frequent"] for i in range(2)]
     det = registry.make(args.detector).fit(tables)

@@ -210,12 +210,13 @@ def instance_gps(env: Disturbances, gps: dict) -> dict:
 
 def flight_vehicles(seeds: list[int], cfg: FlightConfig) -> list[tuple[str, float]]:
     """Per flight, the airframe it flies (``""``: the config's own vehicle) and its payload (a fraction of
-    the airframe's mass; with mission families, generator.flight_software.families), both drawn from its seed."""
+    the airframe's mass, drawn with its mission family: generator.flight_software.families; carried only
+    with an airframe mix, so that a config without one flies one vehicle), both drawn from its seed."""
     from scart_bench.generator.physics.airframes import airframe_for_seed
 
     names = [airframe_for_seed(cfg.airframes, s) if cfg.airframes else "" for s in seeds]
     m = cfg.mission
-    if m.families and not m.missions:
+    if cfg.airframes and m.families and not m.missions:
         from scart_bench.generator.flight_software.families import draw_mission
 
         return [(name, draw_mission(s, m).payload) for name, s in zip(names, seeds)]
