@@ -178,7 +178,9 @@ def test_realism_reads_a_generated_dataset_and_a_log_folder(tmp_path, capsys):
         flights = realism.dataset_flights(out, 5, view)
         assert len(flights) == 2
         f = realism.figures(flights[0])
-        assert f["imu jitter CV"][0] > 0.1 and f["gps first msg s"][0] > 2.5  # realistic timing, GPS at its fix
+        # realistic timing (the link's 50 Hz IMU at the ArduCopter logs' CV ~0.05, the uORB view's
+        # 250 Hz rows at the SIL log's 0.39), GPS at its fix
+        assert f["imu jitter CV"][0] > 0.03 and f["gps first msg s"][0] > 2.5
         assert np.isfinite(f["gyro x std rad/s"][0]) and np.isfinite(f["baro alt std m"][0])
     _need_log()
     assert realism.main(["--dataset", str(out), "--logs", str(ULOGS), "--flights", "2"]) == 0
