@@ -2,13 +2,18 @@
 
     python -m perf.realism [--flights N] [--seed S] [--gps-accuracy LEVEL] [--sensor-profile P] [--timing T] [--markdown]
                            [--dataset DIR] [--view VIEW] [--logs DIR] [--ulog FILE ...] [--two-sample]
+    python -m perf.realism --windows --dataset DIR [--logs FILE_OR_DIR ...] [--phases ground,hover,cruise] [--markdown]
+
+``--windows`` runs the window-level realism check of :mod:`perf.realism_windows` (issue 47; every
+other argument is its own), which replaces ``--two-sample``: that per-flight check was too weak to
+see the tells a classifier on 10 s windows finds (docs/realism.md, "The window classifier").
 
 Flies ``N`` default-mission normal flights (holding 12 s in hover after take-off), or reads up to
 ``N`` normal flights of a generated dataset (``--dataset``, its simulator view by default), and
 reads the given ULogs (``--ulog`` files and every ``*.ulg`` of ``--logs``; by default every
 ``*.ulg`` in ``../shared/data/ulog`` next to the checkout), then prints one row per figure and
 axis: the generated value (median over the flights), each log's value and the ratio generated /
-log. ``--two-sample`` also prints the cross-validated AUC of a classifier that tells the generated
+log. ``--two-sample`` (superseded by ``--windows``; kept for the old figures) also prints the cross-validated AUC of a classifier that tells the generated
 flights from the logs by their timing and noise figures (:func:`two_sample_auc`; 0.5: it cannot).
 
 Figures, computed the same way on both sides:
@@ -476,6 +481,14 @@ def two_sample_auc(generated: list[Flight], logs: list[Flight], repeats: int = 2
 
 
 def main(argv: list[str] | None = None) -> int:
+    import sys
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--windows" in argv:  # the window-level check (issue 47): its own arguments
+        from perf.realism_windows import main as windows_main
+
+        argv.remove("--windows")
+        return windows_main(argv)
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--flights", type=int, default=8, help="generated normal flights (default 8)")
     p.add_argument("--seed", type=int, default=0)
@@ -495,7 +508,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ulog", nargs="*", default=None, help="PX4 ULog files")
     p.add_argument("--markdown", action="store_true", help="print a Markdown table")
     p.add_argument("--two-sample", action="store_true",
-                   help="also print the two-sample classifier's cross-validated AUC (generated vs logs)")
+                   help="superseded by --windows (too weak: 20 per-flight figures); also print the two-sample "
+                   "classifier's cross-validated AUC (generated vs logs)")
+    p.add_argument("--windows", action="store_true",
+                   help="run the window-level realism check instead (perf.realism_windows; its own arguments: "
+                   "--dataset DIR [--logs ...] [--phases ...] [--markdown]); replaces --two-sample")
     args = p.parse_args(argv)
     if args.flights < 1:
         p.error("--flights must be at least 1")
