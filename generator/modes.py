@@ -7,6 +7,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pandas as pd
 
@@ -22,6 +24,7 @@ from scart_bench.generator.engine.simulate import BatchResult, FlightConfig, sim
 from scart_bench.generator.params import STEP_US
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.meanings import input_fields
+from scart_bench.generator.scart.replay import per_message, replay
 from scart_bench.generator.scart.scenario import Scenario
 from scart_bench.generator.telemetry.tables import flight_views, uorb_stream_tables, with_uorb
 
@@ -125,30 +128,19 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
     values = {}
     for t in topics:
         arr = np.full((n, len(times[t]), len(fields[t])), np.nan)
+        first: dict[int, int] = {}  # one table replayed for several flights (copies of a log) is read once
         for i, f in enumerate(flights):
-            arr[i, : len(f[t])] = f[t][list(fields[t])].to_numpy(np.float64)
+            j = first.setdefault(id(f[t]), i)
+            arr[i, : len(f[t])] = arr[j, : len(f[t])] if j != i else f[t][list(fields[t])].to_numpy(np.float64)
         values[t] = arr
     rates = {t: (len(times[t]) - 1) / max((times[t][-1] - times[t][0]) / 1e6, 1e-9) if len(times[t]) > 1 else 1.0
              for t in topics}
     layer = AttackLayer(scenarios, seeds, fields=fields, rates=rates, physics=False)
     out_vals = {t: values[t].copy() for t in topics}
     delivered = {t: np.ones((n, len(times[t])), dtype=bool) for t in topics}
-    # every (time, topic, index) message in timestamp order; topics at the same time go together
-    events = sorted((int(ts), t, k) for t in topics for k, ts in enumerate(times[t]))
-    j = 0
-    while j < len(events):
-        t_us = events[j][0]
-        batch = {}
-        while j < len(events) and events[j][0] == t_us:
-            _, t, k = events[j]
-            batch[t] = k
-            j += 1
-        msgs = {t: values[t][:, k, :] for t, k in batch.items()}
-        altered = layer.on_messages(None, 0, t_us, msgs)
-        for t, k in batch.items():
-            v, ok = altered[t]
-            out_vals[t][:, k, :] = v
-            delivered[t][:, k] = ok
+    # every message in timestamp order, topics at the same time together (generator.scart.replay)
+    (per_message if os.environ.get("SCART_BENCH_CSV_REPLAY") == "per-message" else replay)(
+        layer, times, values, out_vals, delivered)
     results = []
     for i, f in enumerate(flights):
         end_us = int(max(f[t]["Timestamp"].iloc[-1] for t in topics if len(f[t]))) + 1

@@ -20,51 +20,80 @@ from scart_bench.generator.modes import csv_record
 _TEXT_DTYPE = pd.Series(np.array([""], dtype=object)).dtype
 
 
-def _same_values(a: pd.Series, b: pd.Series) -> bool:
-    """Same dtype and the same bits (numeric columns only: anything else counts as changed)."""
-    if a.dtype != b.dtype or len(a) != len(b):
-        return False
-    x, y = a.to_numpy(), b.to_numpy()
-    if x.dtype.kind not in "biuf" or x.dtype != y.dtype:
-        return False
-    width = np.dtype(f"u{x.dtype.itemsize}")
-    return bool(np.array_equal(np.ascontiguousarray(x).view(width), np.ascontiguousarray(y).view(width)))
+def _bits(x: np.ndarray) -> np.ndarray | None:
+    """A numeric column as unsigned integers of its width (for a bit-for-bit comparison), or None."""
+    if x.dtype.kind not in "biuf" or x.dtype.itemsize not in (1, 2, 4, 8):
+        return None
+    return np.ascontiguousarray(x).view(np.dtype(f"u{x.dtype.itemsize}"))
 
 
-def _same_fields(a: pd.DataFrame, b: pd.DataFrame, keep: list[str]) -> bool:
-    """Whether ``a`` holds ``b``'s columns ``keep`` bit for bit in the same dtypes: all float64 fields
-    (a log's usual case) compared in one array operation, others column by column."""
-    da, db = a.dtypes, b.dtypes
-    if any(da[c] != db[c] for c in keep):
+class _SourceColumns:
+    """One source flight's topic tables as column arrays (taken from pandas once for all its copies)."""
+
+    def __init__(self, source: dict[str, pd.DataFrame]):
+        self.source = source
+        self._topics: dict[str, tuple] = {}
+
+    def topic(self, name: str) -> tuple | None:
+        """(non-label columns, their dtypes, their bits or None where not numeric) of topic ``name``."""
+        if name not in self._topics:
+            b = self.source.get(name)
+            if b is None:
+                self._topics[name] = None
+            else:
+                keep = [c for c in b.columns if c not in LABEL_COLUMNS]
+                dtypes = b.dtypes
+                bits = [_bits(b[c].to_numpy()) for c in keep]
+                floats = None  # the fields after the first as one (rows x fields) array when all are float64
+                if len(keep) > 1 and all(dtypes[c] == np.float64 for c in keep[1:]):
+                    floats = np.column_stack([x.view(np.float64) for x in bits[1:]]).view(np.uint64)
+                self._topics[name] = (keep, [dtypes[c] for c in keep], bits, floats)
+        return self._topics[name]
+
+
+def _same_columns(a: pd.DataFrame, keep: list[str], bits: list, floats: np.ndarray | None) -> bool:
+    """Whether ``a`` (columns: ``keep[0]``, the labels, ``keep[1:]``) holds the source's fields bit for
+    bit: all float64 fields (a log's usual case) taken from pandas in one block."""
+    if not np.array_equal(_bits(a[keep[0]].to_numpy()), bits[0]):
         return False
-    floats = [c for c in keep[1:] if db[c] == np.float64]
-    if floats:
-        x = a.iloc[:, [a.columns.get_loc(c) for c in floats]].to_numpy()
-        y = b.iloc[:, [b.columns.get_loc(c) for c in floats]].to_numpy()
-        if not np.array_equal(x.view(np.uint64), y.view(np.uint64)):
-            return False
-    return all(_same_values(a[c], b[c]) for c in keep if c not in floats)
+    if floats is not None:
+        return np.array_equal(a.iloc[:, 1 + len(LABEL_COLUMNS):].to_numpy(np.float64).view(np.uint64), floats)
+    return all(np.array_equal(_bits(a[c].to_numpy()), x) for c, x in zip(keep[1:], bits[1:]))
+
+
+#: The source flight whose columns were taken last: the copies of one source come one after the other.
+_last: list[_SourceColumns] = []
+
+
+def _columns_of(source: dict[str, pd.DataFrame]) -> _SourceColumns:
+    if not _last or _last[0].source is not source:
+        _last[:] = [_SourceColumns(source)]
+    return _last[0]
 
 
 def untouched(nav: dict[str, pd.DataFrame], source: dict[str, pd.DataFrame], windows) -> set[str]:
     """Topics whose replayed table is exactly the source table with the copy's labels (what
     ``with_labels(source, windows)`` gives, column for column, bit for bit, dtypes included)."""
+    cols = _columns_of(source)
     out = set()
     for topic, a in nav.items():
         b = source.get(topic)
         if b is None or len(a) != len(b) or not isinstance(a.index, pd.RangeIndex) or not a.index.equals(b.index):
             continue
-        keep = [c for c in b.columns if c not in LABEL_COLUMNS]
+        keep, dtypes, bits, floats = cols.topic(topic)
         if not keep or list(a.columns) != [keep[0], *LABEL_COLUMNS, *keep[1:]] or "Timestamp" not in keep:
             continue
-        if not _same_fields(a, b, keep):
+        da = a.dtypes.tolist()  # in the order of the columns checked above: keep[0], the labels, keep[1:]
+        if da[:1] + da[1 + len(LABEL_COLUMNS):] != dtypes or any(x is None for x in bits):
             continue
-        labels = label_columns(b["Timestamp"].to_numpy(), list(windows))
+        if not _same_columns(a, keep, bits, floats):
+            continue
+        labels = label_columns(a["Timestamp"].to_numpy(), list(windows))
         flag = a["Is_Anomaly"].to_numpy()
         if flag.dtype != labels["Is_Anomaly"].dtype or not np.array_equal(flag, labels["Is_Anomaly"]):
             continue
-        if any(a[c].dtype != _TEXT_DTYPE or not np.array_equal(a[c].to_numpy(dtype=object), labels[c])
-               for c in LABEL_COLUMNS[1:]):
+        if any(d != _TEXT_DTYPE for d in da[2:1 + len(LABEL_COLUMNS)]) or \
+                any(not np.array_equal(a[c].to_numpy(dtype=object), labels[c]) for c in LABEL_COLUMNS[1:]):
             continue
         out.add(topic)
     return out
@@ -86,4 +115,6 @@ def copy_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, 
     manifest = {k: v for k, v in part.manifest.items() if k != "duration_s"}  # of the whole flight, below
     record = flight_record(flight_id, dict(nav), simulator, manifest, part.config, part.windows, part.events)
     record.uorb = part.uorb
+    # the writer compares each of these with the stored source once for all the copies of the source
+    record.same_as_source = {t: source[t] for t in same}
     return record

@@ -81,6 +81,16 @@ def vanilla_callback(ctx, start: np.ndarray, end: np.ndarray, active: np.ndarray
     return np.where(active, ~end, start & can_start)
 
 
+#: Built-in conditions that read only the History (and the origin, learnt from messages): no time,
+#: no other scenario's state. Between two messages they keep their value (AttackLayer.next_change).
+_UNTIMED = ("message_count", "geofence", "altitude_above", "mission_phase", "flight_phase", "after_phase",
+            "airborne")
+
+
+def _untimed(c: Condition) -> bool:
+    return c.name in _UNTIMED and type(c) is CONDITIONS.get(c.name)
+
+
 class _Context:
     """What conditions and actions see for one group at one call."""
 
@@ -198,6 +208,11 @@ class _Group:
         times = [c.earliest_s() for c in self.start_conds] if self._vanilla else []
         self._wake_s = max((t for t in times if t is not None), default=None)
         self._dead = False
+        #: the last update changed nothing (see first_change); untimed: its conditions read only
+        #: the History (no time, no other scenario), so they hold the same until a message arrives
+        self._settled = False
+        self._untimed_start = all(_untimed(c) for c in self.start_conds)
+        self._untimed_end = all(_untimed(c) for c in self.end_conds)
         #: (action, topic) in the order they act on a message, and those of the random actions
         self.action_targets = [(a, topic) for a in self.actions for topic in a.fields]
         self.random_targets = [(a, topic) for a, topic in self.action_targets if a.random]
@@ -241,6 +256,7 @@ class _Group:
     def update(self, t_us: int) -> _Context:
         """Evaluate the callback; log transitions."""
         ctx = self.context(t_us)
+        self._settled = True  # until _transitions changes something
         if self._vanilla:
             return self._update_vanilla(ctx, t_us)
         start, end = self._conditions(ctx)
@@ -281,6 +297,42 @@ class _Group:
         self._transitions(np.where(active, ~end, start & can_start), t_us)
         return ctx
 
+    def first_change(self, ticks: np.ndarray) -> int:
+        """Index of the first of ``ticks`` (µs, ascending, after the last call) at which ``update``
+        could change this vanilla group's state when no message it listens to arrives in between
+        (len(ticks) if at none): its pure conditions evaluated on all the ticks at once, the time
+        as a column (the same comparisons as one call per tick)."""
+        m = len(ticks)
+        if self._dead:
+            return m
+        can_start = self.windows_used < self.max_windows
+        if not self.any_active and not can_start.any():
+            return m  # the next update marks the group dead: no transition
+        if self._settled and (self._untimed_start or self.all_active) and (self._untimed_end or not self.any_active):
+            return m  # what it evaluated last time reads only the History, which has not changed
+        ctx = self.context(int(ticks[0]))
+        ctx.t_us = ticks[:, None]
+        try:
+            n = len(self.rows)
+            start = end = None
+            if not self.all_active:
+                start = np.ones((m, n), dtype=bool)
+                for c in self.start_conds:
+                    start &= np.asarray(c(ctx), dtype=bool)
+            if self.any_active:
+                end = np.zeros((m, n), dtype=bool)
+                for c in self.end_conds:
+                    end |= np.asarray(c(ctx), dtype=bool)
+        finally:
+            ctx.t_us = int(ticks[0])
+        if end is None:
+            hit = (start & can_start).any(axis=1)
+        elif start is None:
+            hit = end.any(axis=1)
+        else:
+            hit = (np.where(self.active, ~end, start & can_start) != self.active).any(axis=1)
+        return int(np.argmax(hit)) if hit.any() else m
+
     def _conditions(self, ctx: _Context) -> tuple[np.ndarray, np.ndarray]:
         """Every start condition and'ed, every end condition or'ed, per flight of the group."""
         n = len(self.rows)
@@ -296,6 +348,7 @@ class _Group:
         """Take ``new_active``: log starts and ends."""
         began = new_active & ~self.active
         ended = self.active & ~new_active
+        self._settled = self._settled and not (began.any() or ended.any())
         if began.any():
             self.start_us[began] = t_us
             self.windows_used[began] += 1
@@ -449,6 +502,42 @@ class AttackLayer:
         if done:  # a finished group does nothing more at any point
             self._live = [g for g in self._live if not g.finished]
         return out
+
+    @property
+    def origin_open(self) -> bool:
+        """Whether a flight's origin is still unknown (the layer then reads every lat/lon pair)."""
+        return self._origin_open
+
+    def must_see(self, topics) -> set[str]:
+        """Those of ``topics`` whose messages can matter to the layer: listened to, targeted, or
+        (while a flight's origin is unknown) carrying a latitude/longitude pair. A call with only
+        other topics' messages changes none of them; it only evaluates the groups at its time
+        (which :meth:`next_change` can say is a no-op)."""
+        out = {t for t in topics if t in self.listened}
+        if self._origin_open:
+            from scart_bench.generator.scart.units import latlon_pair
+
+            out |= {t for t in topics if t not in CONTROL_TOPICS and latlon_pair(t, self.fields(t)) is not None}
+        return out
+
+    def next_change(self, ticks: np.ndarray, chunk: int = 4096) -> int:
+        """Index of the first of ``ticks`` (µs, ascending, after the last call) at which a call
+        without messages, ``on_messages(None, 0, t, {})``, could change any group's state; the calls
+        before it are no-ops and may be left out (csv mode's replay). 0 when a group has a callback
+        or condition of its own (every call counts); len(ticks) when none changes."""
+        groups = []
+        for g in self._live:
+            if g.finished or (g._vanilla and g._dead):
+                continue
+            if not g._vanilla:
+                return 0
+            groups.append(g)
+        for lo in range(0, len(ticks), chunk):
+            part = ticks[lo:lo + chunk]
+            first = min((g.first_change(part) for g in groups), default=len(part))
+            if first < len(part):
+                return lo + first
+        return len(ticks)
 
     def learn_origin(self, messages: dict[str, np.ndarray]) -> None:
         """Take a flight's origin from the first finite, non-zero lat/lon pair it receives."""

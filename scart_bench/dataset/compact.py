@@ -161,10 +161,11 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
         cols = []
         elsewhere_view, elsewhere = shared.get(name, ("", []))
         elsewhere = [c for c in elsewhere if c not in SHARED_COLUMNS]
+        kept_elsewhere, dtypes = set(elsewhere), df.dtypes
         for col in df.columns:
             key = _column_key(name, str(col))
-            if str(col) in elsewhere:
-                cols.append([str(col), str(df[col].dtype)])
+            if str(col) in kept_elsewhere:
+                cols.append([str(col), str(dtypes[col])])
                 continue
             if owner.setdefault(key, name) != name and key not in SHARED_COLUMNS:
                 raise CompactError(f"topic {name!r} column {col!r}: the name {key!r} is taken by topic {owner[key]!r}")

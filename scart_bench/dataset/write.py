@@ -258,6 +258,7 @@ class SourceView:
         self.flight_id = flight_id
         self.ref = compact.other_flight_ref(flight_id, "navigator")
         self._stacked: dict[tuple, np.ndarray] = {}
+        self._tables: dict[str, tuple[pd.DataFrame, list[str]]] = {}
         try:
             meta = compact.read_meta(self.path)
             self.arrays = compact.read_topics(self.path, list(meta["topics"]), meta, arrays=True)
@@ -285,6 +286,14 @@ class SourceView:
             same.update(c for c, eq in zip(floats, (x == y).all(axis=0)) if eq)
         same.update(c for c in wanted if c not in floats and _same_array(df[c].to_numpy(), base[c]))
         return [c for c in wanted if c in same]
+
+    def fields_of_source(self, name: str, table: pd.DataFrame) -> list[str]:
+        """``fields(name, df)`` for a copy's table that holds ``table`` (the source flight's, as loaded)
+        bit for bit in every field: compared once for all the copies of the source."""
+        got = self._tables.get(name)
+        if got is None or got[0] is not table:
+            got = self._tables[name] = (table, self.fields(name, table))
+        return got[1]
 
     def _floats(self, name: str, cols: list[str]) -> np.ndarray:
         """The topic's float64 fields ``cols`` as one (rows x fields) array, kept for the next copy."""
@@ -384,7 +393,8 @@ def _write_compact(root: Path, record: FlightRecord, source: SourceView | None =
                 if view != "navigator" and record.navigator.get(name) is df:
                     reuse[name] = "navigator"  # the very table: the navigator view's, read from there
                     continue
-                fields = source.fields(name, df)
+                same = getattr(record, "same_as_source", {})  # topics the copy holds as loaded (copies.py)
+                fields = source.fields_of_source(name, same[name]) if name in same else source.fields(name, df)
                 if fields:
                     shared[name] = (source.ref, fields)
                 elif view == "simulator":
