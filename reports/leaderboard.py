@@ -325,6 +325,31 @@ def display_table(board: pd.DataFrame, runs: list[RunResults]) -> tuple[list[str
     return head, body
 
 
+#: The leaderboard's columns in a terminal (``scart-bench report``): at most 120 characters a row.
+TERMINAL_COLUMNS = (("TP Simulation", "tp_simulation", "pct_ci"), ("TP CSV", "tp_csv", "pct_ci"),
+                    ("TN No Attack", "tn_no_attack", "pct_ci"), ("ROC-AUC", "roc_auc", "f3"))
+
+
+def terminal_table(board: pd.DataFrame, runs: list[RunResults], wide: bool = False) -> str:
+    """The leaderboard as ``scart-bench report`` prints it: rank, detector, headline, the paper's three rates
+    (mean over the runs, pooled interval) and ROC-AUC; ``wide``: every column of leaderboard.md. Markdown."""
+    from scart_bench.benchmark.tables import format_value
+
+    if wide:
+        head, body = display_table(board, runs)
+    else:
+        head = ["Rank", "Detector", "Headline", *(label for label, _, _ in TERMINAL_COLUMNS)]
+        body = [["–" if pd.isna(row["rank"]) else str(int(row["rank"])), str(row["detector"]),
+                 format_value(row["headline_mean"], "pct"),
+                 *(format_value(row[f"{key}_mean"], kind, row.get(f"{key}_lo"), row.get(f"{key}_hi"))
+                   for _, key, kind in TERMINAL_COLUMNS)] for _, row in board.iterrows()]
+    def text(cell) -> str:  # a terminal shows brackets as they are; a pipe would cut the row
+        return str(cell).replace("\n", " ").replace("|", "\\|")
+
+    lines = ["| " + " | ".join(map(text, head)) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    return "\n".join(lines + ["| " + " | ".join(map(text, cells)) + " |" for cells in body])
+
+
 def md_text(text: str) -> str:
     """Text safe in Markdown: HTML-escaped (renderers show it as text), pipes and brackets escaped."""
     text = html.escape(str(text), quote=False).replace("\n", " ")

@@ -28,7 +28,14 @@ from scart_bench.dataset import is_dataset, open_dataset
 from scart_bench.errors import ReportError, ScartBenchError
 from scart_bench.reports import figures as fg
 from scart_bench.reports import html as html_page
-from scart_bench.reports.leaderboard import config_differences, leaderboard_of, md_text, to_csv, to_markdown
+from scart_bench.reports.leaderboard import (
+    config_differences,
+    leaderboard_of,
+    md_text,
+    terminal_table,
+    to_csv,
+    to_markdown,
+)
 from scart_bench.reports.results import RunResults, load_runs
 
 
@@ -41,6 +48,13 @@ class ReportFiles:
     html: Path
     figures: list[Path] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    board: pd.DataFrame | None = None  # the leaderboard (reports.leaderboard.leaderboard_of)
+    runs: list[RunResults] = field(default_factory=list)  # the runs it ranks
+
+    def terminal(self, wide: bool = False) -> str:
+        """The leaderboard for a terminal (reports.leaderboard.terminal_table): at most 120 characters a row,
+        ``wide``: every column of leaderboard.md."""
+        return terminal_table(self.board, self.runs, wide)
 
 
 def example_flight(run: RunResults, board: pd.DataFrame) -> tuple[str | None, str | None]:
@@ -147,7 +161,7 @@ def write_report(run_paths: list[str | Path], out: str | Path, figures: bool = T
     if diffs:
         notes.insert(0, f"The runs differ in: {', '.join(diffs)}; their mean mixes configurations.")
     files = ReportFiles(out / "leaderboard.md", out / "leaderboard.csv", out / "leaderboard.html",
-                        [p for _, p in figs], notes)
+                        [p for _, p in figs], notes, board, runs)
     for path, text in ((files.markdown, md), (files.csv, to_csv(board)),
                        (files.html, html_page.page(board, runs, figs, out, notes, defense_section.html(defended)))):
         atomic_write_text(path, text)

@@ -37,7 +37,7 @@ def test_terminal_table_fits_a_120_column_terminal():
     assert all(len(line) <= 120 for line in lines), max(lines, key=len)
     columns = [c.strip() for c in lines[0].strip("|").split("|")]
     assert len(columns) <= 10
-    assert columns == ["Detector", "TP Simulation", "TP CSV", "TN No Attack", "False alarms", "ROC-AUC"]
+    assert columns == ["Detector", "TP Simulation", "TP CSV", "TN No Attack", "False alarms", "ROC-AUC", "Status"]
     assert "| 100.0 % [100-100] |" in lines[2]
     assert len({len(line) for line in lines}) == 1  # aligned: every row as wide as the header
     assert "TIMEOUT" in lines[-1]
@@ -129,3 +129,25 @@ def test_a_program_runs_a_live_proxy_and_a_sitl_vehicle_without_the_command_line
         sock.close()
     assert done.flown_s == 0 and done.path is None  # lockstep: no client, no step
     assert any("lockstep" in line for line in lines) and any(line.startswith("sitl: stopped") for line in lines)
+
+
+def test_report_prints_a_leaderboard_that_fits_and_wide_every_column(tmp_path, capsys):
+    from scart_bench.reports.leaderboard import terminal_table
+
+    rows = [{"rank": i + 1, "detector": name, "headline_mean": 1.0,
+             **{f"{k}_{s}": 1.0 for k in ("tp_simulation", "tp_csv", "tn_no_attack", "roc_auc")
+                for s in ("mean", "lo", "hi")}} for i, name in enumerate(BUILTINS)]
+    lines = terminal_table(pd.DataFrame(rows), []).splitlines()
+    assert len(lines[0].strip("|").split("|")) <= 10 and max(map(len, lines)) <= 120, max(lines, key=len)
+
+    assert main(["report", str(FIXTURE), "--out", str(tmp_path / "r"), "--no-figures"]) == 0
+    short = capsys.readouterr().out.splitlines()
+    assert main(["report", str(FIXTURE), "--out", str(tmp_path / "r"), "--no-figures", "--wide"]) == 0
+    wide = capsys.readouterr().out.splitlines()
+    assert [c.strip() for c in short[0].strip("|").split("|")] == [
+        "Rank", "Detector", "Headline", "TP Simulation", "TP CSV", "TN No Attack", "ROC-AUC"]
+    assert "| statistical |" in short[2] and all(len(line) <= 120 for line in short)
+    md = (tmp_path / "r" / "leaderboard.md").read_text().splitlines()
+    head = next(line for line in md if line.startswith("| Rank |"))
+    assert wide[0].count(" | ") == head.count(" | ") and "| Flagged anywhere CSV |" in wide[0]  # leaderboard.md's
+    assert short[-1] == wide[-1] == str(tmp_path / "r" / "leaderboard.html")

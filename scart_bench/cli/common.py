@@ -138,7 +138,8 @@ def removed_on_failure(out: Path | str) -> Iterator[None]:
 
 
 #: The terminal table's columns (``run``, ``score``): the paper's three, the false alarms beside the stated
-#: alpha and ROC-AUC, so that a row fits a 120-column terminal; ``--wide`` prints every column of metrics.md.
+#: alpha and ROC-AUC (then the job's status), so that a row fits a 120-column terminal; ``--wide`` prints every
+#: column of metrics.md.
 TERMINAL_COLUMNS = (("TP Simulation", "tp_simulation", "pct_ci"), ("TP CSV", "tp_csv", "pct_ci"),
                     ("TN No Attack", "tn_no_attack", "pct_ci"), ("False alarms", "far_no_attack", "pct_ci"),
                     ("ROC-AUC", "roc_auc", "f3"))
@@ -165,7 +166,7 @@ def terminal_table(metrics, wide: bool = False) -> str:
 
     if wide:
         return paper_table(metrics)
-    return aligned(markdown_table(metrics, TERMINAL_COLUMNS, status=False))
+    return aligned(markdown_table(metrics, TERMINAL_COLUMNS))
 
 
 def print_tables(path: Path, metrics, shown: str | None = None, label: str = "run folder",

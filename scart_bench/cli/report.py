@@ -7,7 +7,7 @@ import contextlib
 import sys
 from pathlib import Path
 
-from scart_bench.cli.common import UsageError, staged_folder
+from scart_bench.cli.common import UsageError, aligned, staged_folder
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -29,6 +29,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
         for note in files.notes:
             print(f"note: {note}", file=sys.stderr)
+        print(files.terminal(wide=True) if args.wide else aligned(files.terminal()) + "\n")
         print(f"{shown(files.markdown)}\n{shown(files.csv)}\n{shown(files.html)}")
         if files.figures:
             print(f"{len(files.figures)} figure(s) in {shown(files.figures[0].parent)}", file=sys.stderr)
@@ -42,6 +43,8 @@ def register(sub) -> None:
     r.add_argument("--out", required=True, metavar="DIR|URL", help="folder for the report files, or an fsspec URL "
                    "(written locally, then uploaded)")
     r.add_argument("--no-figures", action="store_true", help="only the tables, no figures")
+    r.add_argument("--wide", action="store_true", help="print every column of the leaderboard (leaderboard.md's), "
+                   "not the terminal's seven")
     r.add_argument("--defense", action="append", default=[], type=Path, metavar="DIR",
                    help="a folder scart-bench defend wrote: its defense table and example flight in the report "
                         "(one in a run folder, RUN/defense.csv or RUN/defense/, is found by itself)")

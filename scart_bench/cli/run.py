@@ -228,7 +228,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     r = sub.add_parser("run", help="train and score detectors on a dataset; print and save the tables")
     r.add_argument("--wide", action="store_true", help="print every column of the paper's table (metrics.md's), "
-                   "not the terminal's six")
+                   "not the terminal's seven")
     r.add_argument("--config", type=Path, metavar="FILE",
                    help="a run file (TOML: detectors, params, profile or dataset, seed, protocol, ...) or a run "
                         "folder's config.json; the options below override it")

@@ -55,7 +55,7 @@ def register(sub) -> None:
                                      "them at another operating point (--alpha, --burn-in)")
     s.add_argument("run", metavar="RUN", help="a run folder (runs/<name>) or its fsspec URL")
     s.add_argument("--wide", action="store_true", help="print every column of the paper's table (metrics.md's), "
-                   "not the terminal's six")
+                   "not the terminal's seven")
     s.add_argument("--jobs", type=int, metavar="N",
                    help="detectors scored at a time, each in its own process (default: the run's --jobs); "
                         "the tables are the same for any N")
