@@ -109,10 +109,10 @@ def test_dataset_json_says_which_defaults_made_it_and_old_datasets_still_read(tm
     out = generate_dataset("quick", tmp_path / "ds", n_normal=1, with_attacks=False,
                            config=FlightConfig(mission=MissionParams(max_duration_s=12.0)))
     info = json.loads((out / "dataset.json").read_text())
-    assert info["flight_defaults"] == FLIGHT_DEFAULTS == 4
+    assert info["flight_defaults"] == FLIGHT_DEFAULTS == 5
     assert info["timing"] == "realistic" and info["ground_phase"] is True
     ds = open_dataset(out)
-    assert ds.flight_defaults == 4
+    assert ds.flight_defaults == 5
     fid = ds.manifest["flight_id"].iloc[0]
     gps_before = len(ds.topic(fid, "gps_raw_int"))
     # a dataset from before: no such keys in its dataset.json; it reads, and says it is of the first defaults

@@ -40,7 +40,10 @@ STATUS = ("landed", "timeout", "crashed")
 #: 4: the flights of 3 with the noise at hover calibrated on every axis (docs/realism.md): the
 #: estimator's acceleration process noise 0.35 -> 0.2, gusts drawn up to 0.5 m/s (was 0.8), the
 #: accelerometer's z axis 2.5x its x/y noise; a link loss lands the vehicle (COM_OBL_ACT Land).
-FLIGHT_DEFAULTS = 4
+#: 5: the tells of issue 47 fixed (docs/realism.md "Fixing the tells"): motor vibration on the
+#: accelerometer whenever the motors turn, a smooth GPS slow error, take-off 3 s after arming with
+#: the motors idling, a 9 s hover hold, the link's IMU and baro timing as the logs'.
+FLIGHT_DEFAULTS = 5
 
 
 def defaults_summary(cfg: FlightConfig) -> dict:
