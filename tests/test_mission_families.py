@@ -163,6 +163,7 @@ def test_the_same_seed_gives_byte_identical_datasets_with_the_mix(tmp_path):
         assert {"family", "airframe", "altitude_m", "cruise_speed_ms", "planned_duration_s", "wind_ms",
                 "gust_sigma_ms", "mass_kg", "battery_start"} <= set(c["flight"])
         assert len(c["waypoints_ned"]) == c["flight"]["items"]  # its own mission, not padded to its batch's
+        assert abs(c["flight"]["wind_ms"] - np.hypot(*c["wind_mean_ned"][:2])) < 1e-3  # the wind it flew in
 
 
 def test_the_paper_profile_keeps_the_square():
