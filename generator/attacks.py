@@ -22,7 +22,7 @@ import pandas as pd
 
 from scart_bench.dataset import LABEL_COLUMNS, DatasetWriter
 from scart_bench.generator.attack_effect import attack_effect
-from scart_bench.generator.engine.flight_batch import vehicle_groups
+from scart_bench.generator.engine.flight_batch import flight_summaries, vehicle_groups
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
 from scart_bench.generator.impact import TWIN_TOPIC, impact
 from scart_bench.generator.modes import csv_mode, csv_record, simulation_mode, simulation_record
@@ -78,8 +78,11 @@ def simulation_flights(writer: DatasetWriter, configs: list[list[Scenario]], see
             part = [idx[k] for k in pos]
             batch, layer = simulation_mode([seeds[i] for i in part], [configs[i] for i in part], sub)
             twins = simulate([seeds[i] for i in part], sub)
+            mixed = bool(cfg.mission.families or cfg.airframes)  # what each flew, as a normal flight records it
+            flights = flight_summaries([seeds[i] for i in part], cfg) if mixed else None
             for j, i in enumerate(part):
-                record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config_dict)
+                config = config_dict if flights is None else {**config_dict, "flight": flights[j]}
+                record = simulation_record(batch, layer, j, f"sim-{config_id(configs[i])}", configs[i], config)
                 points = record.manifest["injection_point"]
                 if any(n in CLOSED_LOOP_ACTIONS for sc in configs[i] for n, _ in sc.actions):
                     points += "+controller"  # a forged command or mission moves the vehicle, not a message

@@ -182,3 +182,20 @@ def test_the_paper_profile_keeps_the_square():
     assert "families" not in plan.config_dict["flight_config"]["mission"]
     assert "airframes" not in plan.config_dict["flight_config"]
     assert "families" in plan_generation("quick", n_normal=3, with_attacks=False).config_dict["flight_config"]["mission"]
+
+
+def test_attacked_simulation_flights_fly_the_mix_and_record_it(tmp_path):
+    """An attacked flight is flown with its own airframe and mission (per airframe group) and says so."""
+    from scart_bench.generator.engine.flight_batch import flight_summaries
+    from scart_bench.generator.generate import generate_dataset
+
+    cfg = dataclasses.replace(PROFILES["quick"].flight_config(), timing="ideal")
+    cfg = dataclasses.replace(cfg, mission=dataclasses.replace(cfg.mission, duration_range=(10.0, 20.0),
+                                                               ground_phase=False))
+    out = generate_dataset("quick", tmp_path / "ds", seed=2, n_normal=3, config=cfg,
+                           scenarios=Path(__file__).resolve().parents[1] / "data/scenarios/gps_spoof.toml")
+    sims = [json.loads(p.read_text()) for p in Path(out).glob("flights/sim-*/raw/config.json")]
+    assert sims and all(c["status"] in ("landed", "crashed", "timeout") for c in sims)
+    for c in sims:
+        assert c["flight"] == flight_summaries([c["seed"]], cfg)[0]
+        assert len(c["waypoints_ned"]) >= c["flight"]["items"]
