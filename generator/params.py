@@ -81,6 +81,10 @@ class SensorParams:
     accel_bias_tau: float = 300.0  # s
     gyro_noise_density: float = 0.00018665  # rad/s/sqrt(Hz)
     gyro_bias_random_walk: float = 3.8785e-05  # rad/s^2/sqrt(Hz)
+    #: motor vibration on the gyro at hover rotor speed, white, rad/s per sample, x/y/z, scaling as
+    #: ``accel_vibration``: none by default (the gyro's white noise alone is 1.3x the SIL log's at
+    #: hover); real airframes shake theirs (the ArduCopter fleet: 8x), which a fitted profile sets
+    gyro_vibration: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_bias_tau: float = 1000.0  # s
     mag_rate_hz: float = 100.0
     mag_noise: float = 0.0015  # gauss, 1 sigma per sample: the shared SITL logs 0.0009-0.0023 (Gazebo: 0.004)

@@ -99,3 +99,27 @@ def test_the_gps_slow_error_is_smooth_with_its_stated_sigma():
     assert 0.75 * p.gps_bias_h < bias[-1].std() < 1.25 * p.gps_bias_h
     a, c = gps_error_coefficients(p, dt_gps)
     assert np.isclose(a, np.exp(-dt_gps / p.gps_bias_tau)) and c.shape == (3,)
+
+
+def test_gyro_vibration_is_flown_alike_by_both_engines():
+    """A fitted profile's gyro vibration (none by default) shakes the gyro once the motors turn, the
+    same in the numpy reference step and the compiled kernel."""
+    import dataclasses
+
+    cfg = FlightConfig(timing="ideal", mission=MissionParams(ground_phase=False, max_duration_s=4.0))
+    shaken = dataclasses.replace(cfg, sensors=dataclasses.replace(cfg.sensors, gyro_vibration=(0.02, 0.02, 0.01)))
+    ref = simulate([3], shaken, engine="numpy")
+    ker = simulate([3], shaken, engine="kernel")
+    quiet = simulate([3], cfg, engine="kernel")
+    k_steps, k_vals, _ = ker.simulator["highres_imu"]
+    r_steps, r_vals, _ = ref.simulator["highres_imu"]
+    np.testing.assert_array_equal(k_steps, r_steps)
+    np.testing.assert_allclose(k_vals, r_vals, rtol=0, atol=1e-9)
+    t = k_steps * DT
+    gyro = slice(3, 6)
+    before = t < 0.9  # disarmed: the motors stopped
+    spinning = t > 2.0
+    d_shaken = np.diff(k_vals[0][:, gyro][spinning], axis=0).std()
+    d_quiet = np.diff(quiet.simulator["highres_imu"][1][0][:, gyro][spinning], axis=0).std()
+    assert d_shaken > 3 * d_quiet
+    np.testing.assert_array_equal(k_vals[0][before][:, gyro], quiet.simulator["highres_imu"][1][0][before][:, gyro])

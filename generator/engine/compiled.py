@@ -156,6 +156,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "accel_vibration": sp.accel_vibration,
         "inv_hover_rotor": 1.0 / float(np.sqrt(vp.mass * GRAVITY / (4 * vp.motor_constant))),
         "takeoff_after_arm": takeoff_after_arm(mp.ground_phase),
+        "gyro_vibration": sp.gyro_vibration,
     }
     return K.param_vector(values)
 

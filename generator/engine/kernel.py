@@ -49,7 +49,7 @@ K_GUST_A, K_GUST_B = _I["gust_a"], _I["gust_b"]
 K_A_AB, K_C_AB, K_A_GB, K_C_GB = _I["a_accel_bias"], _I["c_accel_bias"], _I["a_gyro_bias"], _I["c_gyro_bias"]
 K_C_AN, K_C_GN, K_MAG_NOISE, K_MAG_FIELD = _I["c_accel_noise"], _I["c_gyro_noise"], _I["mag_noise"], _I["mag_field"]
 K_ACC_VIB, K_INV_HOVER_ROT = _I["accel_vibration"], _I["inv_hover_rotor"]
-K_TAKEOFF_AFTER_ARM = _I["takeoff_after_arm"]
+K_TAKEOFF_AFTER_ARM, K_GYRO_VIB = _I["takeoff_after_arm"], _I["gyro_vibration"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
@@ -344,7 +344,9 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
         va = vib * p[K_ACC_VIB + a]
         sig = math.sqrt(p[K_C_AN + a] * p[K_C_AN + a] + va * va)
         s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + sig * w[k, NZ_ACC + a]
-        s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + p[K_C_GN] * w[k, NZ_GYRO + a]
+        vg = vib * p[K_GYRO_VIB + a]
+        gsig = math.sqrt(p[K_C_GN] * p[K_C_GN] + vg * vg)
+        s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + gsig * w[k, NZ_GYRO + a]
     if due[L.D_MAG, step]:
         m0, m1, m2 = p[K_MAG_FIELD], p[K_MAG_FIELD + 1], p[K_MAG_FIELD + 2]
         if env:

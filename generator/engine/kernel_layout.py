@@ -168,9 +168,9 @@ PARAMS = (
     "rate_p", "rate_i", "thrust_lo", "thrust_hi", "max_thrust", "land_detect_s", "arm_delay", "takeoff_hold",
     "approach_gain", "climb_speed", "land_speed", "acceptance", "lat0", "lon0", "sin_lat0", "cos_lat0",
     "hover", "tail_steps", "yaw_step_max", "out_decay", "accel_vibration", "inv_hover_rotor",
-    "takeoff_after_arm",
+    "takeoff_after_arm", "gyro_vibration",
 )
-_SIZES = {"alloc": 16, "alloc_inv": 16, "c_accel_noise": 3, "accel_vibration": 3, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
+_SIZES = {"alloc": 16, "alloc_inv": 16, "c_accel_noise": 3, "accel_vibration": 3, "gyro_vibration": 3, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
           "vel_p": 3, "vel_i": 3, "att_p": 3, "rate_max": 3, "rate_p": 3, "rate_i": 3}
 PARAM_INDEX: dict[str, int] = {}
 _k = 0

@@ -90,8 +90,9 @@ class Sensors:
         """Accelerometer (specific force, FRD) and gyro samples; advances the bias random walks.
 
         ``vibration`` (N,): the rotors' mean speed over their hover speed (:func:`vibration_scale`);
-        the motors shake the accelerometer by ``accel_vibration`` times it (white, as the sensor's
-        own noise: one draw of their combined sigma), none with the motors stopped."""
+        the motors shake the accelerometer by ``accel_vibration`` and the gyro by ``gyro_vibration``
+        times it (white, as the sensor's own noise: one draw of their combined sigma), none with the
+        motors stopped."""
         p, dt = self.params, self.dt
         fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
         a_ab = np.exp(-dt / p.accel_bias_tau)
@@ -99,11 +100,14 @@ class Sensors:
         st.accel_bias = a_ab * st.accel_bias + p.accel_bias_random_walk * np.sqrt(dt) * noise[:, 6:9]
         st.gyro_bias = a_gb * st.gyro_bias + p.gyro_bias_random_walk * np.sqrt(dt) * noise[:, 9:12]
         acc_sigma = p.accel_noise_density * np.sqrt(1 / dt) * np.array([1.0, 1.0, p.accel_noise_z_factor])
+        gyro_sigma = p.gyro_noise_density * np.sqrt(1 / dt)
         if vibration is not None:
             vib = np.asarray(vibration)[:, None] * np.array(p.accel_vibration)
             acc_sigma = np.sqrt(acc_sigma * acc_sigma + vib * vib)
+            vib_g = np.asarray(vibration)[:, None] * np.array(p.gyro_vibration)
+            gyro_sigma = np.sqrt(gyro_sigma * gyro_sigma + vib_g * vib_g)
         acc = fs + st.accel_bias + acc_sigma * noise[:, 0:3]
-        gyro = omega + st.gyro_bias + p.gyro_noise_density * np.sqrt(1 / dt) * noise[:, 3:6]
+        gyro = omega + st.gyro_bias + gyro_sigma * noise[:, 3:6]
         return acc, gyro
 
     def mag(self, R: np.ndarray, noise: np.ndarray, disturbance: np.ndarray | None = None) -> np.ndarray:
