@@ -66,8 +66,9 @@ def test_like_writes_a_profile_and_missions_that_load_back(like_run):
         assert read_wpl(out / m).commands, m
     prof = read_profile(out / "profile.toml")
     assert len(prof.config.mission.missions) == 2
-    # fitted, not the defaults: the fleet's sensors are noisier and its GPS a real receiver's
-    assert prof.config.sensors.accel_noise_density > 2 * SensorParams().accel_noise_density
+    # fitted, not the defaults: the logs' vibration (y twice x and z on these frames) and a real receiver's GPS
+    vib = prof.config.sensors.accel_vibration
+    assert vib != SensorParams().accel_vibration and vib[1] > 1.5 * max(vib[0], vib[2]), vib
     assert prof.config.sensors.gps_bias_h > 1.0
     assert "[not_expressible]" in (out / "profile.toml").read_text()
     assert len(list((out / "flights").iterdir())) == 2
@@ -111,12 +112,12 @@ def test_a_log_without_gps_keeps_the_default_position_noise_and_says_so(measured
 def test_a_generated_flight_has_the_logs_hover_accelerometer_noise(like_run):
     _, out, _ = like_run
     doc = tomllib.loads((out / "profile.toml").read_text())
-    want = [doc["measured"]["hover_acc_x"], doc["measured"]["hover_acc_y"]]
+    want = [doc["measured"]["white_hover_acc_x"], doc["measured"]["white_hover_acc_y"]]  # what is fitted
     flights = sorted((out / "flights").iterdir())
     got = []
     for folder in flights:
         g = fit.measure_log(folder)
-        got.append([g.hover.get("acc_x", math.nan), g.hover.get("acc_y", math.nan)])
+        got.append([g.hover_white.get("acc_x", math.nan), g.hover_white.get("acc_y", math.nan)])
     got = np.nanmedian(np.array(got), axis=0)
     ratio = got.mean() / np.mean(want)
     assert 1 / NOISE_FACTOR <= ratio <= NOISE_FACTOR, (got, want)

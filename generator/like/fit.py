@@ -84,6 +84,8 @@ class LogMeasure:
     wind_source: str = ""
     hover: dict[str, float] = field(default_factory=dict)  # "acc_x" ... "baro_alt": std on the hover
     hover_s: float = 0.0
+    hover_white: dict[str, float] = field(default_factory=dict)  # the same, sample-to-sample (white) noise
+    ground_white: dict[str, float] = field(default_factory=dict)
     hover_still: bool = True  # False: no still hover, the noise figures are on every airborne row
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
@@ -132,10 +134,15 @@ def _shrink(mask: np.ndarray, hz: float) -> np.ndarray:
     return mask & ~bad
 
 
-def _std_on(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float, float]]) -> tuple[float, float]:
-    """The high-passed standard deviation of ``x`` over ``segments`` (s), and their length (s)."""
+def _std_on(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float, float]]
+            ) -> tuple[float, float, float]:
+    """Over ``segments`` (s): the high-passed standard deviation of ``x``, its sample-to-sample (white)
+    noise (the standard deviation of its first differences / sqrt 2: the vehicle's slow motion hardly
+    moves it) and their length (s). ``x`` is read at ``hz`` or its own rate if slower."""
     if len(t) < 10 or not segments:
-        return math.nan, 0.0
+        return math.nan, math.nan, 0.0
+    native = 1.0 / float(np.median(np.diff(t))) if np.median(np.diff(t)) > 0 else hz
+    hz = min(hz, native * 1.05)
     grid, v = resample(t, x, hz)
     mask = np.zeros(len(grid), bool)
     for a, b in segments:
@@ -146,8 +153,10 @@ def _std_on(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float,
         mask &= ~((grid > t[k]) & (grid < t[k + 1]))
     mask = _shrink(mask, hz)
     if mask.sum() < MIN_SEGMENT_S * hz:
-        return math.nan, float(mask.sum() / hz)
-    return float(np.std(highpass(v, hz)[mask])), float(mask.sum() / hz)
+        return math.nan, math.nan, float(mask.sum() / hz)
+    both = mask[1:] & mask[:-1]
+    white = float(np.std(np.diff(v)[both]) / math.sqrt(2.0))
+    return float(np.std(highpass(v, hz)[mask])), white, float(mask.sum() / hz)
 
 
 def _segments(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
@@ -333,8 +342,8 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
         before = np.flatnonzero(~landed)
         ground = _segments(t, landed & (np.arange(len(t)) < (before[0] if len(before) else len(t))))
     for name, (ts, x, hz) in series.items():
-        m.hover[name], hs = _std_on(ts, x, hz, hover)
-        m.ground[name], gs = _std_on(ts, x, hz, ground)
+        m.hover[name], m.hover_white[name], hs = _std_on(ts, x, hz, hover)
+        m.ground[name], m.ground_white[name], gs = _std_on(ts, x, hz, ground)
         if name == "acc_x":
             m.hover_s, m.ground_s = hs, gs
     if all(math.isnan(v) for v in m.hover.values()):
@@ -506,8 +515,13 @@ def fleet_figures(logs: list[LogMeasure]) -> dict[str, Figure]:
             v, n = _median([m.hover.get(k, math.nan) for m in logs])
             what = "every airborne row (no log has a still hover), high-passed per-sample std"
         out[f"hover_{k}"] = Figure(v, n, what)
+        v, n = _median([m.hover_white.get(k, math.nan) for m in (still if n and what.startswith("still") else logs)])
+        out[f"white_hover_{k}"] = Figure(v, n, what.replace("high-passed per-sample std",
+                                                             "sample-to-sample noise (std of differences / sqrt 2)"))
         v, n = _median([m.ground.get(k, math.nan) for m in logs])
         out[f"ground_{k}"] = Figure(v, n, "on the ground before take-off, high-passed per-sample std")
+        v, n = _median([m.ground_white.get(k, math.nan) for m in logs])
+        out[f"white_ground_{k}"] = Figure(v, n, "on the ground before take-off, sample-to-sample noise")
     for logical in RATE_TOPICS:
         v, n = _median([m.rates[logical][0] for m in logs if logical in m.rates])
         out[f"rate_{logical}_hz"] = Figure(v, n, "median message rate")
@@ -533,7 +547,7 @@ def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, floa
         from scart_bench.generator.logs.phases import flight_phases
 
         _noise(m, tables, flight_phases(tables))
-        per.append(m.hover)
+        per.append({**m.hover, **{f"white_{k}": v for k, v in m.hover_white.items()}})
     keys = {k for p in per for k in p}
     return {k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}
 
@@ -566,60 +580,86 @@ def next_level(history: list[tuple[float, float]], target: float) -> float:
     return p1 * target / g1
 
 
-def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[float, str]], list[str]]:
+#: noise parameters and the figures they follow: (SensorParams field, tuple index or None, figures); the first of
+#: a field's alternatives that the sensor model has is fitted (``accel_vibration``: per axis, motors running)
+NOISE_PLAN = (
+    (("accel_vibration", 0, ("acc_x",)), ("accel_vibration", 1, ("acc_y",)), ("accel_vibration", 2, ("acc_z",))),
+    (("gyro_noise_density", None, ("gyro_x", "gyro_y", "gyro_z")),),
+    (("mag_noise", None, ("mag_x", "mag_y", "mag_z")),),
+    (("baro_noise_pa", None, ("baro_alt",)),),
+)
+#: fitted to the accelerometer when the sensor model has no vibration
+ACCEL_FALLBACK = (("accel_noise_density", None, ("acc_x", "acc_y")),)
+
+
+def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[object, str]], list[str]]:
     """SensorParams noise fields set so that generated hover flights measure like the fleet.
 
-    Each round flies calibration flights (:func:`calibration_figures`) with the current fields and moves
-    each toward the fleet's figure (:func:`next_level`; the z accelerometer through ``accel_noise_z_factor``,
-    its noise being ``accel_noise_density * accel_noise_z_factor``); a last round measures the result for
-    the comments. Returns field -> (value, comment) and lines on what could not be fitted."""
+    The figure fitted is each axis's sample-to-sample (white) noise at hover (``white_hover_*``: the std of
+    first differences / sqrt 2, which the vehicle's slow motion hardly moves: a log's hover std is mostly
+    the pilot's and the wind's doing, the generator's mostly its controller's). Each round flies
+    calibration flights (:func:`calibration_figures`) with the current fields and moves each toward the
+    fleet's figure (:func:`next_level`); a last round measures the result for the comments. Returns
+    field -> (value, comment) and lines on what could not be fitted."""
     s = config.sensors
-    out: dict[str, tuple[float, str]] = {}
+    out: dict[str, tuple[object, str]] = {}
     lines: list[str] = []
-    want = {k[len("hover_"):]: f for k, f in figures.items() if k.startswith("hover_") and f.n}
-    plan = {  # field -> (figures it follows)
-        "accel_noise_density": ("acc_x", "acc_y"), "accel_noise_z_factor": ("acc_z",),
-        "gyro_noise_density": ("gyro_x", "gyro_y", "gyro_z"), "mag_noise": ("mag_x", "mag_y", "mag_z"),
-        "baro_noise_pa": ("baro_alt",),
-    }
-    plan = {f: ks for f, ks in plan.items() if hasattr(s, f) and all(k in want and math.isfinite(want[k].value) for k in ks)}
+    want = {k[len("white_hover_"):]: f for k, f in figures.items() if k.startswith("white_hover_") and f.n
+            and math.isfinite(f.value)}
+    plan = []
+    for group in NOISE_PLAN:
+        if not hasattr(s, group[0][0]):
+            group = ACCEL_FALLBACK if group[0][0] == "accel_vibration" else ()
+        plan.extend(item for item in group if hasattr(s, item[0]) and all(k in want for k in item[2]))
     if not plan:
         return out, ["no hover noise measured in any log: sensor noise defaults kept"]
-    if "accel_noise_z_factor" in plan and "accel_noise_density" not in plan:
-        del plan["accel_noise_z_factor"]
-    current = {f: float(getattr(s, f)) for f in plan}
-    effective = dict(current)  # the z accelerometer's own noise level in place of its factor
-    if "accel_noise_z_factor" in plan:
-        effective["accel_noise_z_factor"] = current["accel_noise_z_factor"] * current["accel_noise_density"]
-    history: dict[str, list[tuple[float, float]]] = {f: [] for f in plan}
-    #: no noise parameter goes below a tenth of the base's: under it the figure is the flight's own motion
-    floor = {f: 0.1 * effective[f] for f in plan}
+
+    def value(field_name, idx):
+        v = getattr(s, field_name)
+        return float(v[idx] if idx is not None else v)
+
+    level = {(f, i): value(f, i) for f, i, _ in plan}
+    floor = {key: 0.1 * v for key, v in level.items()}  # below a tenth of the base's, the figure is the flight's motion
+    history: dict[tuple, list[tuple[float, float]]] = {key: [] for key in level}
+
+    def fields() -> dict:
+        changed: dict[str, object] = {}
+        for (f, i), v in level.items():
+            if i is None:
+                changed[f] = v
+            else:
+                cur = list(changed.get(f, getattr(s, f)))
+                cur[i] = v
+                changed[f] = tuple(cur)
+        return changed
+
     gen: dict[str, float] = {}
     for r in range(rounds + 1):
-        cfg = dataclasses.replace(config, sensors=dataclasses.replace(s, **current))
-        gen = calibration_figures(cfg)
+        gen = calibration_figures(dataclasses.replace(config, sensors=dataclasses.replace(s, **fields())))
         if r == rounds:
             break
-        for f, ks in plan.items():
+        for f, i, ks in plan:
             target = float(np.mean([want[k].value for k in ks]))
-            got = float(np.nanmean([gen.get(k, math.nan) for k in ks]))
+            got = float(np.nanmean([gen.get(f"white_{k}", math.nan) for k in ks]))
             if math.isfinite(got) and got > 0:
-                history[f].append((effective[f], got))
-                effective[f] = float(np.clip(next_level(history[f], target), floor[f], 1e3))
-        current = {f: effective[f] for f in plan}
-        if "accel_noise_z_factor" in plan:
-            current["accel_noise_z_factor"] = float(np.clip(effective["accel_noise_z_factor"]
-                                                            / effective["accel_noise_density"], 0.2, 20.0))
-    for f, ks in plan.items():
-        logs = ", ".join(f"{k} {want[k].value:.4g}" for k in ks)
+                history[(f, i)].append((level[(f, i)], got))
+                level[(f, i)] = float(np.clip(next_level(history[(f, i)], target), floor[(f, i)], 1e3))
+    final = fields()
+    notes: dict[str, list[str]] = {}
+    for f, _i, ks in plan:
         where = "still hover" if want[ks[0]].source.startswith("still") else "airborne"
-        got = [gen.get(k, math.nan) for k in ks]
-        out[f] = (round(current[f], 8), f"{where} std (median over {min(want[k].n for k in ks)} logs): {logs}; "
-                                        f"generated with it: {', '.join(f'{g:.4g}' for g in got)}")
+        got = [gen.get(f"white_{k}", math.nan) for k in ks]
+        notes.setdefault(f, []).append(
+            f"{', '.join(f'{k} {want[k].value:.4g}' for k in ks)} (generated {', '.join(f'{g:.4g}' for g in got)})")
         target = float(np.mean([want[k].value for k in ks]))
         if np.nanmean(got) > 1.5 * target:
             lines.append(f"{f}: the generated flights give {np.nanmean(got):.3g} at a tenth of the base's noise, "
-                         f"above the logs' {target:.3g}: their own motion (hover wander) is larger than the logs'")
+                         f"above the logs' {target:.3g}: their own motion is larger than the logs'")
+    for f, parts in notes.items():
+        n = min(want[k].n for ff, _, ks in plan if ff == f for k in ks)
+        v = final[f]
+        v = [round(x, 6) for x in v] if isinstance(v, tuple) else round(v, 8)
+        out[f] = (v, f"sample-to-sample noise at {where} (median over {n} logs): {'; '.join(parts)}")
     return out, lines
 
 
@@ -687,11 +727,11 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         lines.append("wind: no log gave a wind estimate: default kept")
     measured: dict[str, tuple[float, str]] = {}
     for key, f in figs.items():
-        if key.startswith(("ground_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
+        if key.startswith(("ground_", "white_ground_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
                                                                        "altitude"):
             measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
     for key, f in figs.items():
-        if key.startswith("hover_"):
+        if key.startswith(("hover_", "white_hover_")):
             measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
     return Fit(values, measured, [], lines, logs)
 

@@ -72,6 +72,10 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
             say(f"  {m.name}: its mission could not be written ({written is None and 'no waypoints' or 'refused'})")
     sections = {"profile": {"base": (base, "flight counts, splits and attack grid of this built-in profile")}}
     sections["profile"]["timing"] = ("realistic", "jitter, drops and late messages (see [not_expressible])")
+    airframes = getattr(PROFILES[base], "airframes", None)
+    if airframes:
+        sections["profile"]["airframes"] = (dict(airframes), f"the {base} profile's airframe mix: not fitted (a log "
+                                                             "does not name its airframe); edit to your frame")
     sections["profile"].update(_gps_level(logs))
     sections["sensors"] = fitted.values["sensors"]
     sections["estimator"] = fitted.values["estimator"]
