@@ -40,7 +40,7 @@ What it does:
 3. **Windows.** 10 s windows every 5 s; a window where any used signal has a gap is dropped
    (logs with logging gaps keep their whole stretches). Each window's phase: ``ground`` (the
    flight's phases, ``generator.logs.phases.flight_phases``, say landed for >= 80 % of it),
-   ``hover`` (airborne, median horizontal speed < 1 m/s and vertical < 0.5 m/s), ``cruise``
+   ``hover`` (airborne, median horizontal speed < 1 m/s and :func:`vertical_speed` < 0.5 m/s), ``cruise``
    (airborne and moving), ``air`` (airborne, a log without velocity: not moving vertically but
    its horizontal speed unknown), ``mixed`` (take-off or landing inside the window).
 4. **Features** per window per signal (:data:`FEATURES`): std, std of first differences,
@@ -130,7 +130,7 @@ class FlightSignals:
     signals: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # name -> (t_s, values)
     sources: dict[str, str] = field(default_factory=dict)  # name -> "topic.field" it came from
     ground: tuple[np.ndarray, np.ndarray] | None = None  # (t_s, True on the ground)
-    climb: tuple[np.ndarray, np.ndarray] | None = None  # (t_s, vertical speed m/s, up)
+    altitude: tuple[np.ndarray, np.ndarray] | None = None  # (t_s, m above the ground) of the phases
     notes: list[str] = field(default_factory=list)  # what was left out and why
 
 
@@ -198,7 +198,7 @@ def signals_from_tables(name: str, tables: dict[str, pd.DataFrame], side: str) -
         ph = flight_phases(tables)
         t = ph["Timestamp"].to_numpy(np.int64) / 1e6
         f.ground = t, ph["phase"].to_numpy() == PHASES[LANDED]
-        f.climb = t, ph["climb_rate_m_s"].to_numpy(np.float64)
+        f.altitude = t, ph["altitude_m"].to_numpy(np.float64)
     except ValueError as exc:
         f.notes.append(f"no phases ({exc}): its windows count only in 'all'")
     return f
@@ -335,6 +335,23 @@ def signal_features(x: np.ndarray, hz: float, times: np.ndarray | None = None) -
                            [_ac1(detrended), _ac1(d), jitter]])
 
 
+def vertical_speed(altitude: tuple[np.ndarray, np.ndarray] | None, a: float, b: float, block_s: float = 2.0) -> float:
+    """How fast the window [a, b) climbs or descends (m/s): the largest change between consecutive
+    ``block_s`` means of the altitude, per second. Robust to a noisy or stepped altitude (an
+    ArduCopter CTUN.Alt at 10 Hz: its 1 s climb rate reads 1-3 m/s in a hover); NaN without one."""
+    if altitude is None:
+        return float("nan")
+    t, h = altitude
+    means = []
+    for k in range(int(round((b - a) / block_s))):
+        s = (t >= a + k * block_s) & (t < a + (k + 1) * block_s)
+        if s.any():
+            means.append(float(np.mean(h[s])))
+    if len(means) < 2:
+        return float("nan")
+    return float(np.max(np.abs(np.diff(means))) / block_s)
+
+
 def window_phase(f: FlightSignals, a: float, b: float) -> str:
     """The phase of the window [a, b) of a flight (see the module doc)."""
     if f.ground is None:
@@ -348,11 +365,7 @@ def window_phase(f: FlightSignals, a: float, b: float) -> str:
         return "ground"
     if share > 1 - PHASE_SHARE:
         return "mixed"
-    climb = np.nan
-    if f.climb is not None:
-        ct, cv = f.climb
-        s = (ct >= a) & (ct < b)
-        climb = float(np.median(np.abs(cv[s]))) if s.any() else np.nan
+    climb = vertical_speed(f.altitude, a, b)
     if "vel_n" in f.signals and "vel_e" in f.signals:
         (tn, vn), (te, ve) = f.signals["vel_n"], f.signals["vel_e"]
         s = (tn >= a) & (tn < b)
@@ -620,16 +633,21 @@ def _phase_result(table: pd.DataFrame, phase: str, seed: int, folds: int, groups
 
 def compare(generated: list[FlightSignals], real: list[FlightSignals], phases=PHASES, signals: list[str] | None = None,
             seed: int = 0, folds: int = 5, log_set: str = "real", groups: bool = True,
-            window_s: float = WINDOW_S, step_s: float = STEP_S, max_hz: float = 50.0) -> Comparison:
+            window_s: float = WINDOW_S, step_s: float = STEP_S, max_hz: float = 50.0,
+            features: tuple[str, ...] = FEATURES) -> Comparison:
     """The window check between generated flights and real ones (see the module doc).
 
     Signals that a flight of either side lacks are left out (named in ``left_out``); each used
-    signal is compared at the common rate of :func:`common_rates`."""
+    signal is compared at the common rate of :func:`common_rates`; ``features``: the kinds of
+    :data:`FEATURES` the classifier sees (e.g. all but ``jitter``: the signals' values only)."""
+    unknown = [k for k in features if k not in FEATURES]
+    if unknown:
+        raise ValueError(f"unknown feature {unknown[0]!r}; expected some of {', '.join(FEATURES)}")
     if not generated or not real:
         raise ValueError(f"the window check needs flights on both sides (generated {len(generated)}, "
                          f"{log_set} {len(real)})")
-    gen = [FlightSignals(f.name, "generated", f.signals, f.sources, f.ground, f.climb, f.notes) for f in generated]
-    rl = [FlightSignals(f"{log_set}/{f.name}", "real", f.signals, f.sources, f.ground, f.climb, f.notes)
+    gen = [FlightSignals(f.name, "generated", f.signals, f.sources, f.ground, f.altitude, f.notes) for f in generated]
+    rl = [FlightSignals(f"{log_set}/{f.name}", "real", f.signals, f.sources, f.ground, f.altitude, f.notes)
           for f in real]
     used, left = usable_signals(gen, rl, signals or list(SIGNALS))
     rates = common_rates(gen + rl, used, max_hz)
@@ -640,6 +658,7 @@ def compare(generated: list[FlightSignals], real: list[FlightSignals], phases=PH
         raise ValueError(f"no signal is common to every generated flight and every log of {log_set}: "
                          + "; ".join(f"{s} {why}" for s, why in left.items()))
     table = window_table(gen + rl, rates, window_s, step_s)
+    table = table.drop(columns=[c for c in feature_columns(table) if c.split("__")[1] not in features])
     none = sorted({f.name for f in rl} - set(table["flight"]))
     if none:
         notes.append(f"no full {window_s:g} s window without a gap in: {', '.join(none)}")
@@ -679,6 +698,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--top", type=int, default=8, help="features listed per phase (default 8)")
     p.add_argument("--no-groups", action="store_true", help="skip the per-signal-group AUC (faster)")
+    p.add_argument("--no-timing", action="store_true", help="leave the timing jitter out of the features "
+                   "(the signals' values only)")
     p.add_argument("--markdown", action="store_true", help="also print the AUC table as Markdown")
     args = p.parse_args(argv)
     try:
@@ -707,7 +728,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"== {name}: no readable log; skipped")
             continue
         try:
-            c = compare(generated, real, phases, wanted, args.seed, log_set=name, groups=not args.no_groups)
+            c = compare(generated, real, phases, wanted, args.seed, log_set=name, groups=not args.no_groups,
+                        features=tuple(k for k in FEATURES if not (args.no_timing and k == "jitter")))
         except ValueError as exc:
             print(f"== {name}: {exc}")
             continue
