@@ -95,11 +95,15 @@ class SitlStats:
                 + (f"; could not keep the asked pace for {self.behind_s:.1f} s of flight" if self.behind_s else ""))
 
 
-def check_scenarios(scenarios: list[Scenario]) -> None:
+def check_scenarios(scenarios: list[Scenario], points: tuple[str, ...] = SITL_POINTS, physics: str = "") -> None:
+    """Refuse, in one line, a scenario the sitl does not carry (``points``: its plant's; ``physics``: its name)."""
     for sc in scenarios:
-        if sc.injection_point not in SITL_POINTS:
-            raise SitlError(f"scenario {sc.id!r} ({sc.source}): unknown injection point {sc.injection_point!r}; "
-                            f"the sitl runs scenarios at {', '.join(SITL_POINTS)}")
+        if sc.injection_point not in points:
+            known = sc.injection_point in SITL_POINTS
+            raise SitlError(f"scenario {sc.id!r} ({sc.source}): " + (
+                f"injection point {sc.injection_point!r} needs the built-in physics; with --physics {physics} the "
+                if known else f"unknown injection point {sc.injection_point!r}; the ")
+                + f"sitl runs scenarios at {', '.join(points)}")
         bad = [name for name, _ in sc.actions if name in UNSUPPORTED_EFFECTS]
         if bad:
             raise SitlError(f"scenario {sc.id!r} ({sc.source}): action {bad[0]!r} is not modelled by the sitl "
@@ -116,18 +120,21 @@ class SitlServer(ClientRequests):
     ``scenarios`` run at the points link, command, sensor, environment and vehicle (one flight,
     ``seed``); ``record`` keeps both views and the truth for :meth:`record`. ``sock``: a socket
     already bound to ``listen`` (:func:`~scart_bench.generator.sitl.endpoint.bind_udp`, done before a
-    slow start-up so that early datagrams wait in it); the server owns and closes it.
+    slow start-up so that early datagrams wait in it); the server owns and closes it. ``plant``: the
+    vehicle (default the built-in :class:`~scart_bench.generator.sitl.plant.Plant` of ``seed``; a started
+    :class:`~scart_bench.generator.sitl.jmavsim_plant.JmavsimPlant` flies jMAVSim; its ``points`` limit the
+    scenarios); the caller closes a plant it gave.
     """
 
     def __init__(self, listen: tuple[str, int] = ("127.0.0.1", 0), scenarios: list[Scenario] | None = None,
                  seed: int = 0, remote: tuple[str, int] | None = None, record: bool = False,
-                 log: Callable[[str], None] | None = None, sock=None, defense=None):
+                 log: Callable[[str], None] | None = None, sock=None, defense=None, plant=None):
         self.scenarios = list(scenarios or [])
         self.defense = defense  # a generator.defense.LiveDefense: a detector on the navigator's view, and a response
-        check_scenarios(self.scenarios)
+        check_scenarios(self.scenarios, getattr(plant, "points", SITL_POINTS), getattr(plant, "name", ""))
         self.sock = sock if sock is not None else bind_udp(listen)
         self.seed = int(seed)
-        self.plant = Plant(self.seed)
+        self.plant = plant if plant is not None else Plant(self.seed)
         self.params = Params()
         self.commander = Commander(self.plant, self.params)
         self.layer = AttackLayer([self.scenarios], [self.seed], rates={t: v.rate_hz for t, v in TOPICS.items()}) \
@@ -198,6 +205,8 @@ class SitlServer(ClientRequests):
                 self.poll()
                 if speed is None and not self.peers and self.remote is None:
                     sel.select(0.05)
+                    if hasattr(self.plant, "idle"):  # an external simulator waits with the clock
+                        self.plant.idle()
                     continue
                 self.step()
                 if speed is None:

@@ -36,19 +36,20 @@ class SitlRun:
 def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, remote: tuple[str, int] | None = None,
              record=None, flight_id: str | None = None, split: str = "test", fmt: str = "parquet", defense=None,
              extra: dict | None = None, speed: float | None = 1.0, duration_s: float | None = None,
-             stop: threading.Event | None = None, log: Callable[[str], None] = _stderr) -> SitlRun:
+             stop: threading.Event | None = None, log: Callable[[str], None] = _stderr, plant=None) -> SitlRun:
     """Fly one simulated PX4-like vehicle on ``sock`` (bound to ``listen``); ``speed``: the pace in real time,
     None for lockstep (as fast as it can, from the first client message). ``record``: a
     :class:`~scart_bench.generator.mavlink.recording.RecordTarget` (flights earlier recordings left in their
     journals are added first); ``defense``: a :class:`~scart_bench.generator.defense.LiveDefense`;
-    ``extra``: the recording's extra config."""
+    ``extra``: the recording's extra config; ``plant``: the vehicle (default the built-in physics; a started
+    :class:`~scart_bench.generator.sitl.jmavsim_plant.JmavsimPlant` flies jMAVSim; the caller closes it)."""
     from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
     from scart_bench.generator.sitl.journal import Journal, discard, journal_root, recover
     from scart_bench.generator.sitl.server import SitlServer
     from scart_bench.storage import StorageError
 
     sitl = SitlServer(listen, scenarios, seed=seed, remote=remote, record=record is not None, log=log,
-                      sock=sock, defense=defense)
+                      sock=sock, defense=defense, plant=plant)
     fid = None
     extra = {} if extra is None else extra
     if record is not None:
@@ -81,8 +82,9 @@ def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, r
     host, port = sitl.address
     pace = "lockstep (as fast as it can, from the first client message)" if speed is None else f"{speed:g} x real time"
     attack = ", ".join(s.id for s in scenarios) or "none"
+    physics = f" flying {plant.where()}" if hasattr(plant, "where") else ""
     log(f"sitl: listening on udp:{host}:{port}" + (f", sending to udp:{remote[0]}:{remote[1]}" if remote else "")
-        + f"; PX4-like quadrotor, system 1 component 1; {pace}; scenario {attack}; Ctrl-C stops")
+        + f"; PX4-like quadrotor{physics}, system 1 component 1; {pace}; scenario {attack}; Ctrl-C stops")
     t0 = time.monotonic()
     try:
         sitl.serve(stop, speed=speed, duration_s=duration_s)

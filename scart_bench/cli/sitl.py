@@ -50,6 +50,10 @@ def _check_options(args: argparse.Namespace) -> None:
         raise UsageError(f"--alarms {args.alarms}: expected a whole number >= 1")
     if args.flight_id is not None:
         check_id(args.flight_id, "--flight-id")
+    if args.physics != "jmavsim" and (args.jmavsim or args.sim):
+        raise UsageError("--jmavsim and --sim are for --physics jmavsim (the built-in physics needs no simulator)")
+    if args.jmavsim and args.sim:
+        raise UsageError("--jmavsim starts jMAVSim, --sim flies one already running: give one of them")
 
 
 def _run(args: argparse.Namespace, listen, remote, sock) -> int:
@@ -71,12 +75,38 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
     if defense is not None:
         extra["defense"] = {"detector": args.detector, "run": str(args.run), "threshold": defense.monitor.threshold,
                             "response": args.response, "alarms": args.alarms}
-    done = run_sitl(listen, scenarios, sock=sock, seed=args.seed, remote=remote, record=target,
-                    flight_id=args.flight_id, split=args.split, fmt=args.format, defense=defense, extra=extra,
-                    speed=None if args.lockstep else args.speed, duration_s=args.duration, log=_log)
+    plant = _jmavsim(args, scenarios) if args.physics == "jmavsim" else None
+    if plant is not None:
+        extra["physics"] = {"name": "jmavsim", "sim": args.sim or plant.sim.link_address}
+    try:
+        done = run_sitl(listen, scenarios, sock=sock, seed=args.seed, remote=remote, record=target,
+                        flight_id=args.flight_id, split=args.split, fmt=args.format, defense=defense, extra=extra,
+                        speed=None if args.lockstep else args.speed, duration_s=args.duration, log=_log,
+                        plant=plant)
+    finally:
+        if plant is not None:
+            plant.close()  # ends the jMAVSim it started
     if done.path is not None:
         print(f"flight {done.flight_id} recorded in {target.shown} ({done.path.name})")
     return 0
+
+
+def _jmavsim(args: argparse.Namespace, scenarios: list):
+    """The started jMAVSim plant (``--physics jmavsim``): jMAVSim started headless in lockstep from ``--jmavsim``
+    (or $SCART_JMAVSIM), or the simulator at ``--sim``; what is missing is a one-line error (exit 2)."""
+    from scart_bench.generator.hil.jmavsim import DEFAULT_SPEED
+    from scart_bench.generator.hil.link import parse_sim_address
+    from scart_bench.generator.sitl.jmavsim_plant import JMAVSIM_POINTS, JmavsimPlant
+    from scart_bench.generator.sitl.server import check_scenarios
+
+    if args.sim:
+        parse_sim_address(args.sim)
+    check_scenarios(scenarios, JMAVSIM_POINTS, "jmavsim")  # before jMAVSim starts
+    # jMAVSim's lockstep caps its pace at this multiple of real time: above the sitl's --speed
+    speed = max(DEFAULT_SPEED, 2.0 * args.speed)
+    plant = JmavsimPlant(args.sim, jar=args.jmavsim, seed=args.seed, speed=speed)
+    _log(f"sitl: {'starting jMAVSim' if args.sim is None else 'reaching ' + args.sim} ...")
+    return plant.start()
 
 
 def _defense(args: argparse.Namespace):
@@ -125,4 +155,11 @@ def register(sub) -> None:
     p.add_argument("--alarms", type=int, default=1, metavar="N", help="alarm rows before the response (default 1)")
     p.add_argument("--plugin", action="append", metavar="SPEC",
                    help="load a plugin detector from module:Class or file.py:Class")
+    p.add_argument("--physics", choices=("builtin", "jmavsim"), default="builtin",
+                   help="builtin (default): the generator's physics and sensors; jmavsim: jMAVSim's, through PX4's "
+                   "simulator MAVLink API, flown by the same estimator and controller (docs/jmavsim.md)")
+    p.add_argument("--jmavsim", metavar="PATH", help="with --physics jmavsim: jmavsim_run.jar or the jMAVSim checkout "
+                   "it was built in (default $SCART_JMAVSIM); started headless in lockstep, stopped at exit")
+    p.add_argument("--sim", metavar="ADDR", help="with --physics jmavsim: a simulator already running at "
+                   "udp:HOST:PORT or tcp:HOST:PORT (udp-listen:/tcp-listen: wait for it) instead of starting jMAVSim")
     p.set_defaults(func=cmd_sitl)
