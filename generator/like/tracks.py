@@ -33,6 +33,8 @@ STILL_V_M_S = 0.3
 MIN_HOLD_S = 2.0
 #: the track's sampling (Hz) for the simplification
 TRACK_HZ = 2.0
+#: s, the smoothing of the track before its speed is read (a 5 Hz GPS fix wanders by decimetres)
+SMOOTH_S = 2.0
 #: waypoints closer than this (m) to the previous one are merged into it
 MIN_LEG_M = 1.0
 
@@ -175,14 +177,22 @@ def rdp(points: np.ndarray, epsilon: float) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
+def _smooth(x: np.ndarray) -> np.ndarray:
+    """``x`` averaged over :data:`SMOOTH_S` (centred): a GPS position's noise is no motion."""
+    w = max(1, int(round(SMOOTH_S * TRACK_HZ)) | 1)
+    k = np.ones(w)
+    return np.convolve(x, k, mode="same") / np.convolve(np.ones_like(x), k, mode="same")
+
+
 def _holds(track: Track) -> np.ndarray:
-    """Per track sample: True where the vehicle holds still (horizontally and vertically)."""
+    """Per track sample: True where the vehicle holds still (horizontally and vertically), on the
+    track smoothed over :data:`SMOOTH_S`."""
     dt = 1.0 / TRACK_HZ
-    vz = np.gradient(track.up, dt)
+    vz = np.gradient(_smooth(track.up), dt)
     still = np.abs(vz) < STILL_V_M_S
     if track.has_position:
-        n = np.nan_to_num(track.north, nan=0.0)
-        e = np.nan_to_num(track.east, nan=0.0)
+        n = _smooth(pd.Series(track.north).ffill().bfill().fillna(0.0).to_numpy())
+        e = _smooth(pd.Series(track.east).ffill().bfill().fillna(0.0).to_numpy())
         still &= np.hypot(np.gradient(n, dt), np.gradient(e, dt)) < STILL_H_M_S
     return still
 
