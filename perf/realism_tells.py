@@ -145,7 +145,7 @@ def _resample(t: np.ndarray, v: np.ndarray, hz: float) -> tuple[np.ndarray, np.n
 
 # --- the figures --------------------------------------------------------------------------------
 def _windows(grid: np.ndarray, mask: np.ndarray, hz: float, t_src: np.ndarray) -> list[slice]:
-    """Consecutive 10 s runs of ``mask`` on ``grid`` with no source gap over GAP_S."""
+    """Consecutive WINDOW_S (10 s, ``--window``) runs of ``mask`` on ``grid`` with no source gap over GAP_S."""
     n = int(WINDOW_S * hz)
     gap = np.zeros(grid.size, bool)
     big = np.flatnonzero(np.diff(t_src) > GAP_S)
@@ -275,10 +275,11 @@ def measure(tables: dict[str, pd.DataFrame]) -> dict[str, float]:
 
 
 # --- flights and logs ----------------------------------------------------------------------------
-def generated_tables(dataset: str | None, n: int, seed: int, view: str, hold_s: float = 12.0
+def generated_tables(dataset: str | None, n: int, seed: int, view: str, hold_s: float | None = None
                      ) -> list[tuple[str, dict]]:
-    """(name, {topic: table}) of up to ``n`` normal generated flights (a dataset's, or flown here
-    holding ``hold_s`` at the take-off point, so that a 10 s hover window fits)."""
+    """(name, {topic: table}) of up to ``n`` normal generated flights (a dataset's, or default
+    flights flown here, holding ``hold_s`` at the take-off point if given: 12 s fits a 10 s hover
+    window, which the default hold does not)."""
     if dataset:
         from scart_bench.dataset import open_dataset
 
@@ -293,7 +294,8 @@ def generated_tables(dataset: str | None, n: int, seed: int, view: str, hold_s: 
     from scart_bench.generator.telemetry.tables import flight_views
 
     cfg = FlightConfig()
-    cfg = dataclasses.replace(cfg, mission=dataclasses.replace(cfg.mission, takeoff_hold_s=hold_s))
+    if hold_s is not None:
+        cfg = dataclasses.replace(cfg, mission=dataclasses.replace(cfg.mission, takeoff_hold_s=hold_s))
     batch = simulate(normal_seeds(seed, n), cfg)
     out = []
     for i in range(n):
@@ -342,7 +344,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--dataset", default=None, help="a generated dataset (default: fly --flights here)")
     p.add_argument("--flights", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--hold", type=float, default=12.0, help="flown here: hover hold after take-off, s")
+    p.add_argument("--hold", type=float, default=None,
+                   help="flown here: hover hold after take-off, s (default: the mission's; 12 makes 10 s hover windows)")
     p.add_argument("--view", default="simulator", choices=("simulator", "navigator"))
     p.add_argument("--logs", nargs="*", default=None, help="real logs or folders (default: ../shared/data)")
     p.add_argument("--no-logs", action="store_true", help="generated flights only")
