@@ -113,12 +113,21 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
     ``flights[i]`` maps topic -> table (``Timestamp`` in µs, fields; an ``Is_Anomaly`` column is
     ignored). Returns per flight: the attacked (navigator-view) topic tables with labels, the
     attack windows and the event log. Flights that share one message schedule (as the generator's
-    do) are replayed together as one batch; others one by one.
+    do under ideal timing) are replayed together as one batch; otherwise the copies of one recording
+    (the same tables: under realistic timing every recording has its own schedule) are, each
+    recording's batch after the other (per flight the same result: a flight's draws and state are its own).
     """
     if len(flights) > 1 and not _same_schedule(flights):
-        out = []
-        for f, sc, sd in zip(flights, scenarios, seeds):
-            out.extend(csv_mode([f], [sc], [sd]))
+        if os.environ.get("SCART_BENCH_CSV_REPLAY") == "per-message":  # as before issue 51: one by one
+            return [r for f, sc, sd in zip(flights, scenarios, seeds) for r in csv_mode([f], [sc], [sd])]
+        groups: dict[tuple, list[int]] = {}
+        for i, f in enumerate(flights):
+            groups.setdefault(tuple((t, id(df)) for t, df in f.items()), []).append(i)
+        out: list = [None] * len(flights)
+        for rows in groups.values():
+            for i, r in zip(rows, csv_mode([flights[i] for i in rows], [scenarios[i] for i in rows],
+                                           [seeds[i] for i in rows])):
+                out[i] = r
         return out
     n = len(flights)
     topics = list(flights[0])

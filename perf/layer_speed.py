@@ -7,6 +7,11 @@ compared for speed and byte-identical output::
 
     python -m perf.layer_speed --n 256 --out before.json
     python -m perf.layer_speed --n 256 --out after.json --compare before.json
+
+``--csv-paths per-message,replay`` runs csv mode through both replays of generator.scart.replay in one
+run (the call at every message time, as before issue 51, and the replay that calls the layer only
+where a call can matter) and prints CPU seconds per flight, the ratio and whether the outputs match.
+The sources are flown with ``--timing`` (realistic by default: every flight its own schedule).
 """
 
 from __future__ import annotations
@@ -61,12 +66,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--modes", default="simulation,csv", help="comma-separated: simulation, csv")
     ap.add_argument("--out", help="write times and hashes here (JSON)")
     ap.add_argument("--compare", help="a JSON of an earlier run: print the speedup and whether outputs match")
+    ap.add_argument("--csv-paths", default="", help="csv mode through these replays in one run: per-message,replay")
+    ap.add_argument("--timing", default=None, help="the sources' message timing (default: the generator's)")
     args = ap.parse_args(argv)
 
     configs = load_configurations(grid_path(args.grid))
     seeds = attack_seeds(0, len(configs))
     order = _order(configs)[args.skip:args.skip + args.n]
-    cfg = FlightConfig()
+    cfg = FlightConfig() if args.timing is None else FlightConfig(timing=args.timing)
     simulate([1], cfg)  # compile / warm up the kernel
     modes = args.modes.split(",")
     t_sim, sim_hash, t_csv, csv_hash = float("nan"), "", float("nan"), ""
@@ -88,6 +95,10 @@ def main(argv: list[str] | None = None) -> None:
                            [src_seeds[k % len(sources)] for k in range(len(link_idx))])
         t_csv = time.perf_counter() - t0
         csv_hash = _hash_csv(results)
+    if args.csv_paths:
+        _csv_paths(args.csv_paths.split(","), link, [configs[i] for i in link_idx],
+                   [src_seeds[k % len(sources)] for k in range(len(link_idx))], args.timing or cfg.timing)
+        return
     res = {"n": len(order), "n_csv": len(link_idx), "sim_s": round(t_sim, 2), "csv_s": round(t_csv, 2),
            "sim_hash": sim_hash, "csv_hash": csv_hash}
     print(json.dumps(res))
@@ -103,6 +114,29 @@ def main(argv: list[str] | None = None) -> None:
         if "csv" in modes:
             print(f"csv mode: {ref['csv_s']:.1f} s -> {t_csv:.1f} s ({ref['csv_s'] / t_csv:.2f}x), "
                   f"identical: {ref['csv_hash'] == csv_hash}")
+
+
+def _csv_paths(paths: list[str], link: list, configs: list, seeds: list, timing: str) -> None:
+    """csv mode on the same flights through each replay path, CPU seconds per flight and output hashes."""
+    import os
+
+    from scart_bench.generator.modes import csv_mode
+
+    cpu, hashes = {}, {}
+    for path in paths:
+        if path not in ("per-message", "replay"):
+            raise SystemExit(f"--csv-paths: {path!r}: expected per-message or replay")
+        os.environ["SCART_BENCH_CSV_REPLAY"] = path
+        t0, c0 = time.perf_counter(), time.process_time()
+        results = csv_mode(link, configs, seeds)
+        cpu[path], wall = time.process_time() - c0, time.perf_counter() - t0
+        hashes[path] = _hash_csv(results)
+        print(f"csv mode, {path} replay: {len(link)} flights ({timing} timing) in {cpu[path]:.1f} CPU s "
+              f"({cpu[path] / len(link):.3f} per flight), wall {wall:.1f} s", flush=True)
+    os.environ.pop("SCART_BENCH_CSV_REPLAY", None)
+    if len(paths) == 2:
+        a, b = paths
+        print(f"ratio {a}/{b}: {cpu[a] / cpu[b]:.2f}x CPU; identical outputs: {hashes[a] == hashes[b]}")
 
 
 if __name__ == "__main__":
