@@ -338,7 +338,8 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
             hover = _segments(t, air)
             m.hover_still = False
             if hover:
-                m.notes.append("no still hover of 3 s: sensor noise measured on all airborne rows (high-passed)")
+                m.notes.append("no still hover of 3 s: sensor noise measured on all airborne rows (used only if no log "
+                             "has a still hover)")
         before = np.flatnonzero(~landed)
         ground = _segments(t, landed & (np.arange(len(t)) < (before[0] if len(before) else len(t))))
     for name, (ts, x, hz) in series.items():
@@ -570,6 +571,8 @@ def next_level(history: list[tuple[float, float]], target: float) -> float:
     figure^2 = motion^2 + (gain * parameter)^2. One pair: scale by target / figure; two or more: solve
     for motion and gain from the last two pairs (a secant in the squares) and aim the noise at the rest."""
     p1, g1 = history[-1]
+    if p1 == 0.0:  # a vibration off so far (per sample, like the figure): the rest, in squares
+        return math.sqrt(max(target * target - g1 * g1, 0.0))
     if len(history) >= 2:
         p0, g0 = history[-2]
         if abs(p1 - p0) > 1e-12 * max(p0, p1):
@@ -584,12 +587,13 @@ def next_level(history: list[tuple[float, float]], target: float) -> float:
 #: a field's alternatives that the sensor model has is fitted (``accel_vibration``: per axis, motors running)
 NOISE_PLAN = (
     (("accel_vibration", 0, ("acc_x",)), ("accel_vibration", 1, ("acc_y",)), ("accel_vibration", 2, ("acc_z",))),
-    (("gyro_noise_density", None, ("gyro_x", "gyro_y", "gyro_z")),),
+    (("gyro_vibration", 0, ("gyro_x",)), ("gyro_vibration", 1, ("gyro_y",)), ("gyro_vibration", 2, ("gyro_z",))),
     (("mag_noise", None, ("mag_x", "mag_y", "mag_z")),),
     (("baro_noise_pa", None, ("baro_alt",)),),
 )
-#: fitted to the accelerometer when the sensor model has no vibration
-ACCEL_FALLBACK = (("accel_noise_density", None, ("acc_x", "acc_y")),)
+#: fitted when the sensor model has no vibration
+FALLBACK = {"accel_vibration": (("accel_noise_density", None, ("acc_x", "acc_y")),),
+            "gyro_vibration": (("gyro_noise_density", None, ("gyro_x", "gyro_y", "gyro_z")),)}
 
 
 def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[object, str]], list[str]]:
@@ -609,7 +613,7 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
     plan = []
     for group in NOISE_PLAN:
         if not hasattr(s, group[0][0]):
-            group = ACCEL_FALLBACK if group[0][0] == "accel_vibration" else ()
+            group = FALLBACK.get(group[0][0], ())
         plan.extend(item for item in group if hasattr(s, item[0]) and all(k in want for k in item[2]))
     if not plan:
         return out, ["no hover noise measured in any log: sensor noise defaults kept"]

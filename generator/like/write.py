@@ -29,7 +29,6 @@ NOT_EXPRESSIBLE = {
                                 "REALISTIC); measured per quantity in [measured] rate_* and jitter_*",
     "site": "home latitude/longitude/altitude are the dataset schema's (PX4 SITL, Zurich); the recovered missions "
             "keep their log's home in their WPL files and are flown as offsets from the generator's home",
-    "gyro_per_axis": "one gyro noise density for x, y and z; fitted to the mean of the three axes",
     "mag_per_axis": "one magnetometer noise for x, y and z; fitted to the mean of the three axes",
     "gusts": "gust_sigma_max and gust_tau are not measured (the estimator's wind states are smooth); defaults kept",
     "airframe": "the vehicle (mass, inertia, motors, drag) stays the base profile's: thrust and attitude logs do "
