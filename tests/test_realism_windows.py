@@ -218,3 +218,12 @@ def test_vertical_speed_ignores_a_noisy_altitude():
     noisy = 5 + np.random.default_rng(0).normal(0, 0.3, len(t))
     assert rw.vertical_speed((t, noisy), 0, 10) < 0.3
     assert rw.vertical_speed((t, 5 + t), 0, 10) == pytest.approx(1.0, abs=0.05)
+
+
+def test_perf_realism_windows_flag_runs_this_check(capsys):
+    from perf import realism
+
+    with pytest.raises(SystemExit) as exc:
+        realism.main(["--windows", "--dataset", "/nonexistent/dataset"])
+    assert exc.value.code == 2
+    assert "python -m perf.realism_windows: error: --dataset /nonexistent/dataset" in capsys.readouterr().err
