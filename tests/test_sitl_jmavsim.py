@@ -101,8 +101,8 @@ def test_a_ground_station_flies_a_jmavsim_vehicle_up_to_a_point_and_back_home(fl
 
 
 def test_a_link_scenario_shows_the_client_a_position_that_jmavsim_does_not_fly(flight):
-    """In the attack window the client's GLOBAL_POSITION_INT is about 6 m east of jMAVSim's truth; outside it,
-    within a metre."""
+    """In the attack window the client's GLOBAL_POSITION_INT is about 6 m east of jMAVSim's truth; after it,
+    within the estimator's own error; the recording labels the window."""
     (start_us, end_us), = flight["sitl"].windows()
     assert 2.0 < (end_us - start_us) / 1e6 < 6.0
     t_truth, truth = flight["truth_s"], flight["truth"]
@@ -119,7 +119,13 @@ def test_a_link_scenario_shows_the_client_a_position_that_jmavsim_does_not_fly(f
     assert np.median(east_error[inside]) == pytest.approx(6.0, abs=1.0)
     late = np.array([t > end_us / 1e6 + 1.0 for t, _ in flight["client"].seen["GLOBAL_POSITION_INT"]
                      if t >= t_truth[0]])
-    assert np.abs(east_error[late]).max() < 1.0
+    # afterwards only the estimator's own error (jMAVSim's GPS noise, the RTL's turns): under 0.5 m typically
+    assert np.median(np.abs(east_error[late])) < 0.5 and np.abs(east_error[late]).max() < 2.5
+    rec = flight["sitl"].record("sitl-jmavsim", {})  # the recording: jMAVSim's truth, labels on the window
+    assert len(rec.simulator["truth"]) == len(truth) and rec.manifest["injection_point"] == "link"
+    labelled = next(df for df in rec.navigator.values() if df["Is_Anomaly"].any())
+    ts = labelled["Timestamp"][labelled["Is_Anomaly"].astype(bool)]
+    assert start_us <= ts.min() and ts.max() < end_us
 
 
 def test_cli_says_in_one_line_what_is_missing(tmp_path, monkeypatch, capsys):
