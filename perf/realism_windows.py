@@ -3,23 +3,26 @@
 Usage (command line)::
 
     python -m perf.realism_windows --dataset DIR [--logs FILE_OR_DIR ...] [--phases ground,hover,cruise]
-                                   [--signals attitude,imu,baro] [--view simulator] [--markdown]
+                                   [--signals attitude,imu,baro] [--no-timing] [--view simulator] [--markdown]
 
 ``--dataset`` is a generated dataset (its normal flights, the ``simulator`` view by default);
 each ``--logs`` argument is one log set (a folder: every log in it that ``scart-bench import``
 reads; a file: that log); by default the three sets in ``../shared/data`` (the 4 PX4 ULogs, the
 2 ArduCopter logs, the 12-log fleet). ``python -m perf.realism --windows ...`` is the same.
 
-Usage (from Python; H2, H4 and the jMAVSim comparison call these)::
+Usage (from Python: the realism fixes, `generate --like` and a jMAVSim comparison call these)::
 
     from perf.realism_windows import read_dataset, read_logs, compare
     gen = read_dataset("/tmp/gen")                 # list[FlightSignals]
     real = read_logs(["../shared/data/dataflash/fleet"])
     result = compare(gen, real)                    # a Comparison
     print(result.report())                         # AUC per phase, top features, signals used
-    result.flight_auc["hover"]                     # one number
+    result.flight_auc_by_phase["hover"]            # one number
 
+    result.phases["hover"].features               # each feature alone: AUC, medians, ratio
+    rates = common_rates(gen + real, list(SIGNALS))   # per signal, the rate both sides reach
     table = window_table(gen + real, rates)        # the features: one row per 10 s window
+    f = signals_from_tables("mine", tables, "generated")   # {topic: DataFrame} of any flight
 
 What it does:
 
