@@ -227,3 +227,10 @@ def test_perf_realism_windows_flag_runs_this_check(capsys):
         realism.main(["--windows", "--dataset", "/nonexistent/dataset"])
     assert exc.value.code == 2
     assert "python -m perf.realism_windows: error: --dataset /nonexistent/dataset" in capsys.readouterr().err
+
+
+def test_same_inputs_give_the_same_figures():
+    gen, real = fleet("generated", 1, n=4), fleet("real", 2, n=4, acc_noise=0.15)
+    a, b = (rw.compare(gen, real, phases=("all",), groups=False).phases["all"] for _ in range(2))
+    assert (a.flight_auc, a.window_auc) == (b.flight_auc, b.window_auc)
+    pd.testing.assert_frame_equal(a.features, b.features)
