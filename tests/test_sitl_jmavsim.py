@@ -154,3 +154,37 @@ def test_cli_starts_jmavsim_flies_it_and_stops_it(jar, capsys):
     assert "flying jMAVSim" in err and "stopped after 2.0 s of flight" in err
     after = subprocess.run(["pgrep", "-f", str(jar)], capture_output=True, text=True).stdout.split()
     assert after == before
+
+
+def test_a_jmavsim_that_ends_mid_flight_ends_the_sitl_in_one_line_and_the_flown_part_is_recorded(jar, tmp_path,
+                                                                                                 capsys):
+    import os
+    import signal
+    import subprocess
+    import threading
+    import time
+
+    from scart_bench.dataset import open_dataset
+
+    out = tmp_path / "ds"
+    codes = []
+    run = threading.Thread(target=lambda: codes.append(main([
+        "sitl", "--physics", "jmavsim", "--jmavsim", str(jar), "--listen", "udp:127.0.0.1:0", "--speed", "10",
+        "--duration", "60", "--record", str(out), "--flight-id", "cut-short"])))
+    run.start()
+    pid, end = None, time.monotonic() + 30
+    while pid is None and time.monotonic() < end:
+        found = subprocess.run(["pgrep", "-f", str(jar)], capture_output=True, text=True).stdout.split()
+        pid = int(found[0]) if found else None
+        time.sleep(0.2)
+    assert pid is not None, "jMAVSim did not start"
+    time.sleep(4.0)
+    os.kill(pid, signal.SIGKILL)  # the jMAVSim this test's sitl started
+    run.join(60)
+    assert codes == [2]
+    err = capsys.readouterr().err
+    assert "scart-bench sitl: error: jMAVSim ended during the flight" in err
+    ds = open_dataset(out)
+    assert list(ds.manifest["flight_id"]) == ["cut-short"]
+    assert 1.0 < ds.manifest["duration_s"].iloc[0] < 60.0  # the part flown before jMAVSim ended
+    assert len(ds.topic("cut-short", "attitude")) > 50

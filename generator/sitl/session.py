@@ -31,6 +31,8 @@ class SitlRun:
     wall_s: float
     flight_id: str | None = None
     path: Path | None = None
+    #: why the flight ended early: the plant's simulator ended or went silent (the flown part is recorded)
+    error: str | None = None
 
 
 def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, remote: tuple[str, int] | None = None,
@@ -43,6 +45,7 @@ def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, r
     journals are added first); ``defense``: a :class:`~scart_bench.generator.defense.LiveDefense`;
     ``extra``: the recording's extra config; ``plant``: the vehicle (default the built-in physics; a started
     :class:`~scart_bench.generator.sitl.jmavsim_plant.JmavsimPlant` flies jMAVSim; the caller closes it)."""
+    from scart_bench.generator.hil.errors import HilError
     from scart_bench.generator.mavlink.recording import new_flight_id, save_recording
     from scart_bench.generator.sitl.journal import Journal, discard, journal_root, recover
     from scart_bench.generator.sitl.server import SitlServer
@@ -86,8 +89,12 @@ def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, r
     log(f"sitl: listening on udp:{host}:{port}" + (f", sending to udp:{remote[0]}:{remote[1]}" if remote else "")
         + f"; PX4-like quadrotor{physics}, system 1 component 1; {pace}; scenario {attack}; Ctrl-C stops")
     t0 = time.monotonic()
+    lost = None
     try:
         sitl.serve(stop, speed=speed, duration_s=duration_s)
+    except HilError as exc:  # an external simulator ended or went silent: what was flown is still recorded
+        lost = str(exc)
+        log(f"sitl: {lost}; the flight ends here")
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -99,7 +106,7 @@ def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, r
     log(f"sitl: stopped after {sitl.time_s:.1f} s of flight ({wall:.1f} s wall): {sitl.stats.summary()}")
     for s, e in sitl.windows():
         log(f"sitl: attack window {s / 1e6:.2f} s - {e / 1e6:.2f} s (flight time)")
-    outcome = SitlRun(sitl.time_s, wall)
+    outcome = SitlRun(sitl.time_s, wall, error=lost)
     if record is None:
         return outcome
     if sitl.plant.step_index == 0:

@@ -88,6 +88,10 @@ def _run(args: argparse.Namespace, listen, remote, sock) -> int:
             plant.close()  # ends the jMAVSim it started
     if done.path is not None:
         print(f"flight {done.flight_id} recorded in {target.shown} ({done.path.name})")
+    if done.error is not None:  # the simulator of --physics jmavsim ended or went silent during the flight
+        from scart_bench.generator.hil.errors import HilError
+
+        raise HilError(done.error)
     return 0
 
 
