@@ -62,7 +62,7 @@ def test_a_generated_flight_takes_off_after_arming_and_touches_down_before_its_e
     armed, _ = arming_time_us(f)
     t = f["Timestamp"].to_numpy(np.int64)
     assert armed < b["liftoff_us"] < b["climb_end_us"] < b["descent_start_us"] < b["touchdown_us"] < t[-1]
-    assert b["liftoff_us"] - armed < 3_000_000  # spin-up, then off the ground
+    assert b["liftoff_us"] - armed < 5_000_000  # 3 s armed at idle on the ground (as real logs), spin-up, off
     # the vehicle is on the ground before take-off and after touchdown (the simulator's truth)
     alt = -f["local_position_ned.z"].to_numpy(np.float64)
     assert np.abs(alt[t < armed]).max() < 0.5 and np.abs(alt[t >= b["touchdown_us"] + 1_000_000]).max() < 0.5
