@@ -172,19 +172,19 @@ def test_a_jmavsim_that_ends_mid_flight_ends_the_sitl_in_one_line_and_the_flown_
         "sitl", "--physics", "jmavsim", "--jmavsim", str(jar), "--listen", "udp:127.0.0.1:0", "--speed", "10",
         "--duration", "60", "--record", str(out), "--flight-id", "cut-short"])))
     run.start()
-    pid, end = None, time.monotonic() + 30
-    while pid is None and time.monotonic() < end:
-        found = subprocess.run(["pgrep", "-f", str(jar)], capture_output=True, text=True).stdout.split()
-        pid = int(found[0]) if found else None
+    err, end = "", time.monotonic() + 60
+    while "listening on" not in err and time.monotonic() < end:  # jMAVSim has answered: the vehicle flies
+        err += capsys.readouterr().err
         time.sleep(0.2)
-    assert pid is not None, "jMAVSim did not start"
-    time.sleep(4.0)
-    os.kill(pid, signal.SIGKILL)  # the jMAVSim this test's sitl started
+    found = subprocess.run(["pgrep", "-f", str(jar)], capture_output=True, text=True).stdout.split()
+    assert "listening on" in err and found, "jMAVSim did not start"
+    time.sleep(3.0)
+    os.kill(int(found[0]), signal.SIGKILL)  # the jMAVSim this test's sitl started
     run.join(60)
     assert codes == [2]
-    err = capsys.readouterr().err
+    err += capsys.readouterr().err
     assert "scart-bench sitl: error: jMAVSim ended during the flight" in err
     ds = open_dataset(out)
     assert list(ds.manifest["flight_id"]) == ["cut-short"]
-    assert 1.0 < ds.manifest["duration_s"].iloc[0] < 60.0  # the part flown before jMAVSim ended
-    assert len(ds.topic("cut-short", "attitude")) > 50
+    assert 0.5 < ds.manifest["duration_s"].iloc[0] < 60.0  # the part flown before jMAVSim ended
+    assert len(ds.topic("cut-short", "attitude")) > 25
