@@ -155,3 +155,13 @@ def test_a_hand_written_profile_maps_onto_the_flight_config(tmp_path):
     assert prof.config.sensors.baro_noise_pa == 2.5 and prof.config.sensors.mag_field_ned == (0.2, 0.01, 0.4)
     assert prof.config.sensors.gps_bias_h == 2.75  # the real_receiver level under the file's own fields
     assert prof.config.mission.takeoff_hold_s == 9.0
+
+
+def test_a_log_that_cannot_be_read_exits_2_and_writes_nothing(tmp_path, capsys):
+    bad = tmp_path / "notes.txt"
+    bad.write_text("not a log\n")
+    out = tmp_path / "out"
+    assert main(["generate", "--like", str(WITH_GPS), str(bad), "--flights", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(bad) in err, err
+    assert not out.exists()
