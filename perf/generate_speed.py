@@ -6,6 +6,12 @@ Prints the time of each phase as it goes and, at the end, total wall time, peak 
 (this process and, separately, its largest child: the writer process) and the number of flights,
 files and bytes written, per flight too. The goal for ``paper`` (100 normal flights + 2048
 configurations x 2 modes) is under 10 minutes [5], 6 GB peak and 5 GB [2] on disk on 2 cores.
+
+``--timing-ratio``: the same generation with realistic and with ideal message timing, one after the
+other in one run (issue 51 acceptance 1: realistic at most 1.3x ideal), wall and CPU seconds of each
+(this process and its children: the csv-mode process and the writer) and the ratios::
+
+    python -m perf.generate_speed --profile paper --flights 16 --timing-ratio
 """
 
 from __future__ import annotations
@@ -29,7 +35,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--format", default="parquet")
     p.add_argument("--layout", default=None, help="compact | paper (default: compact for Parquet)")
+    p.add_argument("--flights", type=int, default=None, help="normal flights (default: the profile's)")
+    p.add_argument("--scenarios", default=None, help="a scenario, grid or sweep file instead of the profile's grid")
+    p.add_argument("--timing-ratio", action="store_true", help="realistic against ideal timing, in one run")
     args = p.parse_args(argv)
+    if args.timing_ratio:
+        timing_ratio(args)
+        return
     tmp = None
     out = Path(args.out) if args.out else Path(tmp := tempfile.mkdtemp()) / args.profile
     t0 = time.perf_counter()
@@ -52,6 +64,33 @@ def main(argv: list[str] | None = None) -> None:
           f"{len(files) / len(ds):.1f} files per flight)")
     if tmp:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _cpu() -> float:
+    """CPU seconds of this process and its finished children (the csv-mode process, the writer)."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def timing_ratio(args) -> None:
+    """Generate with realistic, then ideal timing (same seed, flights and grid); print wall and CPU."""
+    import dataclasses
+
+    from scart_bench.generator.profiles import get_profile
+
+    res = {}
+    with tempfile.TemporaryDirectory(prefix="generate_speed_") as tmp:
+        for timing in ("realistic", "ideal"):
+            cfg = dataclasses.replace(get_profile(args.profile), timing=timing).flight_config()
+            t0, c0 = time.perf_counter(), _cpu()
+            generate_dataset(args.profile, Path(tmp) / timing, seed=args.seed, fmt=args.format, n_normal=args.flights,
+                             config=cfg, scenarios=args.scenarios, layout=args.layout)
+            res[timing] = (time.perf_counter() - t0, _cpu() - c0)
+            counts = open_dataset(Path(tmp) / timing).manifest["mode"].value_counts().to_dict()
+            print(f"{timing} timing: {counts}, wall {res[timing][0]:.1f} s, CPU {res[timing][1]:.1f} s", flush=True)
+            shutil.rmtree(Path(tmp) / timing)
+    (wr, cr), (wi, ci) = res["realistic"], res["ideal"]
+    print(f"realistic / ideal: {wr / wi:.2f}x wall, {cr / ci:.2f}x CPU (issue 51 asks at most 1.3x)")
 
 
 if __name__ == "__main__":
