@@ -724,24 +724,32 @@ def main(argv: list[str] | None = None) -> int:
     generated = read_dataset(args.dataset, args.view, args.flights)
     if not generated:
         p.error(f"--dataset {args.dataset}: no normal flights in view {args.view}")
-    results = []
+    results, failed = [], []
     for name, paths in sets.items():
         real = read_logs(paths, name)
         if not real:
-            print(f"== {name}: no readable log; skipped")
+            print(f"== {name}: no readable log (expected {', '.join(_suffixes())} files); skipped", file=sys.stderr)
+            failed.append(name)
             continue
         try:
             c = compare(generated, real, phases, wanted, args.seed, log_set=name, groups=not args.no_groups,
                         features=tuple(k for k in FEATURES if not (args.no_timing and k == "jitter")))
         except ValueError as exc:
-            print(f"== {name}: {exc}")
+            print(f"== {name}: {exc}", file=sys.stderr)
+            failed.append(name)
             continue
         results.append(c)
         print(c.report(args.top), flush=True)
         print()
     if args.markdown and results:
         print(markdown_table(results, phases))
-    return 0
+    return 2 if failed else 0
+
+
+def _suffixes() -> tuple[str, ...]:
+    from scart_bench.generator.logs.importers import LOG_SUFFIXES
+
+    return LOG_SUFFIXES
 
 
 if __name__ == "__main__":

@@ -234,3 +234,12 @@ def test_same_inputs_give_the_same_figures():
     a, b = (rw.compare(gen, real, phases=("all",), groups=False).phases["all"] for _ in range(2))
     assert (a.flight_auc, a.window_auc) == (b.flight_auc, b.window_auc)
     pd.testing.assert_frame_equal(a.features, b.features)
+
+
+def test_cli_says_which_log_set_it_cannot_read(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(rw, "read_dataset", lambda *a, **k: fleet("generated", 1, n=2))
+    notes = tmp_path / "logs"
+    notes.mkdir()
+    (notes / "notes.txt").write_text("not a log")
+    assert rw.main(["--dataset", str(tmp_path), "--logs", str(notes), "--no-groups"]) == 2
+    assert f"== {notes}: no readable log (expected .ulg" in capsys.readouterr().err
