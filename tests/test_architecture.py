@@ -168,3 +168,70 @@ def test_no_private_name_is_imported_across_modules():
 def test_the_generator_top_level_stays_small():
     """Subsystems live in their folders; about a dozen modules stay at the top."""
     assert len(list((ROOT / "generator").glob("*.py"))) <= 12
+
+
+#: The generator's rooms, from the bottom: a subfolder (or a top-level module) imports only rooms on a lower
+#: line, at module level or inside a function. The order is the one the code follows: the shared base
+#: (constants, geodesy, the package's own ``__init__``) -> the vehicle and its sensors -> the flight software
+#: -> the telemetry streams and tables -> the engines that fly a batch -> the attack layer (with the
+#: profiles and the defences beside it) -> the run modes -> recorded logs and the MAVLink link -> ROS ->
+#: the attacks -> the plan of a dataset -> hardware in the loop -> the sitl, the like-a-log profiles and
+#: the sharded run -> the generate entry point.
+GENERATOR_ROOMS = [
+    {"__init__", "params", "geo", "attack_effect", "impact"},
+    {"physics"},
+    {"flight_software"},
+    {"telemetry"},
+    {"engine"},
+    {"scart", "profiles", "defense"},
+    {"modes"},
+    {"logs", "mavlink"},
+    {"ros"},
+    {"attacks"},
+    {"plan"},
+    {"hil"},
+    {"sitl", "like", "sharded"},
+    {"generate"},
+]
+GENERATOR_LEVEL = {room: level for level, rooms in enumerate(GENERATOR_ROOMS) for room in rooms}
+
+
+def _generator_room(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[:2] != ["scart_bench", "generator"]:
+        return None
+    return parts[2] if len(parts) > 2 else "__init__"
+
+
+def _generator_imports(path: Path, modules: dict[str, Path]) -> set[str]:
+    """Project modules a file imports; ``from package import module`` counts as the module only."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name in modules}
+        elif isinstance(node, ast.ImportFrom) and node.module in modules:
+            subs = {f"{node.module}.{a.name}" for a in node.names} & set(modules)
+            found |= subs
+            if len(subs) < len(node.names):
+                found.add(node.module)
+    return found
+
+
+def test_every_generator_module_has_a_room():
+    rooms = {_generator_room(m) for m in _modules()} - {None}
+    assert rooms <= set(GENERATOR_LEVEL), rooms - set(GENERATOR_LEVEL)
+
+
+def test_the_generator_rooms_import_one_way():
+    """No subfolder imports one that imports it (physics <-> flight software, scart <-> ros ... were loops)."""
+    modules = _modules()
+    bad = []
+    for module, path in sorted(modules.items()):
+        room = _generator_room(module)
+        if room is None:
+            continue
+        for d in sorted(_generator_imports(path, modules)):
+            below = _generator_room(d)
+            if below is not None and below != room and GENERATOR_LEVEL[below] >= GENERATOR_LEVEL[room]:
+                bad.append(f"{module} ({room}) imports {d} ({below})")
+    assert not bad, "\n".join(bad)

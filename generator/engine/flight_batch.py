@@ -26,6 +26,7 @@ from scart_bench.generator.params import (
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.sensors import Sensors
 from scart_bench.generator.physics.vehicle import VehicleState, Wind
+from scart_bench.generator.telemetry.batch import BatchResult
 
 STATUS = ("landed", "timeout", "crashed")
 
@@ -83,32 +84,8 @@ class FlightConfig:
     #: airframes drawn per flight (generator.physics.airframes, a profile's ``airframes`` mix): sorted
     #: (name, weight) pairs summing to 1; empty: every flight flies ``vehicle`` and ``controller``
     airframes: tuple = ()
-@dataclass
-class BatchResult:
-    """Recorded messages of a batch of flights.
 
-    ``simulator[topic]`` / ``navigator[topic]`` are ``(steps, values, delivered)`` with ``values``
-    shaped (N, n_messages, n_fields): the stream before and after the attack layer (identical
-    objects when no layer ran). ``truth`` is the true vehicle state at 50 Hz.
-    """
 
-    seeds: list[int]
-    simulator: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
-    navigator: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
-    exit_step: np.ndarray  # (N,) last recorded step of each flight
-    status: list[str]
-    waypoints: np.ndarray  # (N, K, 3) planned mission items
-    wind: np.ndarray  # (N, 3) mean wind
-    gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
-    n_steps: int
-    timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.telemetry.tables)
-    uorb: bool = False  # FlightConfig.uorb: the records carry the uORB view (generator.telemetry.uorb)
-    #: with FlightConfig.uorb: the flight controller's streams for the uORB view (generator.telemetry.schedule.
-    #: UORB_STREAMS), ``(steps, values, delivered)`` like ``simulator``'s; empty otherwise
-    uorb_streams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(self.seeds)
 def _battery_init(remaining: np.ndarray) -> np.ndarray:
     """(N, 3) voltage, current, remaining of 4S packs at rest with the given charge (0-1)."""
     remaining = np.asarray(remaining, dtype=float)

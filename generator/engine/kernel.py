@@ -19,12 +19,7 @@ from numba import njit, prange
 
 from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.pcg_noise import fill_one
-from scart_bench.generator.flight_software.startup import (
-    EPH_SETTLE,
-    EPH_SETTLE_TAU_S,
-    SATS_RAMP,
-    TAKEOFF_CLIMB,
-)
+from scart_bench.generator.flight_software.startup import TAKEOFF_CLIMB
 from scart_bench.generator.params import GRAVITY
 from scart_bench.generator.physics.noise import (
     NZ_ACC,
@@ -39,7 +34,7 @@ from scart_bench.generator.physics.noise import (
     NZ_MAG,
     NZ_WIND,
 )
-from scart_bench.generator.physics.sensors import VIBRATION_FULL_FROM
+from scart_bench.generator.physics.sensors import EPH_SETTLE, EPH_SETTLE_TAU_S, SATS_RAMP, VIBRATION_FULL_FROM
 
 _I = L.PARAM_INDEX
 K_DT, K_MASS, K_JX, K_JY, K_JZ = _I["dt"], _I["mass"], _I["Jx"], _I["Jy"], _I["Jz"]
@@ -377,7 +372,7 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
                 vel_noise = vel_noise * growth
             s[L.GPS_POS + a] = tbuf[old, a] + s[L.GPS_BIAS + a] + white
             s[L.GPS_VEL + a] = tbuf[old, 3 + a] + vel_noise
-        # the receiver's start (generator.flight_software.startup.gps_quality): no fix, then satellites and accuracy settle
+        # the receiver's start (generator.physics.sensors.gps_quality): no fix, then satellites and accuracy settle
         after = max(step * p[K_DT] - s[L.GPS_FIX_AT], 0.0)
         sats = max(min(sats, s[L.SATS_IN_VIEW] - SATS_RAMP + math.floor(after)), 0.0)
         scale = 1.0 + EPH_SETTLE * math.exp(-after / EPH_SETTLE_TAU_S)

@@ -9,7 +9,8 @@ accuracy (eph / epv) shrinks as it settles (CubeOrange log: eph 3.3 -> 2.5 m ove
 
 Every time is drawn from the flight's seed only (one generator per flight and purpose), so a
 flight's start is the same alone or in any batch. Both engines of the generator read the arrays
-of :func:`startup_times`; the scalar formulas of :func:`gps_quality` are repeated in the kernel.
+of :func:`startup_times`. The receiver's settling after its fix (``gps_quality``) lives with the
+sensors (generator.physics.sensors), which read it; its scalar formulas are repeated in the kernel.
 """
 
 from __future__ import annotations
@@ -38,11 +39,6 @@ TAKEOFF_AFTER_ARM_INSTANT_S = 0.5
 def takeoff_after_arm(ground_phase: bool) -> float:
     """Seconds from arming to the take-off of a flight with (or without) the ground phase."""
     return TAKEOFF_AFTER_ARM_S if ground_phase else TAKEOFF_AFTER_ARM_INSTANT_S
-#: satellites used at the fix: this many fewer than the receiver settles on; one more per second
-SATS_RAMP = 3.0
-#: reported accuracy at the fix is (1 + EPH_SETTLE) times the settled one, decaying with EPH_SETTLE_TAU_S
-EPH_SETTLE = 0.5
-EPH_SETTLE_TAU_S = 6.0
 #: remaining charge of the pack at boot (uniform): packs are not always freshly charged
 BATTERY_REMAINING = (0.88, 1.0)
 
@@ -78,18 +74,3 @@ def battery_start(seeds) -> np.ndarray:
     return np.array([lo + (hi - lo) * _rng(s, "battery").random() for s in seeds], dtype=float)
 
 
-def gps_quality(t: float, fix_s: np.ndarray, sats_settled: np.ndarray, sats_now: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(fixed, satellites used, accuracy scale) of the receivers at time ``t`` (s).
-
-    ``sats_now``: the satellites the receiver could use now (fewer under jamming). Before its fix
-    a receiver has no fix; from the fix its count climbs one a second from ``SATS_RAMP`` fewer than
-    ``sats_settled``, and its eph / epv are (1 + ``EPH_SETTLE``) times the settled ones, shrinking.
-    """
-    since = t - np.asarray(fix_s, dtype=float)
-    fixed = since >= 0.0
-    after = np.maximum(since, 0.0)
-    cap = np.asarray(sats_settled, dtype=float) - SATS_RAMP + np.floor(after)
-    sats = np.maximum(np.minimum(np.asarray(sats_now, dtype=float), cap), 0.0)
-    scale = 1.0 + EPH_SETTLE * np.exp(-after / EPH_SETTLE_TAU_S)
-    return fixed, sats, scale

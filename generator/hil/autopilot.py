@@ -29,8 +29,7 @@ from scart_bench.generator.params import (
     MissionParams,
 )
 from scart_bench.generator.physics.rotation import quat_to_rot
-from scart_bench.generator.sitl.plant import is_due
-from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, FCSnapshot, compose
+from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, FCSnapshot, compose, is_due
 
 #: the points the bridge carries scenarios at
 HIL_POINTS = ("sensor", "link", "command")

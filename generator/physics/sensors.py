@@ -11,11 +11,33 @@ from dataclasses import dataclass
 import numpy as np
 
 from scart_bench.dataset.schema import HOME_ALT
-from scart_bench.generator.flight_software.startup import gps_quality
 from scart_bench.generator.geo import pressure_at
 from scart_bench.generator.params import GRAVITY, SensorParams
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.rotation import rotate_t
+
+#: satellites used at the fix: this many fewer than the receiver settles on; one more per second
+SATS_RAMP = 3.0
+#: reported accuracy at the fix is (1 + EPH_SETTLE) times the settled one, decaying with EPH_SETTLE_TAU_S
+EPH_SETTLE = 0.5
+EPH_SETTLE_TAU_S = 6.0
+
+
+def gps_quality(t: float, fix_s: np.ndarray, sats_settled: np.ndarray, sats_now: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(fixed, satellites used, accuracy scale) of the receivers at time ``t`` (s).
+
+    ``sats_now``: the satellites the receiver could use now (fewer under jamming). Before its fix
+    a receiver has no fix; from the fix its count climbs one a second from ``SATS_RAMP`` fewer than
+    ``sats_settled``, and its eph / epv are (1 + ``EPH_SETTLE``) times the settled ones, shrinking.
+    """
+    since = t - np.asarray(fix_s, dtype=float)
+    fixed = since >= 0.0
+    after = np.maximum(since, 0.0)
+    cap = np.asarray(sats_settled, dtype=float) - SATS_RAMP + np.floor(after)
+    sats = np.maximum(np.minimum(np.asarray(sats_now, dtype=float), cap), 0.0)
+    scale = 1.0 + EPH_SETTLE * np.exp(-after / EPH_SETTLE_TAU_S)
+    return fixed, sats, scale
 
 
 @dataclass

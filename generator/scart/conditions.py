@@ -12,9 +12,9 @@ import re
 import numpy as np
 
 from scart_bench.generator.geo import ne_from_latlon
-from scart_bench.generator.logs.phases import ANCHORS, LANDED, PHASES
 from scart_bench.generator.scart.spec import Param, ScenarioError
 from scart_bench.generator.scart.units import latlon_pair, quantity
+from scart_bench.generator.telemetry.phases import ANCHORS, LANDED, PHASES
 
 
 class Condition:

@@ -17,7 +17,7 @@ import re
 
 from scart_bench.dataset.schema import TOPICS
 from scart_bench.generator.geo import metres_per_degree
-from scart_bench.generator.ros.topics import field_quantity
+from scart_bench.generator.telemetry.mavros import field_quantity
 
 #: Metres per degree at the generator's home (WGS-84): for tests and plots only, never for attacks.
 M_PER_DEG_LAT, M_PER_DEG_LON = (float(v) for v in metres_per_degree())

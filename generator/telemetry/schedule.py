@@ -52,6 +52,14 @@ def due_steps(rate_hz: float, n_steps: int, sim_rate: float = SIM_RATE_HZ) -> np
     return due
 
 
+def is_due(rate_hz: float, step: int) -> bool:
+    """Whether a message of ``rate_hz`` is published at ``step``: one step of :func:`due_steps`, for the
+    loops that fly step by step (hardware and software in the loop)."""
+    if step == 0:
+        return True
+    return np.floor(step * rate_hz / SIM_RATE_HZ + 1e-9) != np.floor((step - 1) * rate_hz / SIM_RATE_HZ + 1e-9)
+
+
 @dataclass
 class FCSnapshot:
     """What the flight controller knows at one step, from which telemetry is composed."""

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.dataset import FlightRecord, flight_record, labelled_table
-from scart_bench.generator.engine.simulate import BatchResult
 from scart_bench.generator.params import STEP_US
+from scart_bench.generator.telemetry.batch import BatchResult
 from scart_bench.generator.telemetry.schedule import field_names
 from scart_bench.generator.telemetry.timing import message_timing
 
