@@ -22,6 +22,23 @@ DT = 1.0 / SIM_RATE_HZ
 STEP_US = int(round(1e6 * DT))
 NAV_RATE_HZ = 50.0
 
+#: The battery model of every engine (a 4S pack, 5.1 Ah): open-circuit voltage BATTERY_OCV_V +
+#: BATTERY_OCV_SPAN_V * remaining, drawn power BATTERY_POWER_K * sum(thrust^1.5) + BATTERY_IDLE_W, voltage
+#: sag BATTERY_R_OHM * current plus BATTERY_NOISE_V of noise; updated every BATTERY_STEP_S.
+BATTERY_OCV_V = 12.8
+BATTERY_OCV_SPAN_V = 4.0
+BATTERY_CAPACITY_AH = 5.1
+BATTERY_POWER_K = 6.4
+BATTERY_IDLE_W = 2.0
+BATTERY_R_OHM = 0.05
+BATTERY_NOISE_V = 0.01
+BATTERY_STEP_S = 0.5
+#: A crash, as every engine checks it every CRASH_CHECK_STEPS steps: roll or pitch beyond CRASH_TILT_RAD in
+#: the air, or on the ground an acceleration above CRASH_GROUND_HOVERS times the hover thrust.
+CRASH_TILT_RAD = 1.3
+CRASH_GROUND_HOVERS = 3
+CRASH_CHECK_STEPS = 25
+
 
 @dataclass(frozen=True)
 class VehicleParams:

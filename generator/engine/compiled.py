@@ -35,7 +35,7 @@ from scart_bench.generator.flight_software.commander import Commander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
 from scart_bench.generator.flight_software.startup import takeoff_after_arm
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
-from scart_bench.generator.params import DT, GRAVITY
+from scart_bench.generator.params import DT, GRAVITY, NAV_RATE_HZ
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block
 from scart_bench.generator.physics.sensors import gps_error_coefficients
@@ -118,7 +118,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
     """The kernel's parameter vector for a FlightConfig (derived constants computed as the reference does)."""
     vp, sp, ep, cp, mp = cfg.vehicle, cfg.sensors, cfg.estimator, cfg.controller, cfg.mission
     dt = 1.0 / SIM_RATE_HZ
-    nav_dt = 1.0 / 50.0
+    nav_dt = 1.0 / NAV_RATE_HZ
     alloc = vp.allocation()
     kf = AxisKF(dt, ep.accel_process_noise, ep.bias_process_noise)
     gust_a = np.exp(-dt / mp.gust_tau)

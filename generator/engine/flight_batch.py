@@ -16,6 +16,8 @@ from scart_bench.generator.flight_software.commander import ControlParams
 from scart_bench.generator.flight_software.navigator import mission_table
 from scart_bench.generator.flight_software.startup import battery_start, startup_times
 from scart_bench.generator.params import (
+    BATTERY_OCV_SPAN_V,
+    BATTERY_OCV_V,
     DT,
     ControllerParams,
     EstimatorParams,
@@ -90,7 +92,7 @@ def _battery_init(remaining: np.ndarray) -> np.ndarray:
     """(N, 3) voltage, current, remaining of 4S packs at rest with the given charge (0-1)."""
     remaining = np.asarray(remaining, dtype=float)
     b = np.zeros((remaining.shape[0], 3))
-    b[:, 0] = 12.8 + 4.0 * remaining  # open-circuit voltage, as the battery model of both engines
+    b[:, 0] = BATTERY_OCV_V + BATTERY_OCV_SPAN_V * remaining  # open-circuit voltage, as the battery model of both engines
     b[:, 2] = remaining
     return b
 @dataclass

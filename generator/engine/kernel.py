@@ -20,7 +20,21 @@ from numba import njit, prange
 from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.pcg_noise import fill_one
 from scart_bench.generator.flight_software.startup import TAKEOFF_CLIMB
-from scart_bench.generator.params import GRAVITY
+from scart_bench.generator.params import (
+    BATTERY_CAPACITY_AH,
+    BATTERY_IDLE_W,
+    BATTERY_NOISE_V,
+    BATTERY_OCV_SPAN_V,
+    BATTERY_OCV_V,
+    BATTERY_POWER_K,
+    BATTERY_R_OHM,
+    BATTERY_STEP_S,
+    CRASH_CHECK_STEPS,
+    CRASH_GROUND_HOVERS,
+    CRASH_TILT_RAD,
+    GRAVITY,
+    NAV_RATE_HZ,
+)
 from scart_bench.generator.physics.noise import (
     NZ_ACC,
     NZ_ACC_BIAS,
@@ -67,7 +81,7 @@ EARTH_RADIUS = 6371000.0
 SLP = 101325.0
 INV_BARO_EXP = 1.0 / 5.25588
 RAD2DEG = 180.0 / math.pi
-NAV_DT = 1.0 / 50.0
+NAV_DT = 1.0 / NAV_RATE_HZ
 PH_IDLE, PH_TAKEOFF, PH_MISSION, PH_LAND = 0.0, 1.0, 2.0, 3.0
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
@@ -892,11 +906,11 @@ def _control(s, p, step, due, sp, m_sp, sp_ok, w, k, rec_truth, m_truth, x, env)
         for r in range(4):
             th = p[K_KF] * s[L.ROTOR + r] ** 2
             power += max(th, 0.0) ** 1.5
-        power = 6.4 * power + 2.0
-        ocv = 12.8 + 4.0 * s[L.BATTERY + 2]
+        power = BATTERY_POWER_K * power + BATTERY_IDLE_W
+        ocv = BATTERY_OCV_V + BATTERY_OCV_SPAN_V * s[L.BATTERY + 2]
         current = power / max(ocv, 1.0)
-        s[L.BATTERY + 2] = _clip(s[L.BATTERY + 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
-        s[L.BATTERY] = ocv - 0.05 * current + 0.01 * w[k, NZ_BATTERY]
+        s[L.BATTERY + 2] = _clip(s[L.BATTERY + 2] - current * BATTERY_STEP_S / (BATTERY_CAPACITY_AH * 3600), 0.0, 1.0)
+        s[L.BATTERY] = ocv - BATTERY_R_OHM * current + BATTERY_NOISE_V * w[k, NZ_BATTERY]
         if env:
             s[L.BATTERY] -= x[L.X_BATTERY_SAG]
         s[L.BATTERY + 1] = current
@@ -909,12 +923,12 @@ def _control(s, p, step, due, sp, m_sp, sp_ok, w, k, rec_truth, m_truth, x, env)
         rec_truth[m_truth, 9] = s[L.ARMED]
         rec_truth[m_truth, 10] = s[L.ON_GROUND]
     # end of flight: landed and disarmed, or crashed
-    if step % 25 == 0 and s[L.DONE] < 0.5:
+    if step % CRASH_CHECK_STEPS == 0 and s[L.DONE] < 0.5:
         roll, pitch, _ = _euler(s, L.QUAT)
         ground = s[L.ON_GROUND] > 0.5
-        crashed = (abs(roll) > 1.3 or abs(pitch) > 1.3) and not ground
+        crashed = (abs(roll) > CRASH_TILT_RAD or abs(pitch) > CRASH_TILT_RAD) and not ground
         a0, a1, a2 = s[L.VACC], s[L.VACC + 1], s[L.VACC + 2]
-        crashed = crashed or (ground and math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) > 3 * p[K_HOVER])
+        crashed = crashed or (ground and math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) > CRASH_GROUND_HOVERS * p[K_HOVER])
         if crashed:
             s[L.STATUS] = 2.0
             s[L.DISARMED] = 1.0

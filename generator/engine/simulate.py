@@ -30,6 +30,17 @@ from scart_bench.generator.flight_software.flight_controller import Controller, 
 from scart_bench.generator.flight_software.navigator import Navigator
 from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import (  # noqa: F401 (re-exported)
+    BATTERY_CAPACITY_AH,
+    BATTERY_IDLE_W,
+    BATTERY_NOISE_V,
+    BATTERY_OCV_SPAN_V,
+    BATTERY_OCV_V,
+    BATTERY_POWER_K,
+    BATTERY_R_OHM,
+    BATTERY_STEP_S,
+    CRASH_CHECK_STEPS,
+    CRASH_GROUND_HOVERS,
+    CRASH_TILT_RAD,
     DT,
     GRAVITY,
     NAV_RATE_HZ,
@@ -338,11 +349,11 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
         # battery (4S, 5.1 Ah), at its own rate
         if due["battery_status"][step]:
             thrust = cfg.vehicle.motor_constant * vs.rotor_speed**2
-            power = 6.4 * np.sum(np.maximum(thrust, 0.0) ** 1.5, axis=1) + 2.0
-            ocv = 12.8 + 4.0 * battery[:, 2]
+            power = BATTERY_POWER_K * np.sum(np.maximum(thrust, 0.0) ** 1.5, axis=1) + BATTERY_IDLE_W
+            ocv = BATTERY_OCV_V + BATTERY_OCV_SPAN_V * battery[:, 2]
             current = power / np.maximum(ocv, 1.0)
-            battery[:, 2] = np.clip(battery[:, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
-            battery[:, 0] = ocv - 0.05 * current + 0.01 * w[:, nz["battery"]][:, 0]
+            battery[:, 2] = np.clip(battery[:, 2] - current * BATTERY_STEP_S / (BATTERY_CAPACITY_AH * 3600), 0.0, 1.0)
+            battery[:, 0] = ocv - BATTERY_R_OHM * current + BATTERY_NOISE_V * w[:, nz["battery"]][:, 0]
             if env is not None:
                 battery[:, 0] -= env.battery_sag_v
             battery[:, 1] = current
@@ -353,10 +364,10 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
 
         # end of flight: landed and disarmed, or crashed
         eul_t = None
-        if step % 25 == 0:
+        if step % CRASH_CHECK_STEPS == 0:
             eul_t = euler_from_quat(vs.quat)
-            crashed = ~done & ((np.abs(eul_t[:, 0]) > 1.3) | (np.abs(eul_t[:, 1]) > 1.3)) & ~vs.on_ground
-            crashed |= ~done & vs.on_ground & (np.linalg.norm(vs.accel, axis=1) > 3 * hover_thrust)
+            crashed = ~done & ((np.abs(eul_t[:, 0]) > CRASH_TILT_RAD) | (np.abs(eul_t[:, 1]) > CRASH_TILT_RAD)) & ~vs.on_ground
+            crashed |= ~done & vs.on_ground & (np.linalg.norm(vs.accel, axis=1) > CRASH_GROUND_HOVERS * hover_thrust)
             status[crashed] = "crashed"
             cs.disarmed_after_flight |= crashed
             cs.armed &= ~crashed
