@@ -235,3 +235,14 @@ def test_the_generator_rooms_import_one_way():
             if below is not None and below != room and GENERATOR_LEVEL[below] >= GENERATOR_LEVEL[room]:
                 bad.append(f"{module} ({room}) imports {d} ({below})")
     assert not bad, "\n".join(bad)
+
+
+def test_no_two_generator_classes_share_a_name():
+    """A class name says which class it is (two ``Commander`` s, the batch engines' and the sitl's, were one name)."""
+    where: dict[str, list[str]] = {}
+    for f in sorted((ROOT / "generator").rglob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ClassDef):
+                where.setdefault(node.name, []).append(str(f.relative_to(ROOT)))
+    shared = {name: files for name, files in where.items() if len(files) > 1}
+    assert not shared, shared

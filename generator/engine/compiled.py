@@ -31,7 +31,7 @@ from scart_bench.generator.engine import kernel as K
 from scart_bench.generator.engine import kernel_layout as L
 from scart_bench.generator.engine.flight_batch import alive, instance_gps, instance_imu, instance_value
 from scart_bench.generator.engine.pcg_noise import fill_rows, fill_rows_parallel, pcg_states
-from scart_bench.generator.flight_software.commander import Commander, exchange
+from scart_bench.generator.flight_software.commander import BatchCommander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
 from scart_bench.generator.flight_software.startup import takeoff_after_arm
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
@@ -258,7 +258,7 @@ def simulate_kernel(seeds: list[int], cfg: FlightConfig, layer: AttackHooks | No
     physical = bool(getattr(layer, "physical_groups", None))
     hooks = _Hooks(layer, points, st, rec, due, index, n) if points or physical else None
     if hooks is not None and "command" in points:
-        hooks.commander = Commander(cfg.control, n, np.zeros((n, 2)), cfg.mission.land_speed)
+        hooks.commander = BatchCommander(cfg.control, n, np.zeros((n, 2)), cfg.mission.land_speed)
         hooks.mission = init.waypoints
     active = np.arange(n, dtype=np.int64)
     drawer = _NoiseDrawer(init.rngs, min(BLOCK_STEPS, max_steps))

@@ -25,7 +25,7 @@ from scart_bench.generator.engine.flight_batch import (  # noqa: F401 (re-export
     merge_results,
     vehicle_groups,
 )
-from scart_bench.generator.flight_software.commander import Commander, exchange
+from scart_bench.generator.flight_software.commander import BatchCommander, exchange
 from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
 from scart_bench.generator.flight_software.navigator import Navigator
 from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
@@ -166,7 +166,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     sim_rec = _Recorder(n, max_steps // 2)
     nav_rec = _Recorder(n, max_steps // 2) if layer is not None else sim_rec
     points = layer.points if layer is not None else frozenset()
-    commander = Commander(cfg.control, n, np.zeros((n, 2)), m.land_speed) if "command" in points else None
+    commander = BatchCommander(cfg.control, n, np.zeros((n, 2)), m.land_speed) if "command" in points else None
 
     sched_len = max_steps + 1
     due = {t: due_steps(TOPICS[t].rate_hz, sched_len) for t in TOPICS}

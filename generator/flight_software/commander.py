@@ -102,7 +102,7 @@ def mission_items(message: np.ndarray, k: int) -> np.ndarray:
 _ACTION_MODES = {"hold": HOLD, "land": LAND, "return": RETURN}
 
 
-class Commander:
+class BatchCommander:
     """Per-flight commander state for a batch, stepped at the setpoint rate."""
 
     def __init__(self, params: ControlParams, n: int, home: np.ndarray, land_speed: float):
