@@ -17,9 +17,10 @@ from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import scenario_from_dict
 from scart_bench.generator.scart.spec import ScenarioError
 
-#: The attacks start at 29 s: the vehicle (seed 11: armed at 11.6 s, after its GPS fix and the
-#: estimator's origin) is on the first leg of the square (at 10 m).
-START_S = 29.0
+#: The attacks start at 34 s: the vehicle (seed 11: armed after its GPS fix and the estimator's
+#: origin, off the ground at 15.3 s after 3 s at idle, 9 s of hover at 10 m) is on the square's first
+#: side, between its first corner (reached at 32.0 s) and its second (38.5 s).
+START_S = 34.0
 
 
 def _sc(sid: str, point: str, action: dict, end_s: float | None = None, start_s: float = START_S):
@@ -186,10 +187,11 @@ def test_inject_command_and_mission_tamper_only_at_the_command_point():
 
 @pytest.fixture(scope="module")
 def replay_flood():
-    # seed 5 arms at 10.0 s (after its GPS fix and the estimator's origin): on the first leg at 25 s
-    cfg = FlightConfig(mission=MissionParams(max_duration_s=35.0))
-    replay = _sc("replay", "link", {"action": "replay", "span_s": 2.0}, end_s=4.0, start_s=25.0)
-    flood = _sc("flood", "link", {"action": "flood", "rate_hz": 150.0}, end_s=4.0, start_s=25.0)
+    # seed 5 reaches the square's first corner at 30.6 s (armed after its GPS fix and the estimator's
+    # origin, 3 s at idle, 9 s of hover): on its first side at 31 s, at cruise speed
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=41.0))
+    replay = _sc("replay", "link", {"action": "replay", "span_s": 2.0}, end_s=4.0, start_s=31.0)
+    flood = _sc("flood", "link", {"action": "flood", "rate_hz": 150.0}, end_s=4.0, start_s=31.0)
     layer = AttackLayer([[replay], [flood], []], [5, 5, 5])
     return simulate([5, 5, 5], cfg, layer=layer), layer
 
@@ -346,3 +348,23 @@ def test_a_benchmark_run_on_a_dataset_with_control_link_attacks_reports_them(tmp
     bd = pd.read_csv(run / "breakdown.csv")
     actions = set(bd.loc[bd["dimension"] == "action", "value"])
     assert {"inject_command", "mission_tamper", "link_loss", "replay", "flood"} <= actions
+
+
+def test_a_mission_longer_than_the_message_flies_its_tail_untouched():
+    """A mission of more items than the link's MISSION message holds (a hand-flown flight's stick
+    samples, a long survey) goes through the command point: its first items as the message carries
+    them (a tamper moves them), the rest as they were."""
+    from scart_bench.generator.flight_software.commander import MAX_MISSION_ITEMS, exchange
+
+    class _Tamper:
+        def on_messages(self, point, step, t_us, msgs):
+            out = {k: (v.copy(), np.ones(len(v), dtype=bool)) for k, v in msgs.items()}
+            out["mission"][0][:, 0] += 20.0  # item 0 moved 20 m north
+            return out
+
+    k = MAX_MISSION_ITEMS + 8
+    mission = np.arange(2 * k * 3, dtype=float).reshape(2, k, 3)
+    _, _, _, items = exchange(_Tamper(), 0, 0, np.zeros((2, 6)), mission)
+    assert items.shape == mission.shape
+    np.testing.assert_array_equal(items[:, 0, 0], mission[:, 0, 0] + 20.0)
+    np.testing.assert_array_equal(items[:, 1:], mission[:, 1:])

@@ -87,10 +87,13 @@ def empty_command(n: int) -> np.ndarray:
 
 
 def mission_message(waypoints: np.ndarray) -> np.ndarray:
-    """(N, 3 * MAX_MISSION_ITEMS) the mission items (N, K, 3) as one message, NaN-padded."""
+    """(N, 3 * MAX_MISSION_ITEMS) the mission items (N, K, 3) as one message, NaN-padded; a mission
+    of more items (a long survey, a hand-flown flight's stick samples) carries its first
+    MAX_MISSION_ITEMS (:func:`exchange` flies the rest as they are)."""
     n, k, _ = waypoints.shape
+    k = min(k, MAX_MISSION_ITEMS)
     out = np.full((n, 3 * MAX_MISSION_ITEMS), np.nan)
-    out[:, :3 * k] = waypoints.reshape(n, 3 * k)
+    out[:, :3 * k] = waypoints[:, :k].reshape(n, 3 * k)
     return out
 
 
@@ -263,6 +266,8 @@ def exchange(layer, step: int, t_us: int, sp: np.ndarray, mission: np.ndarray
     if (cmd_vals[:, 0] != 0).any():
         command = np.where(cmd_ok[:, None], cmd_vals, 0.0)
     m_vals, m_ok = out["mission"]
-    items = np.where(np.asarray(m_ok, dtype=bool)[:, None, None], mission_items(m_vals, k), mission)
-    items = np.where(np.isfinite(items), items, mission)
+    kk = min(k, MAX_MISSION_ITEMS)  # the items the message carries; any after them fly as they are
+    head = np.where(np.asarray(m_ok, dtype=bool)[:, None, None], mission_items(m_vals, kk), mission[:, :kk])
+    items = mission.copy() if kk < k else np.empty_like(mission)
+    items[:, :kk] = np.where(np.isfinite(head), head, mission[:, :kk])
     return sp_vals, np.asarray(sp_ok, dtype=bool), command, items
