@@ -164,10 +164,10 @@ class HilAutopilot:
     def phase(self) -> int:
         return int(self.ns.phase[0])
 
-    def step(self, s: SensorSample, gps: GpsSample | None) -> np.ndarray:
-        """One 4 ms step of the flight software; returns the four motor commands (0..1)."""
+    def sensor_messages(self, s: SensorSample, gps: GpsSample | None) -> dict[str, np.ndarray]:
+        """The sensor topics due at this step from one sample (the magnetometer and baro at their
+        rates, kept between), as the sensor point sees them; updates the held mag and baro."""
         k = self.step_index
-        t, t_us = k * DT, k * STEP_US
         accel, gyro = np.asarray(s.accel, float).reshape(1, 3), np.asarray(s.gyro, float).reshape(1, 3)
         mag_due, baro_due = is_due(SENSOR_TOPICS["sensor_mag"][0], k), is_due(SENSOR_TOPICS["sensor_baro"][0], k)
         if mag_due:
@@ -181,6 +181,15 @@ class HilAutopilot:
             msgs["sensor_baro"] = np.column_stack([self.pressure, self.baro_temp])
         if gps is not None:
             msgs["sensor_gps"] = gps.row()
+        return msgs
+
+    def step(self, s: SensorSample, gps: GpsSample | None) -> np.ndarray:
+        """One 4 ms step of the flight software; returns the four motor commands (0..1)."""
+        k = self.step_index
+        t, t_us = k * DT, k * STEP_US
+        msgs = self.sensor_messages(s, gps)
+        accel, gyro = msgs["sensor_accel"], msgs["sensor_gyro"]
+        mag_due, baro_due = "sensor_mag" in msgs, "sensor_baro" in msgs
         for topic, vals in msgs.items():
             Records.add(self.records.before, topic, k, vals)
         ok = self._sensor_point(k, t_us, msgs) if "sensor" in self.points else {}

@@ -33,7 +33,7 @@ from scart_bench.generator.hil.profiles import JMAVSIM, SimProfile
 from scart_bench.generator.params import DT, NAV_RATE_HZ, STEP_US
 from scart_bench.generator.physics.rotation import euler_from_quat
 from scart_bench.generator.sitl.plant import Plant, is_due
-from scart_bench.generator.telemetry.schedule import SENSOR_TOPICS, FCSnapshot, compose
+from scart_bench.generator.telemetry.schedule import FCSnapshot, compose
 
 #: the injection points a sitl with jMAVSim physics carries (jMAVSim owns the physics: no environment, vehicle)
 JMAVSIM_POINTS = ("link", "command", "sensor")
@@ -70,19 +70,9 @@ class SitlAutopilot(HilAutopilot):
     def sense(self, s: SensorSample, gps, hook=None) -> None:
         """One sample through the sensor point (``hook``, the sitl's) into the estimator."""
         k = self.step_index
-        accel, gyro = np.asarray(s.accel, float).reshape(1, 3), np.asarray(s.gyro, float).reshape(1, 3)
-        mag_due, baro_due = is_due(SENSOR_TOPICS["sensor_mag"][0], k), is_due(SENSOR_TOPICS["sensor_baro"][0], k)
-        if mag_due:
-            self.mag = np.asarray(s.mag, float).reshape(1, 3)
-        if baro_due:
-            self.pressure, self.baro_temp = np.array([float(s.pressure)]), np.array([float(s.temperature)])
-        msgs = {"sensor_accel": accel, "sensor_gyro": gyro}
-        if mag_due:
-            msgs["sensor_mag"] = self.mag
-        if baro_due:
-            msgs["sensor_baro"] = np.column_stack([self.pressure, self.baro_temp])
-        if gps is not None:
-            msgs["sensor_gps"] = gps.row()
+        msgs = self.sensor_messages(s, gps)
+        accel, gyro = msgs["sensor_accel"], msgs["sensor_gyro"]
+        mag_due, baro_due = "sensor_mag" in msgs, "sensor_baro" in msgs
         ok: dict = {}
         if hook is not None:
             self.layer = _SensorHook(hook)  # where HilAutopilot._sensor_point calls its layer
