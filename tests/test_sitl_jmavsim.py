@@ -93,7 +93,9 @@ def test_a_ground_station_flies_a_jmavsim_vehicle_up_to_a_point_and_back_home(fl
     truth = flight["truth"]
     assert flight["sitl"].plant.truth_rows > 500  # jMAVSim's own truth, not the estimate
     assert -truth[:, 2].min() == pytest.approx(ALT, abs=1.0)
-    assert np.hypot(truth[:, 0] - NORTH, truth[:, 1]).min() < 2.5
+    # the client saw it within 2 m; jMAVSim's truth is within that plus the estimator's own error, which
+    # reaches 2-3 m with jMAVSim's unseeded GPS noise (a vehicle that never went stays 15 m away)
+    assert np.hypot(truth[:, 0] - NORTH, truth[:, 1]).min() < 5.0
     last = truth[-1]
     assert np.hypot(last[0], last[1]) < 2.0 and abs(last[2]) < 0.3
     assert last[9] == 0.0 and last[10] == 1.0  # disarmed, on the ground
