@@ -21,6 +21,13 @@ from scart_bench.generator.geo import altitude_at, latlon_to_ned
 from scart_bench.generator.hil.errors import HilError
 from scart_bench.generator.hil.profiles import JMAVSIM, SimProfile
 from scart_bench.generator.params import (
+    BATTERY_CAPACITY_AH,
+    BATTERY_IDLE_W,
+    BATTERY_OCV_SPAN_V,
+    BATTERY_OCV_V,
+    BATTERY_POWER_K,
+    BATTERY_R_OHM,
+    BATTERY_STEP_S,
     DT,
     NAV_RATE_HZ,
     STEP_US,
@@ -307,11 +314,11 @@ class HilAutopilot:
             return
         vp, b = self.profile.vehicle, self.battery
         thrust = self.controls * vp.max_thrust
-        power = 6.4 * np.sum(np.maximum(thrust, 0.0) ** 1.5) + 2.0
-        ocv = 12.8 + 4.0 * b[0, 2]
+        power = BATTERY_POWER_K * np.sum(np.maximum(thrust, 0.0) ** 1.5) + BATTERY_IDLE_W
+        ocv = BATTERY_OCV_V + BATTERY_OCV_SPAN_V * b[0, 2]
         current = power / max(ocv, 1.0)
-        b[0, 2] = np.clip(b[0, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
-        b[0, 0] = ocv - 0.05 * current
+        b[0, 2] = np.clip(b[0, 2] - current * BATTERY_STEP_S / (BATTERY_CAPACITY_AH * 3600), 0.0, 1.0)
+        b[0, 0] = ocv - BATTERY_R_OHM * current
         b[0, 1] = current
 
 

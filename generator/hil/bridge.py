@@ -24,6 +24,7 @@ from scart_bench.generator.geo import latlon_to_ned
 from scart_bench.generator.hil.autopilot import GpsSample, HilAutopilot, SensorSample
 from scart_bench.generator.hil.errors import HilError
 from scart_bench.generator.hil.link import SimLink
+from scart_bench.generator.params import CRASH_TILT_RAD
 from scart_bench.generator.physics.rotation import euler_from_quat
 
 #: seconds after the land detector disarms that the flight is still recorded (as the built-in engine)
@@ -174,7 +175,7 @@ class Bridge:
 
 
 def _crashed(row: np.ndarray) -> bool:
-    return bool(abs(row[7]) > 1.3 or abs(row[8]) > 1.3)
+    return bool(abs(row[7]) > CRASH_TILT_RAD or abs(row[8]) > CRASH_TILT_RAD)
 
 
 def replay(inputs: list[tuple[SensorSample, GpsSample | None]], autopilot: HilAutopilot) -> np.ndarray:

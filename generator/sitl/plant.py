@@ -11,10 +11,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from scart_bench.dataset.schema import HOME_ALT, SIM_RATE_HZ, TELEMETRY_TOPICS, TOPICS
+from scart_bench.dataset.schema import HOME_ALT, TELEMETRY_TOPICS, TOPICS
 from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
 from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import (
+    BATTERY_CAPACITY_AH,
+    BATTERY_IDLE_W,
+    BATTERY_NOISE_V,
+    BATTERY_OCV_SPAN_V,
+    BATTERY_OCV_V,
+    BATTERY_POWER_K,
+    BATTERY_R_OHM,
+    BATTERY_STEP_S,
     DT,
     GRAVITY,
     NAV_RATE_HZ,
@@ -30,14 +38,11 @@ from scart_bench.generator.physics.noise import NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat, quat_to_rot
 from scart_bench.generator.physics.sensors import Sensors, vibration_scale
 from scart_bench.generator.physics.vehicle import Vehicle, VehicleState, Wind
-from scart_bench.generator.telemetry.schedule import FCSnapshot, compose
-
-
-def is_due(rate_hz: float, step: int) -> bool:
-    """Whether a message of ``rate_hz`` is published at ``step`` (the schedule of ``scart_bench.generator.telemetry.schedule.due_steps``)."""
-    if step == 0:
-        return True
-    return np.floor(step * rate_hz / SIM_RATE_HZ + 1e-9) != np.floor((step - 1) * rate_hz / SIM_RATE_HZ + 1e-9)
+from scart_bench.generator.telemetry.schedule import (  # is_due: re-exported for the sitl
+    FCSnapshot,
+    compose,
+    is_due,
+)
 
 
 class Plant:
@@ -220,11 +225,11 @@ class Plant:
         if is_due(TOPICS["battery_status"].rate_hz, k):
             vp, b = self.vehicle_params, self.battery
             thrust = vp.motor_constant * vs.rotor_speed**2
-            power = 6.4 * np.sum(np.maximum(thrust, 0.0) ** 1.5, axis=1) + 2.0
-            ocv = 12.8 + 4.0 * b[:, 2]
+            power = BATTERY_POWER_K * np.sum(np.maximum(thrust, 0.0) ** 1.5, axis=1) + BATTERY_IDLE_W
+            ocv = BATTERY_OCV_V + BATTERY_OCV_SPAN_V * b[:, 2]
             current = power / np.maximum(ocv, 1.0)
-            b[:, 2] = np.clip(b[:, 2] - current * 0.5 / (5.1 * 3600), 0.0, 1.0)
-            b[:, 0] = ocv - 0.05 * current + 0.01 * self._w[:, 29]
+            b[:, 2] = np.clip(b[:, 2] - current * BATTERY_STEP_S / (BATTERY_CAPACITY_AH * 3600), 0.0, 1.0)
+            b[:, 0] = ocv - BATTERY_R_OHM * current + BATTERY_NOISE_V * self._w[:, 29]
             if self._env is not None:
                 b[:, 0] -= self._env.battery_sag_v
             b[:, 1] = current
