@@ -173,3 +173,8 @@ class Progress:
 def quiet() -> Progress:
     """A Progress that counts and shows nothing (the default of library calls)."""
     return Progress("", enabled=False)
+
+
+def log_to_stderr(msg: str) -> None:
+    """The live loops' default log (proxy, sitl and ROS sessions): one line to stderr, flushed."""
+    print(msg, file=sys.stderr, flush=True)

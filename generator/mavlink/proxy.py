@@ -55,6 +55,7 @@ from scart_bench.generator.mavlink.codec import (
 from scart_bench.generator.scart.handling import HandlingStats
 from scart_bench.generator.scart.layer import AttackLayer
 from scart_bench.generator.scart.scenario import Scenario
+from scart_bench.progress import log_to_stderr
 
 #: the injection points a proxy on the link can serve
 LINK_POINTS = ("link", "command")
@@ -495,10 +496,6 @@ def stats_line(stats: ProxyStats, wall_s: float) -> str:
     return f"{stats.summary()}; {rate:.0f} frames/s"
 
 
-def _stderr(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
-
-
 @dataclass
 class ProxyRun:
     """What :func:`run_proxy` did: the seconds it served, its counters, the flight it recorded (id, file)."""
@@ -513,7 +510,7 @@ def run_proxy(listen: tuple[str, int], forward: tuple[str, int], scenarios: list
               record=None, flight_id: str | None = None, monitor=None, defense=None,
               duration_s: float | None = None, checkpoint_s: float | None = None, fmt: str = "parquet",
               extra: dict | None = None, detector: dict | None = None, stop: threading.Event | None = None,
-              log: Callable[[str], None] = _stderr) -> ProxyRun:
+              log: Callable[[str], None] = log_to_stderr) -> ProxyRun:
     """A live proxy from start to recording, as ``scart-bench proxy`` runs it: serve until ``stop`` is set,
     ``duration_s`` passes or (from the main thread) SIGINT/SIGTERM, then write the flight.
 

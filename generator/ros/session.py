@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import math
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -19,10 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scart_bench.generator.ros import RosError
-
-
-def _stderr(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+from scart_bench.progress import log_to_stderr
 
 
 def _ros1():
@@ -61,7 +57,7 @@ class NodeRun:
 def run_node(scenarios: list, input_ns: str, output_ns: str, *, name: str = "scart", seed: int = 0, record=None,
              flight_id: str | None = None, split: str = "test", fmt: str = "parquet", extra: dict | None = None,
              duration_s: float | None = None, stop: threading.Event | None = None,
-             log: Callable[[str], None] = _stderr) -> NodeRun:
+             log: Callable[[str], None] = log_to_stderr) -> NodeRun:
     """The SCART node on the MAVROS topics under ``input_ns``, republished under ``output_ns``; ``record``:
     a :class:`~scart_bench.generator.mavlink.recording.RecordTarget` the flight is written to at the end,
     with ``extra`` in its config."""
@@ -103,7 +99,7 @@ def run_node(scenarios: list, input_ns: str, output_ns: str, *, name: str = "sca
 
 def run_mavros(connect: tuple[str, int], *, ns: str = "/mavros", name: str = "mavros",
                duration_s: float | None = None, stop: threading.Event | None = None,
-               log: Callable[[str], None] = _stderr) -> None:
+               log: Callable[[str], None] = log_to_stderr) -> None:
     """The MAVROS stand-in: the MAVLink endpoint ``connect`` (``scart-bench sitl``) on MAVROS topics under ``ns``."""
     ros1 = _ros1()
     ros1.init_node(name)
@@ -124,7 +120,7 @@ def run_mavros(connect: tuple[str, int], *, ns: str = "/mavros", name: str = "ma
 
 def run_navigator(*, ns: str = "/scart", name: str = "navigator", monitor=None, notice_topic: str | None = None,
                   timeout_s: float | None = None, stop: threading.Event | None = None,
-                  log: Callable[[str], None] = _stderr) -> bool:
+                  log: Callable[[str], None] = log_to_stderr) -> bool:
     """The mission computer flying the square from the telemetry under ``ns`` (``monitor``: a live detector whose
     alarms go out on ``notice_topic``); True when the mission was flown, landed and disarmed."""
     ros1 = _ros1()

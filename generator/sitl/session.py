@@ -9,7 +9,6 @@ keeps the flown part).
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -17,10 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scart_bench.generator.sitl.endpoint import SitlError
-
-
-def _stderr(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
+from scart_bench.progress import log_to_stderr
 
 
 @dataclass
@@ -38,7 +34,7 @@ class SitlRun:
 def run_sitl(listen: tuple[str, int], scenarios: list, *, sock, seed: int = 0, remote: tuple[str, int] | None = None,
              record=None, flight_id: str | None = None, split: str = "test", fmt: str = "parquet", defense=None,
              extra: dict | None = None, speed: float | None = 1.0, duration_s: float | None = None,
-             stop: threading.Event | None = None, log: Callable[[str], None] = _stderr, plant=None) -> SitlRun:
+             stop: threading.Event | None = None, log: Callable[[str], None] = log_to_stderr, plant=None) -> SitlRun:
     """Fly one simulated PX4-like vehicle on ``sock`` (bound to ``listen``); ``speed``: the pace in real time,
     None for lockstep (as fast as it can, from the first client message). ``record``: a
     :class:`~scart_bench.generator.mavlink.recording.RecordTarget` (flights earlier recordings left in their
