@@ -135,6 +135,10 @@ class SimLink:
         self.sock.close()
 
 
+#: seconds a send on a TCP link may wait for room before the simulator counts as gone
+SEND_TIMEOUT_S = 10.0
+
+
 class TcpSimLink(SimLink):
     """A TCP stream talking MAVLink 2 to a simulator.
 
@@ -180,7 +184,7 @@ class TcpSimLink(SimLink):
                 time.sleep(0.2)
                 return False
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setblocking(False)
+        sock.settimeout(SEND_TIMEOUT_S)  # blocking sends (a stream takes whole messages); reads go through select
         self.sock = sock
         return True
 
@@ -190,13 +194,6 @@ class TcpSimLink(SimLink):
             return False
         try:
             self.sock.sendall(msg.pack(self.mav))
-        except BlockingIOError:
-            # a full send buffer: wait for room rather than drop part of a message on a stream
-            self.sock.setblocking(True)
-            try:
-                self.sock.sendall(msg.pack(self.mav))
-            finally:
-                self.sock.setblocking(False)
         except OSError as exc:
             raise HilError(f"the simulator ({self.where()}) closed the connection: {exc}") from None
         self.sent += 1
@@ -213,8 +210,6 @@ class TcpSimLink(SimLink):
         while True:
             try:
                 data = self.sock.recv(65536)
-            except BlockingIOError:
-                break
             except OSError as exc:
                 raise HilError(f"the simulator ({self.where()}) closed the connection: {exc}") from None
             if not data:
@@ -222,6 +217,8 @@ class TcpSimLink(SimLink):
                     break
                 raise HilError(f"the simulator ({self.where()}) closed the connection")
             out.extend(self._parse(data))
+            if not select.select([self.sock], [], [], 0)[0]:
+                break
         self.received += len(out)
         return out
 
