@@ -82,23 +82,47 @@ def finished(run: Path, detectors=None) -> bool:
     return (run / "metrics.csv").is_file() and set(pd.read_csv(run / "metrics.csv")["detector"]) >= need
 
 
-def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_root: Path) -> list[Path]:
-    """Run (or resume) the benchmark of the paper's detectors once per seed; the run folders."""
+def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_root: Path,
+              detectors: list[str] | None = None) -> list[Path]:
+    """Run (or resume) the benchmark of ``detectors`` (default: the paper's eight) once per seed, in
+    ``runs_root/<profile>-seed<N>`` on the profile's dataset (generated when missing); the run folders.
+    A folder that already has every detector is reused as it is; ``wall_s.json`` adds up the wall time
+    of the invocations that ran something in it."""
     from scart_bench.benchmark.config import RunConfig
     from scart_bench.benchmark.runner import run_benchmark
 
+    names = list(PAPER) if detectors is None else list(detectors)
     paths = []
     for seed in seeds:
         out = runs_root / f"{profile}-seed{seed}"
-        if finished(out):
+        if finished(out, names):
             _log(f"reference: {out} is complete, reused")
         else:
             t0 = time.perf_counter()
-            run_benchmark(RunConfig(detectors=list(PAPER), profile=profile, seed=seed, out=out, resume=out.exists(),
+            run_benchmark(RunConfig(detectors=names, profile=profile, seed=seed, out=out, resume=out.exists(),
                                     jobs=jobs, data_root=data_root))
-            (out / "wall_s.json").write_text(json.dumps({"wall_s": time.perf_counter() - t0}))
+            _add_wall_s(out, time.perf_counter() - t0)
         paths.append(out)
     return paths
+
+
+def _add_wall_s(run: Path, seconds: float) -> None:
+    """Add ``seconds`` to the run's wall_s.json (a resumed run's earlier invocations count too; an
+    unreadable file counts as 0, with a line)."""
+    from scart_bench.errors import ScartBenchError
+    from scart_bench.jsonfile import read_json
+
+    path = run / "wall_s.json"
+    before = 0.0
+    if path.is_file():
+        try:
+            value = read_json(path).get("wall_s", 0.0)  # type: ignore[union-attr]
+        except (ScartBenchError, AttributeError) as exc:
+            _log(f"reference: {path} unreadable ({exc}); its earlier wall time is not counted")
+            value = 0.0
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and value >= 0
+        before = float(value) if ok else 0.0
+    path.write_text(json.dumps({"wall_s": before + seconds}))
 
 
 def protocol_variant(protocol: Protocol, alpha: float | None = None, **changes) -> Protocol:

@@ -125,27 +125,25 @@ def _run_indicators(run: RunResults, detectors: list[str]) -> tuple[np.ndarray, 
     return flights["cluster"].astype(str).to_numpy(), flights["role"].to_numpy(), out
 
 
-def rank_certainty(runs: list[RunResults], ranked: list[str], n_boot: int = RANK_BOOTSTRAP,
-                   seed: int = RANK_SEED) -> dict[str, float]:
-    """Per ranked detector (best first), the share of bootstrap resamples in which it keeps its rank.
+def bootstrap_headlines(runs: list[RunResults], detectors: list[str], n_boot: int = RANK_BOOTSTRAP,
+                        seed: int = RANK_SEED) -> np.ndarray:
+    """Each detector's headline in ``n_boot`` paired bootstrap replicates, shape (n_boot, len(detectors)).
 
     Each replicate resamples every run's test flights by cluster within normal and attacked flights,
     the same resample for every detector (paired), recomputes each detector's headline from the
-    per-flight outcomes at the run's threshold, averages it over the runs and ranks again. Runs
-    without ``flight_scores.csv`` are left out; NaN when no run has it.
+    per-flight outcomes at the run's threshold and averages it over the runs. Runs without
+    ``flight_scores.csv`` are left out; a column is NaN where no run has the detector.
     """
-    if len(ranked) < 2:
-        return {d: (1.0 if d in ranked else float("nan")) for d in ranked}
     rng = np.random.default_rng(seed)
-    total = np.zeros((n_boot, len(ranked)))
-    used = np.zeros(len(ranked))
+    total = np.zeros((n_boot, len(detectors)))
+    used = np.zeros(len(detectors))
     for run in runs:
-        data = _run_indicators(run, ranked)
+        data = _run_indicators(run, detectors)
         if data is None:
             continue
         clusters, roles, indicators = data
         w = cluster_weights(clusters, roles, n_boot, rng)
-        for j, det in enumerate(ranked):
+        for j, det in enumerate(detectors):
             if det not in indicators:
                 continue
             rates = []
@@ -156,14 +154,32 @@ def rank_certainty(runs: list[RunResults], ranked: list[str], n_boot: int = RANK
                 rates.append(np.divide(num, den, out=np.full(n_boot, np.nan), where=den > 0))
             total[:, j] += np.nanmean(np.stack(rates), axis=0)
             used[j] += 1
+    return total / np.where(used > 0, used, np.nan)
+
+
+def bootstrap_ranks(headlines: np.ndarray) -> np.ndarray:
+    """Ranks (1 = best) within each bootstrap replicate of :func:`bootstrap_headlines`; ties keep the
+    columns' order (the table's)."""
+    n_boot, k = headlines.shape
+    order = np.argsort(-np.nan_to_num(headlines, nan=-np.inf), axis=1, kind="stable")
+    ranks = np.empty_like(order)
+    np.put_along_axis(ranks, order, np.arange(1, k + 1)[None, :].repeat(n_boot, 0), axis=1)
+    return ranks
+
+
+def rank_certainty(runs: list[RunResults], ranked: list[str], n_boot: int = RANK_BOOTSTRAP,
+                   seed: int = RANK_SEED) -> dict[str, float]:
+    """Per ranked detector (best first), the share of bootstrap resamples in which it keeps its rank
+    (:func:`bootstrap_headlines`, ranked again in each replicate). NaN when no run has
+    ``flight_scores.csv``.
+    """
+    if len(ranked) < 2:
+        return {d: (1.0 if d in ranked else float("nan")) for d in ranked}
+    mean = bootstrap_headlines(runs, ranked, n_boot, seed)
+    used = np.isfinite(mean).any(axis=0)
     if not used.any():
         return {d: float("nan") for d in ranked}
-    mean = total / np.where(used > 0, used, np.nan)
-    # rank within each replicate (1 = best); ties keep the table's order
-    order = np.argsort(-np.nan_to_num(mean, nan=-np.inf), axis=1, kind="stable")
-    ranks = np.empty_like(order)
-    np.put_along_axis(ranks, order, np.arange(1, len(ranked) + 1)[None, :].repeat(n_boot, 0), axis=1)
-    held = (ranks == np.arange(1, len(ranked) + 1)[None, :]).mean(axis=0)
+    held = (bootstrap_ranks(mean) == np.arange(1, len(ranked) + 1)[None, :]).mean(axis=0)
     return {d: (float(held[j]) if used[j] else float("nan")) for j, d in enumerate(ranked)}
 
 
