@@ -103,12 +103,21 @@ class SensorParams:
     #: hover); real airframes shake theirs (the ArduCopter fleet: 8x), which a fitted profile sets
     gyro_vibration: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_bias_tau: float = 1000.0  # s
+    #: coloured IMU noise: cutoff (Hz) of a second-order Butterworth low-pass of the accelerometer's and the
+    #: gyro's noise and vibration at the IMU rate, their per-sample sigma kept (physics.sensors.lowpass_coefficients);
+    #: 0: white, as drawn (the default). Real logs show filtered IMU rows (ArduPilot's INS_GYRO_FILTER, PX4's
+    #: IMU_GYRO_CUTOFF) and a frame's own rocking: the ArduCopter fleet's gyro differences at hover have lag-1
+    #: autocorrelation 0.7-0.9 at 50 Hz, white noise -0.5; ``generate --like`` fits these (docs/like.md)
+    accel_noise_cutoff_hz: float = 0.0
+    gyro_noise_cutoff_hz: float = 0.0
     mag_rate_hz: float = 100.0
     mag_noise: float = 0.0015  # gauss, 1 sigma per sample: the shared SITL logs 0.0009-0.0023 (Gazebo: 0.004)
     # Earth field at the PX4 SITL home (Zurich), NED, gauss
     mag_field_ned: tuple[float, float, float] = (0.2158, 0.0099, 0.4250)
     baro_rate_hz: float = 50.0
     baro_noise_pa: float = 1.0  # Pa RMS
+    #: the same low-pass of the baro's pressure noise at ``baro_rate_hz`` (0: white, the default)
+    baro_noise_cutoff_hz: float = 0.0
     baro_drift_pa: float = 0.6  # Pa, 1 sigma of the slowly varying offset
     gps_rate_hz: float = 10.0
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)

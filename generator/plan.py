@@ -124,6 +124,9 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
         del flight_config["mission"]["families"], flight_config["mission"]["duration_range"]
     if not cfg.airframes:
         del flight_config["airframes"]
+    for key in ("accel_noise_cutoff_hz", "gyro_noise_cutoff_hz", "baro_noise_cutoff_hz"):  # white: as before coloured noise
+        if not flight_config["sensors"][key]:
+            del flight_config["sensors"][key]
     config_dict = {"flight_config": flight_config, "versions": versions(), "profile": prof.name}
     return GenerationPlan(prof, cfg, config_dict, int(seed), normal_seeds(seed, count),
                           splits(count, n_train, n_val, n_src), with_attacks)

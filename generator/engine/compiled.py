@@ -38,7 +38,7 @@ from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import DT, GRAVITY, NAV_RATE_HZ
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block
-from scart_bench.generator.physics.sensors import gps_error_coefficients
+from scart_bench.generator.physics.sensors import gps_error_coefficients, lowpass_coefficients
 from scart_bench.generator.telemetry.schedule import due_steps
 
 if TYPE_CHECKING:
@@ -157,8 +157,18 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "inv_hover_rotor": 1.0 / float(np.sqrt(vp.mass * GRAVITY / (4 * vp.motor_constant))),
         "takeoff_after_arm": takeoff_after_arm(mp.ground_phase),
         "gyro_vibration": sp.gyro_vibration,
+        "accel_lowpass": _lowpass(sp.accel_noise_cutoff_hz, 1.0 / dt),
+        "gyro_lowpass": _lowpass(sp.gyro_noise_cutoff_hz, 1.0 / dt),
+        "baro_lowpass": _lowpass(sp.baro_noise_cutoff_hz, sp.baro_rate_hz),
     }
     return K.param_vector(values)
+
+
+def _lowpass(cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    """The kernel's low-pass parameters: (b0, b1, b2, a1, a2, on) of physics.sensors.lowpass_coefficients, on = 0
+    for white noise (the draws as they are)."""
+    c = lowpass_coefficients(cutoff_hz, rate_hz)
+    return np.zeros(6) if c is None else np.r_[c, 1.0]
 
 
 def schedules(max_steps: int, uorb: bool = False) -> tuple[np.ndarray, np.ndarray]:

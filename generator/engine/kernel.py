@@ -60,6 +60,7 @@ K_C_AN, K_C_GN, K_MAG_NOISE, K_MAG_FIELD = _I["c_accel_noise"], _I["c_gyro_noise
 K_ACC_VIB, K_INV_HOVER_ROT = _I["accel_vibration"], _I["inv_hover_rotor"]
 K_TAKEOFF_AFTER_ARM, K_GYRO_VIB = _I["takeoff_after_arm"], _I["gyro_vibration"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
+K_ACC_LP, K_GYRO_LP, K_BARO_LP = _I["accel_lowpass"], _I["gyro_lowpass"], _I["baro_lowpass"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
 K_ATT_MAG_GAIN, K_DECL, K_F, K_Q, K_GATE2 = _I["att_mag_gain"], _I["decl"], _I["kf_F"], _I["kf_Q"], _I["gate2"]
@@ -336,6 +337,16 @@ def _sense(s, tbuf, p, step, w, k, due, x, env):
 
 
 @njit(**_HOT)
+def _lowpass(s, z, p, c, x):
+    """One sample of the coloured-noise low-pass with parameters p[c:c + 5] and state s[z], s[z + 1]
+    (physics.sensors.lowpass_step, the same lines)."""
+    y = p[c] * x + s[z]
+    s[z] = p[c + 1] * x - p[c + 3] * y + s[z + 1]
+    s[z + 1] = p[c + 2] * x - p[c + 4] * y
+    return y
+
+
+@njit(**_HOT)
 def _sensors(s, tbuf, p, step, w, k, due, x, env):
     """The sensor samples due at this step, of the true state after the step (attitude: R_TRUE)."""
     rt = L.R_TRUE
@@ -352,10 +363,16 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
         s[L.GYRO_BIAS + a] = p[K_A_GB] * s[L.GYRO_BIAS + a] + p[K_C_GB] * w[k, NZ_GYRO_BIAS + a]
         va = vib * p[K_ACC_VIB + a]
         sig = math.sqrt(p[K_C_AN + a] * p[K_C_AN + a] + va * va)
-        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + sig * w[k, NZ_ACC + a]
+        wa = w[k, NZ_ACC + a]
+        if p[K_ACC_LP + 5] != 0.0:  # coloured noise (SensorParams.accel_noise_cutoff_hz)
+            wa = _lowpass(s, L.IMU_LOWPASS + 2 * a, p, K_ACC_LP, wa)
+        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + sig * wa
         vg = vib * p[K_GYRO_VIB + a]
         gsig = math.sqrt(p[K_C_GN] * p[K_C_GN] + vg * vg)
-        s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + gsig * w[k, NZ_GYRO + a]
+        wg = w[k, NZ_GYRO + a]
+        if p[K_GYRO_LP + 5] != 0.0:
+            wg = _lowpass(s, L.IMU_LOWPASS + 6 + 2 * a, p, K_GYRO_LP, wg)
+        s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + gsig * wg
     if due[L.D_MAG, step]:
         m0, m1, m2 = p[K_MAG_FIELD], p[K_MAG_FIELD + 1], p[K_MAG_FIELD + 2]
         if env:
@@ -365,8 +382,11 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
         s[L.MAG + 2] = m0 * R[2] + m1 * R[5] + m2 * R[8] + p[K_MAG_NOISE] * w[k, NZ_MAG + 2]
     if due[L.D_BARO, step]:
         alt = p[K_HOME_ALT] - s[L.POS + 2]
+        wb = w[k, NZ_BARO]
+        if p[K_BARO_LP + 5] != 0.0:
+            wb = _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
         s[L.PRESSURE] = (SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET]
-                         + p[K_BARO_NOISE] * w[k, NZ_BARO])
+                         + p[K_BARO_NOISE] * wb)
         s[L.BARO_TEMP] = s[L.SENSOR_TEMP] - 0.0065 * (-s[L.POS + 2]) + 0.05 * w[k, NZ_BARO + 1]
     if due[L.D_GPS, step]:
         old = (step + 1) % delay if step + 1 >= delay else 0

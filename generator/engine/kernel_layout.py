@@ -105,7 +105,10 @@ NAV_LAST = 197
 GPS_DRIVE = 198  # 3, m
 # -- the controller's landed state: 1 once the take-off's climb was asked for (flight_controller.ControllerState)
 TOOK_OFF = 201
-WIDTH = 202
+# -- coloured sensor noise: the low-pass states (physics.sensors.lowpass_step; SensorParams.*_noise_cutoff_hz) -----------
+IMU_LOWPASS = 202  # 12: [z0, z1] per channel, channels accelerometer x/y/z then gyro x/y/z (z0 at +2c, z1 at +2c+1)
+BARO_LOWPASS = 214  # 2: z0, z1
+WIDTH = 216
 
 # -- physical disturbances of one step (environment attacks, faults): one row per flight ------------
 X_WIND = 0  # 3, m/s added to the wind
@@ -143,6 +146,7 @@ FIELDS: dict[str, tuple[int, int]] = {
     "gps_origin_at": (GPS_ORIGIN_AT, 1), "arm_at": (ARM_AT, 1), "out_err": (OUT_ERR, 6),
     "motor_cmd": (MOTOR_CMD, 4), "nav_last": (NAV_LAST, 1),
     "gps_drive": (GPS_DRIVE, 3), "took_off": (TOOK_OFF, 1),
+    "imu_lowpass": (IMU_LOWPASS, 12), "baro_lowpass": (BARO_LOWPASS, 2),
 }
 
 # -- schedules: rows of the due / message-index tables ---------------------------------------------
@@ -168,9 +172,9 @@ PARAMS = (
     "rate_p", "rate_i", "thrust_lo", "thrust_hi", "max_thrust", "land_detect_s", "arm_delay", "takeoff_hold",
     "approach_gain", "climb_speed", "land_speed", "acceptance", "lat0", "lon0", "sin_lat0", "cos_lat0",
     "hover", "tail_steps", "yaw_step_max", "out_decay", "accel_vibration", "inv_hover_rotor",
-    "takeoff_after_arm", "gyro_vibration",
+    "takeoff_after_arm", "gyro_vibration", "accel_lowpass", "gyro_lowpass", "baro_lowpass",
 )
-_SIZES = {"alloc": 16, "alloc_inv": 16, "c_accel_noise": 3, "accel_vibration": 3, "gyro_vibration": 3, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
+_SIZES = {"accel_lowpass": 6, "gyro_lowpass": 6, "baro_lowpass": 6, "alloc": 16, "alloc_inv": 16, "c_accel_noise": 3, "accel_vibration": 3, "gyro_vibration": 3, "mag_field": 3, "gps_bias_c": 3, "gps_white": 3, "kf_F": 9, "kf_Q": 3,
           "vel_p": 3, "vel_i": 3, "att_p": 3, "rate_max": 3, "rate_p": 3, "rate_i": 3}
 PARAM_INDEX: dict[str, int] = {}
 _k = 0

@@ -86,6 +86,9 @@ class LogMeasure:
     hover_s: float = 0.0
     hover_white: dict[str, float] = field(default_factory=dict)  # the same, sample-to-sample (white) noise
     ground_white: dict[str, float] = field(default_factory=dict)
+    #: the noise's colour: lag-1 autocorrelation of the first differences on the hover / ground (white: -0.5)
+    hover_dlag1: dict[str, float] = field(default_factory=dict)
+    ground_dlag1: dict[str, float] = field(default_factory=dict)
     hover_still: bool = True  # False: no still hover, the noise figures are on every airborne row
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
@@ -139,8 +142,15 @@ def _std_on(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float,
     """Over ``segments`` (s): the high-passed standard deviation of ``x``, its sample-to-sample (white)
     noise (the standard deviation of its first differences / sqrt 2: the vehicle's slow motion hardly
     moves it) and their length (s). ``x`` is read at ``hz`` or its own rate if slower."""
+    return _noise_figures(t, x, hz, segments)[:3]
+
+
+def _noise_figures(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float, float]]
+                   ) -> tuple[float, float, float, float]:
+    """:func:`_std_on`'s figures and the noise's colour: the lag-1 autocorrelation of the first differences
+    (pairs of differences inside ``segments``; white noise -0.5, low-passed noise or smooth motion above)."""
     if len(t) < 10 or not segments:
-        return math.nan, math.nan, 0.0
+        return math.nan, math.nan, 0.0, math.nan
     native = 1.0 / float(np.median(np.diff(t))) if np.median(np.diff(t)) > 0 else hz
     hz = min(hz, native * 1.05)
     grid, v = resample(t, x, hz)
@@ -153,10 +163,15 @@ def _std_on(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float,
         mask &= ~((grid > t[k]) & (grid < t[k + 1]))
     mask = _shrink(mask, hz)
     if mask.sum() < MIN_SEGMENT_S * hz:
-        return math.nan, math.nan, float(mask.sum() / hz)
+        return math.nan, math.nan, float(mask.sum() / hz), math.nan
     both = mask[1:] & mask[:-1]
-    white = float(np.std(np.diff(v)[both]) / math.sqrt(2.0))
-    return float(np.std(highpass(v, hz)[mask])), white, float(mask.sum() / hz)
+    d = np.diff(v)
+    white = float(np.std(d[both]) / math.sqrt(2.0))
+    pairs = both[1:] & both[:-1]
+    d = d - d[both].mean()
+    den = float(np.sqrt(np.sum(d[:-1][pairs] ** 2) * np.sum(d[1:][pairs] ** 2)))
+    dlag1 = float(np.sum(d[:-1][pairs] * d[1:][pairs]) / den) if den > 0 else math.nan
+    return float(np.std(highpass(v, hz)[mask])), white, float(mask.sum() / hz), dlag1
 
 
 def _segments(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
@@ -343,8 +358,8 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
         before = np.flatnonzero(~landed)
         ground = _segments(t, landed & (np.arange(len(t)) < (before[0] if len(before) else len(t))))
     for name, (ts, x, hz) in series.items():
-        m.hover[name], m.hover_white[name], hs = _std_on(ts, x, hz, hover)
-        m.ground[name], m.ground_white[name], gs = _std_on(ts, x, hz, ground)
+        m.hover[name], m.hover_white[name], hs, m.hover_dlag1[name] = _noise_figures(ts, x, hz, hover)
+        m.ground[name], m.ground_white[name], gs, m.ground_dlag1[name] = _noise_figures(ts, x, hz, ground)
         if name == "acc_x":
             m.hover_s, m.ground_s = hs, gs
     if all(math.isnan(v) for v in m.hover.values()):
@@ -519,6 +534,12 @@ def fleet_figures(logs: list[LogMeasure]) -> dict[str, Figure]:
         v, n = _median([m.hover_white.get(k, math.nan) for m in (still if n and what.startswith("still") else logs)])
         out[f"white_hover_{k}"] = Figure(v, n, what.replace("high-passed per-sample std",
                                                              "sample-to-sample noise (std of differences / sqrt 2)"))
+        v, n = _median([m.hover_dlag1.get(k, math.nan) for m in (still if n and what.startswith("still") else logs)])
+        out[f"dlag1_hover_{k}"] = Figure(v, n, what.replace("high-passed per-sample std",
+                                                             "lag-1 autocorrelation of the differences (white: -0.5)"))
+        v, n = _median([m.ground_dlag1.get(k, math.nan) for m in logs])
+        out[f"dlag1_ground_{k}"] = Figure(v, n, "on the ground before take-off, lag-1 autocorrelation of the "
+                                                "differences (white: -0.5)")
         v, n = _median([m.ground.get(k, math.nan) for m in logs])
         out[f"ground_{k}"] = Figure(v, n, "on the ground before take-off, high-passed per-sample std")
         v, n = _median([m.ground_white.get(k, math.nan) for m in logs])
@@ -548,7 +569,8 @@ def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, floa
         from scart_bench.generator.logs.phases import flight_phases
 
         _noise(m, tables, flight_phases(tables))
-        per.append({**m.hover, **{f"white_{k}": v for k, v in m.hover_white.items()}})
+        per.append({**m.hover, **{f"white_{k}": v for k, v in m.hover_white.items()},
+                    **{f"dlag1_{k}": v for k, v in m.hover_dlag1.items()}})
     keys = {k for p in per for k in p}
     return {k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}
 
@@ -596,15 +618,70 @@ FALLBACK = {"accel_vibration": (("accel_noise_density", None, ("acc_x", "acc_y")
             "gyro_vibration": (("gyro_noise_density", None, ("gyro_x", "gyro_y", "gyro_z")),)}
 
 
-def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[object, str]], list[str]]:
-    """SensorParams noise fields set so that generated hover flights measure like the fleet.
+#: coloured noise: (SensorParams cutoff field, the noise fields it colours, figures, the sensor's rate field (None:
+#: the IMU, sampled every simulation step), the figures' clock (Hz))
+COLOUR_PLAN = (
+    ("accel_noise_cutoff_hz", ("accel_vibration", "accel_noise_density"), ("acc_x", "acc_y", "acc_z"), None, NOISE_HZ),
+    ("gyro_noise_cutoff_hz", ("gyro_vibration", "gyro_noise_density"), ("gyro_x", "gyro_y", "gyro_z"), None, NOISE_HZ),
+    ("baro_noise_cutoff_hz", ("baro_noise_pa",), ("baro_alt",), "baro_rate_hz", BARO_HZ),
+)
+#: a lag-1 autocorrelation of the differences at or below this is white noise (cutoff 0; white: -0.5)
+WHITE_DLAG1 = -0.45
+#: the most colour aimed at (a lag-1 of the differences of 1 is a noise that never changes)
+MAX_DLAG1 = 0.95
 
-    The figure fitted is each axis's sample-to-sample (white) noise at hover (``white_hover_*``: the std of
+
+def _sampling(sensors, rate_field: str | None, clock_hz: float) -> tuple[float, int]:
+    """(the sensor's sample rate, how many of its samples per tick of the figures' clock)."""
+    from scart_bench.generator.params import DT
+
+    rate = 1.0 / DT if rate_field is None else float(getattr(sensors, rate_field))
+    return rate, max(1, int(round(rate / clock_hz)))
+
+
+def cutoff_for(dlag1: float, rate_hz: float, every: int) -> float:
+    """The low-pass cutoff (Hz) whose coloured white noise at ``rate_hz``, read every ``every`` samples, has
+    lag-1 autocorrelation of its differences ``dlag1`` (:func:`physics.sensors.lowpass_lag1`); 0 (white) at or
+    below :data:`WHITE_DLAG1`. Searched between 0.2 Hz and the figures' Nyquist frequency, where the figure
+    falls with the cutoff."""
+    from scart_bench.generator.physics.sensors import lowpass_lag1
+
+    if not dlag1 > WHITE_DLAG1:
+        return 0.0
+    dlag1 = min(dlag1, MAX_DLAG1)
+    lo, hi = math.log(0.2), math.log(0.5 * rate_hz / every)
+    if lowpass_lag1(math.exp(hi), rate_hz, every)[1] >= dlag1:
+        return 0.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if lowpass_lag1(math.exp(mid), rate_hz, every)[1] > dlag1 else (lo, mid)
+    return round(math.exp(0.5 * (lo + hi)), 3)
+
+
+def white_factor(cutoff_hz: float, rate_hz: float, every: int) -> float:
+    """The sample-to-sample noise of the low-passed noise read every ``every`` samples, per unit of its sigma
+    (white: 1): sqrt(1 - lag-1 autocorrelation)."""
+    from scart_bench.generator.physics.sensors import lowpass_lag1
+
+    return math.sqrt(max(1.0 - lowpass_lag1(cutoff_hz, rate_hz, every)[0], 1e-6))
+
+
+def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[object, str]], list[str]]:
+    """SensorParams noise fields set so that generated hover flights measure like the fleet, in level and colour.
+
+    The level fitted is each axis's sample-to-sample (white) noise at hover (``white_hover_*``: the std of
     first differences / sqrt 2, which the vehicle's slow motion hardly moves: a log's hover std is mostly
-    the pilot's and the wind's doing, the generator's mostly its controller's). Each round flies
-    calibration flights (:func:`calibration_figures`) with the current fields and moves each toward the
-    fleet's figure (:func:`next_level`); a last round measures the result for the comments. Returns
+    the pilot's and the wind's doing, the generator's mostly its controller's). The colour fitted is the lag-1
+    autocorrelation of those differences (``dlag1_hover_*``, mean over a sensor's axes; white noise -0.5, the
+    ArduCopter fleet's gyro 0.7-0.9), through the sensor's noise cutoff (``*_noise_cutoff_hz``, :data:`COLOUR_PLAN`):
+    first the cutoff that theory gives (:func:`cutoff_for`), then each round moves it by what the calibration
+    flights measured beyond theory (their own motion). Each round flies calibration flights
+    (:func:`calibration_figures`) with the current fields and moves each level toward the fleet's figure
+    (:func:`next_level`, in the sample-to-sample noise the level gives at its cutoff, :func:`white_factor`, so
+    that a new cutoff does not upset the secant); a last round measures the result for the comments. Returns
     field -> (value, comment) and lines on what could not be fitted."""
+    from scart_bench.generator.physics.sensors import lowpass_lag1
+
     s = config.sensors
     out: dict[str, tuple[object, str]] = {}
     lines: list[str] = []
@@ -617,6 +694,18 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
         plan.extend(item for item in group if hasattr(s, item[0]) and all(k in want for k in item[2]))
     if not plan:
         return out, ["no hover noise measured in any log: sensor noise defaults kept"]
+    colour_want = {k[len("dlag1_hover_"):]: f for k, f in figures.items() if k.startswith("dlag1_hover_") and f.n
+                   and math.isfinite(f.value)}
+    fitted = {f for f, _, _ in plan}
+    colours = [c for c in COLOUR_PLAN if hasattr(s, c[0]) and any(f in fitted for f in c[1])
+               and all(k in colour_want for k in c[2])]
+    colour_of = {f: c for c in colours for f in c[1]}  # noise field -> its colour plan
+    cutoff = {c[0]: float(getattr(s, c[0])) for c in colours}
+    sampling = {c[0]: _sampling(s, c[3], c[4]) for c in colours}
+
+    def factor(f: str) -> float:
+        c = colour_of.get(f)
+        return white_factor(cutoff[c[0]], *sampling[c[0]]) if c is not None else 1.0
 
     def value(field_name, idx):
         v = getattr(s, field_name)
@@ -625,9 +714,15 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
     level = {(f, i): value(f, i) for f, i, _ in plan}
     floor = {key: 0.1 * v for key, v in level.items()}  # below a tenth of the base's, the figure is the flight's motion
     history: dict[tuple, list[tuple[float, float]]] = {key: [] for key in level}
+    # the theory's cutoffs to start from, each level scaled to keep its sample-to-sample noise
+    before = {f: factor(f) for f, _, _ in plan}
+    for c in colours:
+        cutoff[c[0]] = cutoff_for(float(np.mean([colour_want[k].value for k in c[2]])), *sampling[c[0]])
+    for f, i, _ in plan:
+        level[(f, i)] *= before[f] / factor(f)
 
     def fields() -> dict:
-        changed: dict[str, object] = {}
+        changed: dict[str, object] = dict(cutoff)
         for (f, i), v in level.items():
             if i is None:
                 changed[f] = v
@@ -642,12 +737,20 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
         gen = calibration_figures(dataclasses.replace(config, sensors=dataclasses.replace(s, **fields())))
         if r == rounds:
             break
+        before = {f: factor(f) for f, _, _ in plan}
+        for c in colours:
+            target = float(np.mean([colour_want[k].value for k in c[2]]))
+            got = float(np.nanmean([gen.get(f"dlag1_{k}", math.nan) for k in c[2]]))
+            if math.isfinite(got):  # aim the theory past the target by what the flights add to it
+                theory = lowpass_lag1(cutoff[c[0]], *sampling[c[0]])[1]
+                cutoff[c[0]] = cutoff_for(float(np.clip(target - (got - theory), -0.5, MAX_DLAG1)), *sampling[c[0]])
         for f, i, ks in plan:
             target = float(np.mean([want[k].value for k in ks]))
             got = float(np.nanmean([gen.get(f"white_{k}", math.nan) for k in ks]))
             if math.isfinite(got) and got > 0:
-                history[(f, i)].append((level[(f, i)], got))
-                level[(f, i)] = float(np.clip(next_level(history[(f, i)], target), floor[(f, i)], 1e3))
+                history[(f, i)].append((level[(f, i)] * before[f], got))
+                nxt = next_level(history[(f, i)], target) / factor(f)
+                level[(f, i)] = float(np.clip(nxt, floor[(f, i)], 1e3))
     final = fields()
     notes: dict[str, list[str]] = {}
     for f, _i, ks in plan:
@@ -663,7 +766,15 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
         n = min(want[k].n for ff, _, ks in plan if ff == f for k in ks)
         v = final[f]
         v = [round(x, 6) for x in v] if isinstance(v, tuple) else round(v, 8)
-        out[f] = (v, f"sample-to-sample noise at {where} (median over {n} logs): {'; '.join(parts)}")
+        low = f", low-passed at {cutoff[colour_of[f][0]]:g} Hz" if f in colour_of and cutoff[colour_of[f][0]] else ""
+        out[f] = (v, f"sample-to-sample noise at {where} (median over {n} logs){low}: {'; '.join(parts)}")
+    for c in colours:
+        where = "still hover" if colour_want[c[2][0]].source.startswith("still") else "airborne"
+        n = min(colour_want[k].n for k in c[2])
+        got = [gen.get(f"dlag1_{k}", math.nan) for k in c[2]]
+        out[c[0]] = (cutoff[c[0]], f"lag-1 autocorrelation of the differences at {where}, white -0.5 (median over "
+                                   f"{n} logs): {', '.join(f'{k} {colour_want[k].value:.2f}' for k in c[2])} "
+                                   f"(generated {', '.join(f'{g:.2f}' for g in got)})")
     return out, lines
 
 
@@ -731,7 +842,7 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         lines.append("wind: no log gave a wind estimate: default kept")
     measured: dict[str, tuple[float, str]] = {}
     for key, f in figs.items():
-        if key.startswith(("ground_", "white_ground_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
+        if key.startswith(("ground_", "white_ground_", "dlag1_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
                                                                        "altitude"):
             measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
     for key, f in figs.items():

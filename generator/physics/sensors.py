@@ -54,6 +54,9 @@ class SensorState:
     temperature: np.ndarray  # (N,) degC
     last_fix: np.ndarray | None = None  # (N, 3) last fixed position, reported while the fix is lost
     fix_at: np.ndarray | None = None  # (N,) s, the receiver's first fix (generator.flight_software.startup); None: from boot
+    #: (2, N, 6) state of the IMU noise's low-pass (accelerometer x/y/z, gyro x/y/z; SensorParams.*_noise_cutoff_hz)
+    imu_lowpass: np.ndarray | None = None
+    baro_lowpass: np.ndarray | None = None  # (2, N) the baro noise's
 
 
 def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.ndarray]:
@@ -68,6 +71,46 @@ def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.nd
     a = float(np.exp(-dt_gps / p.gps_bias_tau))
     scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
     return a, np.sqrt(1 - a * a) * (1 + a) / np.sqrt(1 + a * a) * scale
+
+
+def lowpass_coefficients(cutoff_hz: float, rate_hz: float) -> np.ndarray | None:
+    """(b0, b1, b2, a1, a2) of a second-order Butterworth low-pass at ``cutoff_hz`` of a ``rate_hz`` series
+    (as ArduPilot's LowPassFilter2p and PX4's gyro and accelerometer filters), scaled so that unit white
+    noise in gives unit variance out: a noise of sigma per sample keeps sigma per sample, coloured. None for
+    a cutoff of 0 (white noise, the samples as drawn). A cutoff at or above 0.45 x ``rate_hz`` is taken as
+    0.45 x ``rate_hz`` (a Butterworth design needs it below the Nyquist frequency)."""
+    from scipy import signal
+
+    if not cutoff_hz > 0.0:
+        return None
+    b, a = signal.butter(2, min(float(cutoff_hz), 0.45 * rate_hz), fs=rate_hz)
+    h = signal.lfilter(b, a, np.r_[1.0, np.zeros(int(40 * rate_hz / min(cutoff_hz, 0.45 * rate_hz)) + 200)])
+    gain = 1.0 / float(np.sqrt(np.dot(h, h)))
+    return np.array([b[0] * gain, b[1] * gain, b[2] * gain, a[1], a[2]])
+
+
+def lowpass_step(c: np.ndarray, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """One sample of the low-pass ``c`` (:func:`lowpass_coefficients`) on ``x``; ``z`` (2, ...) is its state
+    (transposed direct form II), updated in place. The compiled kernel has the same lines."""
+    y = c[0] * x + z[0]
+    z[0] = c[1] * x - c[3] * y + z[1]
+    z[1] = c[2] * x - c[4] * y
+    return y
+
+
+def lowpass_lag1(cutoff_hz: float, rate_hz: float, every: int = 1) -> tuple[float, float]:
+    """The lag-1 autocorrelation of low-passed white noise (:func:`lowpass_coefficients`) read every
+    ``every`` samples, and of its first differences: what a log at ``rate_hz / every`` shows of it
+    (white: 0 and -0.5)."""
+    c = lowpass_coefficients(cutoff_hz, rate_hz)
+    if c is None:
+        return 0.0, -0.5
+    from scipy import signal
+
+    n = int(40 * rate_hz / min(cutoff_hz, 0.45 * rate_hz)) + 200 + 2 * every
+    h = signal.lfilter(c[:3], np.r_[1.0, c[3:]], np.r_[1.0, np.zeros(n)])
+    r = [float(np.dot(h[:len(h) - k], h[k:]) / np.dot(h, h)) for k in (every, 2 * every)]
+    return r[0], (2 * r[0] - 1 - r[1]) / (2 * (1 - r[0]))
 
 
 #: rotor speed, as a fraction of the hover speed, from which the motors shake the IMU fully
@@ -92,6 +135,10 @@ class Sensors:
         self.dt = dt
         self.delay_steps = max(1, int(round(params.gps_delay_s / dt)))
         self.mag_field = np.array(params.mag_field_ned)
+        rate = 1.0 / dt
+        self.accel_lowpass = lowpass_coefficients(params.accel_noise_cutoff_hz, rate)
+        self.gyro_lowpass = lowpass_coefficients(params.gyro_noise_cutoff_hz, rate)
+        self.baro_lowpass = lowpass_coefficients(params.baro_noise_cutoff_hz, params.baro_rate_hz)
 
     def init_state(self, n: int, rngs: list[np.random.Generator]) -> SensorState:
         p = self.params
@@ -105,6 +152,7 @@ class Sensors:
             satellites=np.clip(np.round(12 + 1.5 * u[:, 10]), 8, 16),
             truth_buffer=np.zeros((self.delay_steps, n, 6)),
             temperature=20.0 + 3.0 * u[:, 11],
+            imu_lowpass=np.zeros((2, n, 6)), baro_lowpass=np.zeros((2, n)),
         )
 
     def imu(self, st: SensorState, accel_ned: np.ndarray, omega: np.ndarray, R: np.ndarray,
@@ -114,7 +162,8 @@ class Sensors:
         ``vibration`` (N,): the rotors' mean speed over their hover speed (:func:`vibration_scale`);
         the motors shake the accelerometer by ``accel_vibration`` and the gyro by ``gyro_vibration``
         times it (white, as the sensor's own noise: one draw of their combined sigma), none with the
-        motors stopped."""
+        motors stopped. With ``accel_noise_cutoff_hz`` / ``gyro_noise_cutoff_hz`` the draws are low-passed
+        first (:func:`lowpass_coefficients`: the same sigma per sample, coloured)."""
         p, dt = self.params, self.dt
         fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
         a_ab = np.exp(-dt / p.accel_bias_tau)
@@ -128,8 +177,15 @@ class Sensors:
             acc_sigma = np.sqrt(acc_sigma * acc_sigma + vib * vib)
             vib_g = np.asarray(vibration)[:, None] * np.array(p.gyro_vibration)
             gyro_sigma = np.sqrt(gyro_sigma * gyro_sigma + vib_g * vib_g)
-        acc = fs + st.accel_bias + acc_sigma * noise[:, 0:3]
-        gyro = omega + st.gyro_bias + gyro_sigma * noise[:, 3:6]
+        w_acc, w_gyro = noise[:, 0:3], noise[:, 3:6]
+        if (self.accel_lowpass is not None or self.gyro_lowpass is not None) and st.imu_lowpass is None:
+            st.imu_lowpass = np.zeros((2, len(fs), 6))
+        if self.accel_lowpass is not None:
+            w_acc = lowpass_step(self.accel_lowpass, st.imu_lowpass[:, :, 0:3], w_acc)
+        if self.gyro_lowpass is not None:
+            w_gyro = lowpass_step(self.gyro_lowpass, st.imu_lowpass[:, :, 3:6], w_gyro)
+        acc = fs + st.accel_bias + acc_sigma * w_acc
+        gyro = omega + st.gyro_bias + gyro_sigma * w_gyro
         return acc, gyro
 
     def mag(self, R: np.ndarray, noise: np.ndarray, disturbance: np.ndarray | None = None) -> np.ndarray:
@@ -140,8 +196,13 @@ class Sensors:
         return rotate_t(R, field) + self.params.mag_noise * noise
 
     def baro(self, st: SensorState, pos: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Static pressure (Pa) and temperature (degC)."""
-        press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + self.params.baro_noise_pa * noise[:, 0]
+        """Static pressure (Pa) and temperature (degC); the pressure noise low-passed with ``baro_noise_cutoff_hz``."""
+        w = noise[:, 0]
+        if self.baro_lowpass is not None:
+            if st.baro_lowpass is None:
+                st.baro_lowpass = np.zeros((2, len(w)))
+            w = lowpass_step(self.baro_lowpass, st.baro_lowpass, w)
+        press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + self.params.baro_noise_pa * w
         temp = st.temperature - 0.0065 * (-pos[:, 2]) + 0.05 * noise[:, 1]
         return press, temp
 

@@ -1,0 +1,148 @@
+"""Coloured (low-passed) IMU and baro noise (SensorParams.*_noise_cutoff_hz, issue 47): the lag-1
+autocorrelation theory gives, the same in both engines, white and unchanged by default."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from scart_bench.generator.engine.compiled import kernel_params
+from scart_bench.generator.engine.kernel_layout import PARAM_INDEX
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
+from scart_bench.generator.like.fit import _noise_figures, cutoff_for
+from scart_bench.generator.params import DT, MissionParams, SensorParams
+from scart_bench.generator.physics.sensors import Sensors, lowpass_lag1
+from scart_bench.generator.plan import plan_generation
+
+#: no bias drift: the samples are the noise alone
+STILL = SensorParams(accel_bias_random_walk=0.0, gyro_bias_random_walk=0.0)
+
+
+def _lag1(x: np.ndarray) -> float:
+    x = x - x.mean()
+    return float(np.dot(x[:-1], x[1:]) / np.dot(x, x))
+
+
+def _imu_noise(params: SensorParams, steps: int = 12000, n: int = 6, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(accelerometer, gyro) noise of ``n`` still vehicles, (steps, n, 3) each, from the numpy sensor model."""
+    sensors = Sensors(params, DT)
+    rng = np.random.default_rng(seed)
+    st = sensors.init_state(n, [np.random.default_rng(seed + i) for i in range(n)])
+    st.accel_bias[:], st.gyro_bias[:] = 0.0, 0.0
+    R = np.broadcast_to(np.eye(3), (n, 3, 3))
+    acc, gyro = np.empty((steps, n, 3)), np.empty((steps, n, 3))
+    for k in range(steps):
+        a, g = sensors.imu(st, np.zeros((n, 3)), np.zeros((n, 3)), R, rng.standard_normal((n, 12)))
+        acc[k], gyro[k] = a, g
+    acc[:, :, 2] += 9.80665
+    return acc, gyro
+
+
+def _figures(x: np.ndarray, every: int) -> tuple[float, float, float]:
+    """Per-sample std, lag-1 and lag-1 of the differences of ``x`` (steps, n, 3) read every ``every`` samples,
+    averaged over the flights and axes."""
+    y = x[::every]
+    cols = [y[:, i, a] for i in range(y.shape[1]) for a in range(3)]
+    return (float(np.mean([c.std() for c in cols])), float(np.mean([_lag1(c) for c in cols])),
+            float(np.mean([_lag1(np.diff(c)) for c in cols])))
+
+
+def test_low_passed_imu_noise_has_the_lag1_autocorrelation_theory_gives_and_keeps_its_sigma():
+    """A 3 Hz gyro cutoff read at 50 Hz: lag-1 0.94, of the differences 0.67 (white: 0 and -0.5, the
+    ArduCopter fleet's hover gyro 0.7-0.9); 15 Hz on the accelerometer: 0.33 and -0.23. The per-sample
+    sigma is the white one's."""
+    white_acc, white_gyro = _imu_noise(STILL)
+    acc, gyro = _imu_noise(dataclasses.replace(STILL, gyro_noise_cutoff_hz=3.0, accel_noise_cutoff_hz=15.0))
+    sigma_g = STILL.gyro_noise_density * math.sqrt(1 / DT)
+    sigma_a = STILL.accel_noise_density * math.sqrt(1 / DT)
+    for x, cutoff, sigma in ((gyro, 3.0, sigma_g), (acc, 15.0, sigma_a)):
+        std, lag1, dlag1 = _figures(x, 5)
+        want = lowpass_lag1(cutoff, 1 / DT, 5)
+        assert abs(lag1 - want[0]) < 0.03 and abs(dlag1 - want[1]) < 0.04, (cutoff, lag1, dlag1, want)
+        assert abs(std / sigma - 1) < 0.1, (cutoff, std, sigma)
+    for x, sigma in ((white_gyro, sigma_g), (white_acc, sigma_a)):
+        std, lag1, dlag1 = _figures(x, 5)
+        assert abs(lag1) < 0.03 and abs(dlag1 + 0.5) < 0.03, (lag1, dlag1)
+        assert abs(std / sigma - 1) < 0.03
+    assert lowpass_lag1(3.0, 1 / DT, 5)[1] > 0.6 and lowpass_lag1(15.0, 1 / DT, 5)[1] < -0.2
+
+
+def test_low_passed_baro_noise_at_the_baro_rate():
+    params = dataclasses.replace(STILL, baro_noise_cutoff_hz=3.0, baro_drift_pa=0.0)
+    sensors = Sensors(params, DT)
+    st = sensors.init_state(4, [np.random.default_rng(i) for i in range(4)])
+    rng = np.random.default_rng(9)
+    press = np.array([sensors.baro(st, np.zeros((4, 3)), rng.standard_normal((4, 2)))[0] for _ in range(8000)])
+    y = (press - press.mean(axis=0))[::5]  # 50 Hz samples read at 10 Hz
+    lag1 = np.mean([_lag1(y[:, i]) for i in range(4)])
+    dlag1 = np.mean([_lag1(np.diff(y[:, i])) for i in range(4)])
+    want = lowpass_lag1(3.0, params.baro_rate_hz, 5)
+    assert abs(lag1 - want[0]) < 0.05 and abs(dlag1 - want[1]) < 0.05, (lag1, dlag1, want)
+    assert abs(y.std() / params.baro_noise_pa - 1) < 0.1
+
+
+def test_the_kernel_flies_coloured_noise_as_the_numpy_reference_step():
+    """Same seeds, same draws: the compiled kernel's low-pass states follow the reference's, every recorded
+    message within 1e-9; and the colour reaches the telemetry's gyro."""
+    sensors = SensorParams(accel_noise_cutoff_hz=15.0, gyro_noise_cutoff_hz=3.0, baro_noise_cutoff_hz=3.0,
+                           gyro_vibration=(0.05, 0.05, 0.02))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=4.0), sensors=sensors)
+    ref = simulate([3, 4], cfg, engine="numpy")
+    ker = simulate([3, 4], cfg, engine="kernel")
+    for topic, (steps, vals, _ok) in ref.simulator.items():
+        np.testing.assert_array_equal(ker.simulator[topic][0], steps, err_msg=topic)
+        np.testing.assert_allclose(ker.simulator[topic][1], vals, rtol=0, atol=1e-9, err_msg=topic)
+    white = simulate([3, 4], dataclasses.replace(cfg, sensors=dataclasses.replace(sensors, gyro_noise_cutoff_hz=0.0)),
+                     engine="kernel")
+    assert not np.allclose(white.simulator["highres_imu"][1], ker.simulator["highres_imu"][1])
+
+
+def test_the_kernel_gives_the_theory_s_colour_on_the_ground():
+    """Disarmed on the ground (no vibration, the vehicle still): the telemetry's gyro is the sensor's noise,
+    coloured as theory says at 50 Hz."""
+    cfg = FlightConfig(mission=MissionParams(max_duration_s=3.6),
+                       sensors=dataclasses.replace(STILL, gyro_noise_cutoff_hz=5.0))
+    batch = simulate([1, 2, 3, 4], cfg, engine="kernel")
+    from scart_bench.dataset.schema import TOPICS
+
+    names = TOPICS["highres_imu"].field_names
+    vals = batch.simulator["highres_imu"][1]  # (n, messages, fields)
+    cols = [vals[i, 25:, names.index(f)] for i in range(vals.shape[0]) for f in ("xgyro", "ygyro", "zgyro")]
+    dlag1 = np.mean([_lag1(np.diff(c)) for c in cols])
+    want = lowpass_lag1(5.0, 1 / DT, 5)[1]
+    assert abs(dlag1 - want) < 0.08, (dlag1, want)
+
+
+def test_white_noise_is_the_default_and_unchanged():
+    """Cutoff 0 (the default): the samples as drawn, exactly as before coloured noise; the built-in profiles'
+    dataset config has no cutoff keys (their datasets stay byte-identical) and the kernel's filters are off."""
+    sensors = Sensors(STILL, DT)
+    st = sensors.init_state(3, [np.random.default_rng(i) for i in range(3)])
+    w = np.random.default_rng(5).standard_normal((3, 12))
+    R = np.broadcast_to(np.eye(3), (3, 3, 3))
+    acc, gyro = sensors.imu(st, np.zeros((3, 3)), np.zeros((3, 3)), R, w)
+    sigma_a = STILL.accel_noise_density * math.sqrt(1 / DT)
+    sigma_g = STILL.gyro_noise_density * math.sqrt(1 / DT)
+    np.testing.assert_array_equal(acc, np.array([0.0, 0.0, -9.80665]) + st.accel_bias + sigma_a * w[:, 0:3])
+    np.testing.assert_array_equal(gyro, st.gyro_bias + sigma_g * w[:, 3:6])
+    for name in ("quick", "standard", "paper"):
+        cfg = plan_generation(name, seed=0, n_normal=4).config_dict["flight_config"]["sensors"]
+        assert not any(k.endswith("_noise_cutoff_hz") for k in cfg), name
+    p = kernel_params(FlightConfig(), 28)
+    assert all(p[PARAM_INDEX[k] + 5] == 0.0 for k in ("accel_lowpass", "gyro_lowpass", "baro_lowpass"))
+
+
+@pytest.mark.parametrize("target", [-0.3, 0.2, 0.75, 0.9])
+def test_like_reads_the_cutoff_back_from_a_log_s_colour(target):
+    """`generate --like`'s figure (lag-1 of the differences on a segment, fit._noise_figures) of low-passed noise
+    gives theory's value, and cutoff_for inverts it: a log's colour becomes the cutoff that gives it."""
+    cutoff = cutoff_for(target, 250.0, 5)
+    assert abs(lowpass_lag1(cutoff, 250.0, 5)[1] - target) < 0.01
+    _, gyro = _imu_noise(dataclasses.replace(STILL, gyro_noise_cutoff_hz=cutoff), steps=15000, n=1)
+    t = np.arange(15000) * DT
+    *_, dlag1 = _noise_figures(t, gyro[:, 0, 0], 50.0, [(0.0, t[-1])])
+    assert abs(dlag1 - target) < 0.06, (cutoff, dlag1, target)
+    assert cutoff_for(-0.5, 250.0, 5) == 0.0 and cutoff_for(-0.46, 250.0, 5) == 0.0
