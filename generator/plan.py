@@ -124,6 +124,8 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
         del flight_config["mission"]["families"], flight_config["mission"]["duration_range"]
     if not cfg.airframes:
         del flight_config["airframes"]
+    if not cfg.timing_table:  # the realistic table as it is: the config as before per-topic timing
+        del flight_config["timing_table"]
     for key in ("accel_noise_cutoff_hz", "gyro_noise_cutoff_hz", "baro_noise_cutoff_hz"):  # white: as before coloured noise
         if not flight_config["sensors"][key]:
             del flight_config["sensors"][key]

@@ -81,6 +81,9 @@ class FlightConfig:
     #: how the written messages are stamped: "realistic" (jitter, drops, late topics) or "ideal"
     #: (periodic from t = 0); generator.telemetry.timing, applied after flying
     timing: str = "realistic"
+    #: per topic (topic, cv, drop, late) in place of the "realistic" table's entry (generator.telemetry.timing.
+    #: check_timing_table; a profile TOML's [timing], which generate --like fits); empty: that table as it is
+    timing_table: tuple = ()
     #: also write the uORB view (PX4 topic names and units, generator.telemetry.uorb) of each flight; after flying
     uorb: bool = False
     #: airframes drawn per flight (generator.physics.airframes, a profile's ``airframes`` mix): sorted

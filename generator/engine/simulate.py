@@ -58,7 +58,7 @@ from scart_bench.generator.telemetry.schedule import (
     compose,
     due_steps,
 )
-from scart_bench.generator.telemetry.timing import check_timing
+from scart_bench.generator.telemetry.timing import check_timing, check_timing_table
 
 
 class _Recorder:
@@ -117,6 +117,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
         raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     cfg = config or FlightConfig()
     check_timing(cfg.timing)
+    timing_table = check_timing_table(cfg.timing_table)
     if engine in ("auto", "kernel"):
         from scart_bench.generator.engine.compiled import simulate_kernel as fly
     else:
@@ -131,6 +132,7 @@ def simulate(seeds: list[int], config: FlightConfig | None = None, layer: Attack
         parts = [fly([seeds[i] for i in idx], sub, None, None) for sub, idx in groups]
         result = merge_results(parts, [idx for _, idx in groups], seeds)
     result.timing = cfg.timing
+    result.timing_table = timing_table
     result.uorb = cfg.uorb
     return result
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.generator.like import timing as like_timing
 from scart_bench.generator.like import tracks
 from scart_bench.generator.scart.meanings import QUANTITIES
 
@@ -93,6 +94,8 @@ class LogMeasure:
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
     rates: dict[str, tuple[float, float]] = field(default_factory=dict)  # logical topic -> (Hz, interval CV)
+    #: logical topic -> (Hz, CV near the period, drop, late): generator.like.timing.interval_figures
+    timing: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
     eph: float = math.nan
     epv: float = math.nan
     home: tuple[float, float, float] | None = None
@@ -431,6 +434,9 @@ def _rates(m: LogMeasure, tables, gaps) -> None:
             if len(dt) < 10:
                 continue
             m.rates[logical] = (float(1.0 / np.median(dt)), float(dt.std() / dt.mean()))
+            figures = like_timing.interval_figures(t)
+            if figures is not None:
+                m.timing[logical] = figures
             break
 
 
@@ -793,6 +799,11 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         f = figs[key]
         return f"{f.source}, median over {f.n} of {n_logs} logs"
 
+    from scart_bench.generator.telemetry.timing import MAX_CV
+
+    # message timing per topic; the calibration flights below are stamped with it, as the flights will be
+    values["timing"] = like_timing.fleet_table([m.timing for m in logs], n_logs, MAX_CV)
+    config = like_timing.with_table(config, values["timing"])
     # sensor noise, by flying calibration flights
     if calibrate:
         noise, said = calibrate_noise(config, figs)

@@ -10,6 +10,9 @@ A profile file maps onto the generator's own pieces, section by section, field b
   :class:`VehicleParams` (any field the dataclass has: a new one is accepted as soon as it exists),
   over the base profile's values; ``mission.missions`` lists mission files (``.plan`` or WPL), relative
   to the TOML file, flown as ``generate --missions`` flies them;
+- ``[timing]``: per link topic, ``topic = {cv = ..., drop = ..., late = ...}`` in place of that topic's
+  entry of the "realistic" timing table (``FlightConfig.timing_table``,
+  :func:`scart_bench.generator.telemetry.timing.check_timing_table`; a key left out keeps the table's);
 - ``[measured]`` and ``[not_expressible]``: what the logs showed that the generator cannot take yet,
   for the reader; not applied.
 
@@ -125,7 +128,7 @@ def read_profile(path: str | Path) -> ProfileFile:
     except OSError as e:
         raise ProfileFileError(f"{path}: cannot read the profile ({e.strerror or e})") from None
     sections = _sections()
-    known = ("profile", *sections, *INFO_SECTIONS)
+    known = ("profile", *sections, "timing", *INFO_SECTIONS)
     for name, value in doc.items():
         if name not in known:
             raise _fail(path, name, f"one of the sections [{'], ['.join(known)}]", name)
@@ -167,7 +170,38 @@ def read_profile(path: str | Path) -> ProfileFile:
         from scart_bench.generator.flight_software.mission_files import with_missions
 
         config = with_missions(config, missions)
+    if doc.get("timing"):
+        if config.timing != "realistic":
+            raise _fail(path, "timing", f'profile.timing = "realistic" (a [timing] table changes its entries; '
+                        f'timing {config.timing!r} stamps nothing)', config.timing)
+        config = dataclasses.replace(config, timing_table=_timing_table(path, doc["timing"]))
     return ProfileFile(str(path), profile, config)
+
+
+def _timing_table(path, table: dict) -> tuple:
+    """The ``[timing]`` section as ``FlightConfig.timing_table``: per topic, the given fields over the
+    realistic table's entry."""
+    from scart_bench.generator.telemetry.timing import MAX_CV, REALISTIC, TABLE_FIELDS, check_timing_table
+
+    entries = []
+    for topic, fields in table.items():
+        key = f"timing.{topic}"
+        if topic not in REALISTIC:
+            raise _fail(path, key, f"a topic of the timing table ({', '.join(sorted(REALISTIC))})", topic)
+        if not isinstance(fields, dict):
+            raise _fail(path, key, "an inline table {cv = ..., drop = ..., late = ...}", fields)
+        values = dict(zip(TABLE_FIELDS, REALISTIC[topic], strict=True))
+        for name, v in fields.items():
+            if name not in TABLE_FIELDS:
+                raise _fail(path, f"{key}.{name}", f"one of {', '.join(TABLE_FIELDS)}", name)
+            top = MAX_CV if name == "cv" else 1.0
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= top:
+                raise _fail(path, f"{key}.{name}", f"a number in [0, {top:g}]", v)
+            values[name] = float(v)
+        if values["drop"] + values["late"] > 1.0:
+            raise _fail(path, key, "drop + late at most 1", values["drop"] + values["late"])
+        entries.append((topic, *values.values()))
+    return check_timing_table(entries)
 
 
 def _check_levels(path, changes: dict) -> None:

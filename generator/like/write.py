@@ -24,9 +24,11 @@ NOT_EXPRESSIBLE = {
                                "startup: 3.8-16 s from boot); measured in [measured] ground_before_s",
     "ground_noise": "the IMU noise on the ground (motors armed or not) follows the flight's noise model; measured "
                     "per axis in [measured] ground_*",
-    "message_rates_and_jitter": "rates are the dataset schema's (highres_imu 50 Hz, ...) and the jitter of "
-                                "timing = realistic is the RflyMAD/CubeOrange table (generator.telemetry.timing."
-                                "REALISTIC); measured per quantity in [measured] rate_* and jitter_*",
+    "message_rates": "rates are the dataset schema's, one per topic for every flight (highres_imu and attitude "
+                     "50 Hz, ...); measured per quantity in [measured] rate_*. The jitter, drops and late messages "
+                     "are fitted per topic ([timing]) as a CV, so a topic at another rate keeps the log's CV",
+    "baro_timing": "the generated baro altitude rides on highres_imu (HIGHRES_IMU.pressure_alt) at the IMU's "
+                   "timing; the baro's own figures go to scaled_pressure in [timing]",
     "site": "home latitude/longitude/altitude are the dataset schema's (PX4 SITL, Zurich); the recovered missions "
             "keep their log's home in their WPL files and are flown as offsets from the generator's home",
     "mag_per_axis": "one magnetometer noise for x, y and z; fitted to the mean of the three axes",
@@ -70,7 +72,8 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
         elif m.mission_source:
             say(f"  {m.name}: its mission could not be written ({written is None and 'no waypoints' or 'refused'})")
     sections = {"profile": {"base": (base, "flight counts, splits and attack grid of this built-in profile")}}
-    sections["profile"]["timing"] = ("realistic", "jitter, drops and late messages (see [not_expressible])")
+    sections["profile"]["timing"] = ("realistic", "jitter, drops and late messages: the realistic table with the "
+                                                  "[timing] entries fitted to the logs")
     airframes = getattr(PROFILES[base], "airframes", None)
     if airframes:
         sections["profile"]["airframes"] = (dict(airframes), f"the {base} profile's airframe mix: not fitted (a log "
@@ -84,6 +87,10 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
                                                      "with seed s flies file s mod N")
     else:
         say("fleet: no log gave a mission: the flights fly the base profile's square")
+    if fitted.values.get("timing"):
+        sections["timing"] = fitted.values["timing"]
+    else:
+        say("fleet: no log has 50 messages of a timed topic: the realistic timing table kept")
     sections["measured"] = {k: (round(v, 4) if math.isfinite(v) else v, c) for k, (v, c) in fitted.measured.items()}
     sections["not_expressible"] = {k: (v, "") for k, v in NOT_EXPRESSIBLE.items()}
     sections["logs"] = {f'"{m.name}"': (fitting.log_line(m).split(": ", 1)[1], "") for m in logs}

@@ -31,6 +31,7 @@ class BatchResult:
     gps_rejections: np.ndarray  # (N, 3) rejected GPS position, GPS velocity, baro fusions
     n_steps: int
     timing: str = "ideal"  # FlightConfig.timing: applied when the rows become tables (generator.telemetry.tables)
+    timing_table: tuple = ()  # FlightConfig.timing_table: its per-topic entries, applied with ``timing``
     uorb: bool = False  # FlightConfig.uorb: the records carry the uORB view (generator.telemetry.uorb)
     #: with FlightConfig.uorb: the flight controller's streams for the uORB view (generator.telemetry.schedule.
     #: UORB_STREAMS), ``(steps, values, delivered)`` like ``simulator``'s; empty otherwise

@@ -13,17 +13,17 @@ from scart_bench.generator.telemetry.timing import message_timing
 
 
 def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | None, fields, windows,
-                last_step: int, timing: tuple[str, int, str] | None = None, rate_hz: float | None = None
+                last_step: int, timing: tuple | None = None, rate_hz: float | None = None
                 ) -> pd.DataFrame:
     """One flight's table of one topic: Timestamp, labels, fields (undelivered rows dropped).
 
-    ``timing``: (timing, flight seed, topic) to stamp the messages as :func:`message_timing`
+    ``timing``: (timing, flight seed, topic[, timing table]) to stamp the messages as :func:`message_timing`
     does (jitter, drops, late starts; ``rate_hz``: the topic's, where it is not a schedule's);
     None or "ideal" keeps the schedule's times."""
     ts_all = steps.astype(np.int64) * STEP_US
     keep = steps <= last_step
     if timing is not None:
-        ts_all, kept = message_timing(timing[0], timing[1], timing[2], ts_all, rate_hz)
+        ts_all, kept = message_timing(timing[0], timing[1], timing[2], ts_all, rate_hz, *timing[3:])
         keep = keep & kept
     if delivered is not None:
         keep = keep & delivered
@@ -35,17 +35,17 @@ def topic_table(steps: np.ndarray, values: np.ndarray, delivered: np.ndarray | N
 def flight_views(batch: BatchResult, i: int, windows=()) -> tuple[dict, dict]:
     """Navigator and simulator views of flight ``i`` as {topic: DataFrame}."""
     last = int(batch.exit_step[i])
-    timing = getattr(batch, "timing", "ideal")
+    timing, table = getattr(batch, "timing", "ideal"), getattr(batch, "timing_table", ())
     nav, sim = {}, {}
     for topic, (steps, vals, _) in batch.simulator.items():
         fields = field_names(topic)
         sim[topic] = topic_table(steps, vals[i], None, fields, windows if topic != "truth" else (), last,
-                                 (timing, batch.seeds[i], topic))
+                                 (timing, batch.seeds[i], topic, table))
     for topic, (steps, vals, ok) in batch.navigator.items():
         if topic == "truth":
             continue
         nav[topic] = topic_table(steps, vals[i], ok[i], field_names(topic), windows, last,
-                                 (timing, batch.seeds[i], topic))
+                                 (timing, batch.seeds[i], topic, table))
     return nav, sim
 
 
@@ -59,7 +59,7 @@ def uorb_stream_tables(batch: BatchResult, i: int, windows=()) -> dict[str, pd.D
 
     streams = getattr(batch, "uorb_streams", {})
     last = int(batch.exit_step[i])
-    timing = getattr(batch, "timing", "ideal")
+    timing, table = getattr(batch, "timing", "ideal"), getattr(batch, "timing_table", ())
     out = {}
     for name, topic in UORB_TOPICS.items():
         if topic.stream not in streams:
@@ -70,7 +70,7 @@ def uorb_stream_tables(batch: BatchResult, i: int, windows=()) -> dict[str, pd.D
             rows = own_clock_rows(steps * STEP_US, topic.rate_hz)
             steps, vals = steps[rows], vals[rows]
         out[name] = topic_table(steps, vals, None, field_names(topic.stream), windows, last,
-                                (timing, batch.seeds[i], name), topic.rate_hz)
+                                (timing, batch.seeds[i], name, table), topic.rate_hz)
     return out
 
 

@@ -19,6 +19,11 @@ and the simulator view of a flight, so the two still line up row for row.
 - ``"ideal"``: nothing changes (every topic periodic from t = 0; GPS messages before the fix are
   written, with fix type 1 "no fix").
 
+``FlightConfig.timing_table`` (a profile TOML's ``[timing]`` section, which ``generate --like`` fills
+from a fleet's logs): per topic, ``(topic, cv, drop, late)`` in place of that topic's :data:`REALISTIC`
+entry, under ``"realistic"`` timing only; empty (the default) is :data:`REALISTIC` as it is, byte for
+byte. The rates stay the schedule's (the dataset schema's, one per topic for every flight).
+
 Everything is drawn from the flight's seed and the topic's name only (one generator per flight,
 topic and purpose, each used in one call), so a flight's timing is the same in any batch and on
 every run.
@@ -73,10 +78,40 @@ GPS_TOPICS = ("gps_raw_int", "global_position_int")
 _CLIP = 0.45
 
 
+#: the fields of a timing table's entry, after its topic
+TABLE_FIELDS = ("cv", "drop", "late")
+#: the largest interval CV an entry may ask for: the offsets are clipped at +-0.45 period, beyond which
+#: the written CV no longer follows the asked one
+MAX_CV = 0.3
+
+
 def check_timing(timing: str) -> str:
     if timing not in TIMINGS:
         raise ValueError(f"timing must be one of {', '.join(TIMINGS)}, got {timing!r}")
     return timing
+
+
+def check_timing_table(table) -> tuple[tuple[str, float, float, float], ...]:
+    """A timing table (``FlightConfig.timing_table``) as sorted ``(topic, cv, drop, late)`` tuples, or
+    ValueError naming the topic and what was expected: a topic of :data:`REALISTIC` once, ``cv`` in
+    [0, MAX_CV], ``drop`` and ``late`` probabilities with ``drop + late <= 1``."""
+    out = {}
+    for entry in table or ():
+        if not isinstance(entry, (tuple, list)) or len(entry) != 4:
+            raise ValueError(f"timing table entry {entry!r}: expected (topic, cv, drop, late)")
+        topic, *values = entry
+        if topic not in REALISTIC:
+            raise ValueError(f"timing table topic {topic!r}: expected one of {', '.join(sorted(REALISTIC))}")
+        if topic in out:
+            raise ValueError(f"timing table topic {topic!r}: given twice")
+        for name, v in zip(TABLE_FIELDS, values, strict=True):
+            top = MAX_CV if name == "cv" else 1.0
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= top:
+                raise ValueError(f"timing table {topic}.{name}: expected a number in [0, {top:g}], got {v!r}")
+        if values[1] + values[2] > 1.0:
+            raise ValueError(f"timing table {topic}: drop + late must be at most 1, got {values[1] + values[2]:g}")
+        out[topic] = (topic, *(float(v) for v in values))
+    return tuple(out[t] for t in sorted(out))
 
 
 def _rng(seed: int, key: str, purpose: int) -> np.random.Generator:
@@ -90,12 +125,14 @@ def fix_times_us(seed: int) -> dict[str, int]:
     return {"gps_raw_int": int(round(fix * 1e6)), "global_position_int": int(round(glob * 1e6))}
 
 
-def message_timing(timing: str, seed: int, topic: str, ts_us: np.ndarray, rate_hz: float | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def message_timing(timing: str, seed: int, topic: str, ts_us: np.ndarray, rate_hz: float | None = None,
+                   table: tuple = ()) -> tuple[np.ndarray, np.ndarray]:
     """(stamped timestamps µs, kept) of a topic's messages at their ideal times ``ts_us`` (every
     message the flight's schedule holds, in order). ``kept`` is False for a dropped message or
     one before its sensor is ready. The stamped times may not be sorted (a late message).
-    ``rate_hz``: the topic's nominal rate, by default its schedule's (a link topic or uORB stream)."""
+    ``rate_hz``: the topic's nominal rate, by default its schedule's (a link topic or uORB stream).
+    ``table``: the flight's timing table (``FlightConfig.timing_table``, checked): its entry for
+    ``topic`` replaces the :data:`REALISTIC` one."""
     ts = np.asarray(ts_us, dtype=np.int64)
     n = ts.size
     if check_timing(timing) == "ideal" or topic not in REALISTIC or n < 2:
@@ -107,7 +144,7 @@ def message_timing(timing: str, seed: int, topic: str, ts_us: np.ndarray, rate_h
         rate_hz = TOPICS[topic].rate_hz if topic in TOPICS else UORB_STREAMS[topic][0]
     rate = rate_hz
     period = 1e6 / rate  # nominal: the schedule's own intervals vary on the step clock
-    cv, drop_p, late_p = REALISTIC[topic]
+    cv, drop_p, late_p = next((e[1:] for e in table if e[0] == topic), REALISTIC[topic])
     z = _rng(seed, topic, 1).standard_normal(n)
     rho = WANDERING.get(topic)
     if rho is None:
