@@ -235,6 +235,11 @@ def page_lines(runs: list[ZooRun], names: list[str], profile: str, seeds: list[i
             f"{_rate(row, 'tp_csv')} | {_rate(row, 'tn_no_attack', flip=True)} | {roc} | "
             f"{_num(cost['fit_us'].get(det, np.nan), '.1f')} | {_num(cost['score_us'].get(det, np.nan), '.1f')} | "
             f"{int(row['n_runs'])}/{int(row['runs'])} |")
+    fewer = [f"{d} ({int(n)})" for d, n, total in zip(board["detector"], board["n_runs"], board["runs"])
+             if 0 < n < total]
+    if fewer:
+        lines += ["", f"Ranked on fewer seeds than the others (seeds where the job finished OK): {', '.join(fewer)}; "
+                      "its mean and rank rest on those seeds' flights only."]
     if not_run:
         lines += ["", f"Not in any run folder yet (no job has finished): {', '.join(not_run)}."]
     fails = failures(results)
