@@ -219,6 +219,19 @@ class MissionParams:
     families: tuple = ()
     #: s, with ``families``: the range of each flight's planned mission duration (drawn log-uniform)
     duration_range: tuple[float, float] = (60.0, 180.0)
+    #: a pilot in attitude mode (generator.flight_software.pilot): stick standard deviation of roll and pitch (deg)
+    #: on a leg, added to the navigator's route through the attitude controller; 0: none (the default). A
+    #: hand-flown fleet (ArduCopter STABILIZE / ALT_HOLD / LOITER) rocks at 0.5-5 Hz; ``generate --like`` fits these
+    pilot_stick_deg: float = 0.0
+    #: Hz, corner of the sticks' spectrum (two first-order lags: flat below it, -40 dB/decade above)
+    pilot_stick_hz: float = 1.5
+    #: yaw stick standard deviation (deg of heading) and throttle stick (fraction of g of vertical acceleration)
+    pilot_yaw_deg: float = 0.0
+    pilot_throttle: float = 0.0
+    #: the sticks' amplitude while the velocity setpoint is still, relative to a leg's (2 m/s or faster)
+    pilot_hover_factor: float = 0.5
+    #: share of the flights flown with the pilot (drawn per flight from its seed)
+    pilot_share: float = 1.0
 
 
 #: GPS accuracy levels, a profile's ``gps_accuracy``: the receiver's position errors (SensorParams)

@@ -129,6 +129,9 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
     for key in ("accel_noise_cutoff_hz", "gyro_noise_cutoff_hz", "baro_noise_cutoff_hz"):  # white: as before coloured noise
         if not flight_config["sensors"][key]:
             del flight_config["sensors"][key]
+    if not max(cfg.mission.pilot_stick_deg, cfg.mission.pilot_yaw_deg, cfg.mission.pilot_throttle):
+        for key in [k for k in flight_config["mission"] if k.startswith("pilot_")]:  # no pilot: as before it
+            del flight_config["mission"][key]
     config_dict = {"flight_config": flight_config, "versions": versions(), "profile": prof.name}
     return GenerationPlan(prof, cfg, config_dict, int(seed), normal_seeds(seed, count),
                           splits(count, n_train, n_val, n_src), with_attacks)

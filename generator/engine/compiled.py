@@ -33,6 +33,7 @@ from scart_bench.generator.engine.flight_batch import alive, instance_gps, insta
 from scart_bench.generator.engine.pcg_noise import fill_rows, fill_rows_parallel, pcg_states
 from scart_bench.generator.flight_software.commander import BatchCommander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
+from scart_bench.generator.flight_software.pilot import stick_params
 from scart_bench.generator.flight_software.startup import takeoff_after_arm
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import DT, GRAVITY, NAV_RATE_HZ
@@ -111,6 +112,8 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     st["gps_fix_at"], st["gps_origin_at"], st["arm_at"] = init.start[:, 0], init.start[:, 1], init.start[:, 2]
     st["exit_step"] = -1.0
     st["landed_at"] = -1.0
+    if init.pilot is not None:
+        st["pilot_rng"], st["pilot_gain"] = init.pilot[:, 0], init.pilot[:, 1]
     return st
 
 
@@ -157,6 +160,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "inv_hover_rotor": 1.0 / float(np.sqrt(vp.mass * GRAVITY / (4 * vp.motor_constant))),
         "takeoff_after_arm": takeoff_after_arm(mp.ground_phase),
         "gyro_vibration": sp.gyro_vibration,
+        "pilot": stick_params(mp),
         "accel_lowpass": _lowpass(sp.accel_noise_cutoff_hz, 1.0 / dt),
         "gyro_lowpass": _lowpass(sp.gyro_noise_cutoff_hz, 1.0 / dt),
         "baro_lowpass": _lowpass(sp.baro_noise_cutoff_hz, sp.baro_rate_hz),

@@ -14,6 +14,7 @@ import numpy as np
 from scart_bench.dataset.schema import SIM_RATE_HZ
 from scart_bench.generator.flight_software.commander import ControlParams
 from scart_bench.generator.flight_software.navigator import mission_table
+from scart_bench.generator.flight_software.pilot import pilot_start
 from scart_bench.generator.flight_software.startup import battery_start, startup_times
 from scart_bench.generator.params import (
     BATTERY_OCV_SPAN_V,
@@ -119,6 +120,8 @@ class Initial:
     #: item (generator.flight_software.navigator.mission_table)
     table: np.ndarray | None = None
     last: np.ndarray | None = None
+    #: (N, 2) the pilot's stick state and amplitude factor (generator.flight_software.pilot.pilot_start)
+    pilot: np.ndarray | None = None
 def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
     n = len(seeds)
@@ -145,7 +148,7 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     ss.fix_at = start[:, 0].copy()
     battery = _battery_init(battery_start(seeds))
     return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(max_s * SIM_RATE_HZ),
-                   start, battery, table, last)
+                   start, battery, table, last, pilot_start(seeds, m))
 def alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
     """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
     lost = env.lost(sensor) if env is not None else None

@@ -74,6 +74,7 @@ K_LAND_DETECT, K_ARM_DELAY, K_TAKEOFF_HOLD = _I["land_detect_s"], _I["arm_delay"
 K_APPROACH, K_CLIMB, K_LAND_SPEED, K_ACCEPT = _I["approach_gain"], _I["climb_speed"], _I["land_speed"], _I["acceptance"]
 K_LAT0, K_LON0, K_SIN_LAT0, K_COS_LAT0 = _I["lat0"], _I["lon0"], _I["sin_lat0"], _I["cos_lat0"]
 K_HOVER, K_TAIL, K_YAW_STEP, K_OUT_DECAY = _I["hover"], _I["tail_steps"], _I["yaw_step_max"], _I["out_decay"]
+K_PILOT = _I["pilot"]
 
 G = GRAVITY
 PI = math.pi
@@ -823,6 +824,25 @@ def _vel_axis(s, p, a, dv, armed, dt):
 
 
 @njit(**_HOT)
+def _pilot_stick(s, p, lag_axis, level):
+    """One stick of the pilot in attitude mode (generator.flight_software.pilot.Pilot.step, the same lines):
+    four xorshift32 uniforms to a normal, through the two lags, scaled."""
+    x = int(s[L.PILOT_RNG])
+    total = 0.0
+    for _ in range(4):
+        x ^= (x << 13) & 0xFFFFFFFF
+        x ^= x >> 17
+        x ^= (x << 5) & 0xFFFFFFFF
+        total = total + x / 4294967296.0
+    s[L.PILOT_RNG] = x
+    n = (total - 2.0) * 1.7320508075688772
+    z = L.PILOT_LAG + 2 * lag_axis
+    s[z] = p[K_PILOT + 4] * s[z] + p[K_PILOT + 5] * n
+    s[z + 1] = p[K_PILOT + 4] * s[z + 1] + p[K_PILOT + 5] * s[z]
+    return p[K_PILOT + lag_axis] * p[K_PILOT + 6] * s[z + 1] * level
+
+
+@njit(**_HOT)
 def _velocity_control(s, p):
     """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust (50 Hz)."""
     dt = NAV_DT
@@ -830,6 +850,16 @@ def _velocity_control(s, p):
     if armed and s[L.SETPOINT_IN + 2] < -TAKEOFF_CLIMB:
         s[L.TOOK_OFF] = 1.0
     idle = armed and s[L.TOOK_OFF] < 0.5  # armed on the ground before the take-off: motors at idle
+    roll_stick, pitch_stick, yaw_stick, throttle = 0.0, 0.0, 0.0, 0.0
+    if p[K_PILOT + 8] != 0.0:  # the pilot's sticks (MissionParams.pilot_*), at the slewed setpoint of the last tick
+        alt = -_out(s, 2, 0)
+        vsp = math.sqrt(s[L.CTRL_VEL_SP] ** 2 + s[L.CTRL_VEL_SP + 1] ** 2)
+        level = _clip((alt - 1.0) / 2.0, 0.0, 1.0)
+        level = level * (p[K_PILOT + 7] + (1.0 - p[K_PILOT + 7]) * min(vsp / 2.0, 1.0)) * s[L.PILOT_GAIN]
+        roll_stick = _pilot_stick(s, p, 0, level)
+        pitch_stick = _pilot_stick(s, p, 1, level)
+        yaw_stick = _pilot_stick(s, p, 2, level)
+        throttle = _pilot_stick(s, p, 3, level)
     dv0 = s[L.SETPOINT_IN] - s[L.CTRL_VEL_SP]
     dv1 = s[L.SETPOINT_IN + 1] - s[L.CTRL_VEL_SP + 1]
     dv2 = s[L.SETPOINT_IN + 2] - s[L.CTRL_VEL_SP + 2]
@@ -843,6 +873,12 @@ def _velocity_control(s, p):
     err0, acc0 = _vel_axis(s, p, 0, dv0, armed, dt)
     err1, acc1 = _vel_axis(s, p, 1, dv1, armed, dt)
     err2, acc2 = _vel_axis(s, p, 2, dv2, armed, dt)
+    if p[K_PILOT + 8] != 0.0:
+        a_fwd, a_right = -G * pitch_stick, G * roll_stick
+        cy, sy = math.cos(s[L.SETPOINT_IN + 3]), math.sin(s[L.SETPOINT_IN + 3])
+        acc0 += cy * a_fwd - sy * a_right
+        acc1 += sy * a_fwd + cy * a_right
+        acc2 -= throttle
     lift = max(G - acc2, 0.3 * G)
     h = math.sqrt(acc0 * acc0 + acc1 * acc1)
     h_max = lift * p[K_TAN_TILT]
@@ -860,7 +896,7 @@ def _velocity_control(s, p):
     f2 = min(acc2 - G, -0.3 * G)
     fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     b0, b1, b2 = -f0 / fn, -f1 / fn, -f2 / fn
-    yaw = s[L.SETPOINT_IN + 3]
+    yaw = s[L.SETPOINT_IN + 3] + yaw_stick
     x0, x1, x2 = math.cos(yaw), math.sin(yaw), 0.0
     y0 = b1 * x2 - b2 * x1
     y1 = b2 * x0 - b0 * x2

@@ -182,3 +182,14 @@ for _name in PARAMS:
     PARAM_INDEX[_name] = _k
     _k += _SIZES.get(_name, 1)
 N_PARAMS = _k
+
+# -- the pilot in attitude mode (generator.flight_software.pilot; MissionParams.pilot_*): after every column above ------
+PILOT_RNG = WIDTH  # the sticks' xorshift32 state (an integer below 2^32)
+PILOT_GAIN = WIDTH + 1  # this flight's stick amplitude factor (0: flown without the pilot)
+PILOT_LAG = WIDTH + 2  # 8: the two lags' states per stick (roll, pitch, yaw, throttle)
+WIDTH = PILOT_LAG + 8
+FIELDS.update({"pilot_rng": (PILOT_RNG, 1), "pilot_gain": (PILOT_GAIN, 1), "pilot_lag": (PILOT_LAG, 8)})
+#: the pilot's parameters (pilot.stick_params): amplitudes (4), alpha, 1 - alpha, norm, hover factor, on
+PARAMS += ("pilot",)
+PARAM_INDEX["pilot"] = N_PARAMS
+N_PARAMS += 9

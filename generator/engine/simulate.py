@@ -28,6 +28,7 @@ from scart_bench.generator.engine.flight_batch import (  # noqa: F401 (re-export
 from scart_bench.generator.flight_software.commander import BatchCommander, exchange
 from scart_bench.generator.flight_software.flight_controller import Controller, Estimator
 from scart_bench.generator.flight_software.navigator import Navigator
+from scart_bench.generator.flight_software.pilot import Pilot, pilot_on
 from scart_bench.generator.geo import altitude_at, latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import (  # noqa: F401 (re-exported)
     BATTERY_CAPACITY_AH,
@@ -162,6 +163,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     es = est.init_state(n, yaw0)
     cs = ctrl.init_state(n)
     ns = nav.init_state(n, yaw0)
+    pilot = Pilot(m) if pilot_on(m) else None  # a pilot in attitude mode (MissionParams.pilot_*)
+    pilot_state = pilot.init_state(init.pilot) if pilot is not None else None
     noise = NoiseStream(rngs, NOISE_DIM)
     nz = NOISE_FIELDS
 
@@ -344,7 +347,10 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             arm_req = (setpoint_in[:, 5] > 0.5) & ~cs.disarmed_after_flight & ~done
             cs.armed = arm_req
             R_est = _rot(es)
-            ctrl.velocity_control(cs, vel_sp, yaw_sp, out_vel, R_est, 1.0 / NAV_RATE_HZ)
+            stick = None
+            if pilot is not None:
+                stick = pilot.step(pilot_state, -out_pos[:, 2], np.sqrt(cs.vel_sp[:, 0] ** 2 + cs.vel_sp[:, 1] ** 2))
+            ctrl.velocity_control(cs, vel_sp, yaw_sp, out_vel, R_est, 1.0 / NAV_RATE_HZ, stick)
             ctrl.land_detector(cs, vel_sp, out_vel, 1.0 / NAV_RATE_HZ)
         ctrl.attitude_control(cs, R_est)
 

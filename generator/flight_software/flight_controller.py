@@ -297,8 +297,9 @@ class Controller:
         )
 
     def velocity_control(self, c: ControllerState, vel_sp: np.ndarray, yaw_sp: np.ndarray,
-                         vel_est: np.ndarray, R_est: np.ndarray, dt: float) -> None:
-        """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust."""
+                         vel_est: np.ndarray, R_est: np.ndarray, dt: float, stick: np.ndarray | None = None) -> None:
+        """Velocity setpoint -> thrust vector -> attitude setpoint and collective thrust. ``stick`` (N, 4): a
+        pilot's roll, pitch, yaw offset (rad) and throttle (m/s^2, up) added on top (flight_software.pilot)."""
         p, m = self.p, self.v.mass
         c.took_off |= c.armed & (vel_sp[:, 2] < -TAKEOFF_CLIMB)
         idle = c.armed & ~c.took_off  # armed on the ground, before the take-off
@@ -317,6 +318,13 @@ class Controller:
         c.prev_vel_err = err
         acc = gains_p * err + gains_i * c.vel_int
         acc[:, :2] += p.vel_xy_d * d_err[:, :2]
+        if stick is not None:  # the pilot's sticks in the heading frame, flown through the attitude controller
+            a_fwd, a_right = -GRAVITY * stick[:, 1], GRAVITY * stick[:, 0]
+            cy, sy = np.cos(yaw_sp), np.sin(yaw_sp)
+            acc[:, 0] += cy * a_fwd - sy * a_right
+            acc[:, 1] += sy * a_fwd + cy * a_right
+            acc[:, 2] -= stick[:, 3]
+            yaw_sp = yaw_sp + stick[:, 2]
         # limit tilt: horizontal acceleration within tan(tilt_max) of the vertical specific force
         lift = np.maximum(GRAVITY - acc[:, 2], 0.3 * GRAVITY)
         h = np.linalg.norm(acc[:, :2], axis=1)

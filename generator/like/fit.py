@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.generator.like import pilot as like_pilot
 from scart_bench.generator.like import timing as like_timing
 from scart_bench.generator.like import tracks
 from scart_bench.generator.scart.meanings import QUANTITIES
@@ -91,6 +92,7 @@ class LogMeasure:
     hover_dlag1: dict[str, float] = field(default_factory=dict)
     ground_dlag1: dict[str, float] = field(default_factory=dict)
     hover_still: bool = True  # False: no still hover, the noise figures are on every airborne row
+    pilot: dict[str, float] = field(default_factory=dict)  # hand flight and attitude spectra (generator.like.pilot)
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
     rates: dict[str, tuple[float, float]] = field(default_factory=dict)  # logical topic -> (Hz, interval CV)
@@ -270,6 +272,7 @@ def measure_log(path: str | Path, base_sensors=None, vehicle=None) -> LogMeasure
     _rates(m, tables, gaps)
     _gps(m, tables)
     _mag_field(m, tables, phases)
+    m.pilot = like_pilot.figures(tables, phases)
     return m
 
 
@@ -804,6 +807,12 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     # message timing per topic; the calibration flights below are stamped with it, as the flights will be
     values["timing"] = like_timing.fleet_table([m.timing for m in logs], n_logs, MAX_CV)
     config = like_timing.with_table(config, values["timing"])
+    if calibrate:  # the pilot in attitude mode first: its motion is part of what the noise calibration measures
+        pilot, said = like_pilot.fit_pilot([m.pilot for m in logs], [m.name for m in logs], config,
+                                           figs["cruise_speed"].value)
+        values["mission"].update(pilot)
+        lines.extend(said)
+        config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, **{k: v for k, (v, _) in pilot.items()}))
     # sensor noise, by flying calibration flights
     if calibrate:
         noise, said = calibrate_noise(config, figs)
