@@ -83,11 +83,12 @@ def finished(run: Path, detectors=None) -> bool:
 
 
 def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_root: Path,
-              detectors: list[str] | None = None) -> list[Path]:
+              detectors: list[str] | None = None, timeout: float | None = None) -> list[Path]:
     """Run (or resume) the benchmark of ``detectors`` (default: the paper's eight) once per seed, in
     ``runs_root/<profile>-seed<N>`` on the profile's dataset (generated when missing); the run folders.
     A folder that already has every detector is reused as it is; ``wall_s.json`` adds up the wall time
-    of the invocations that ran something in it."""
+    of the invocations that ran something in it. ``timeout``: each job's limit in seconds (default: the
+    profile's)."""
     from scart_bench.benchmark.config import RunConfig
     from scart_bench.benchmark.runner import run_benchmark
 
@@ -100,7 +101,7 @@ def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_r
         else:
             t0 = time.perf_counter()
             run_benchmark(RunConfig(detectors=names, profile=profile, seed=seed, out=out, resume=out.exists(),
-                                    jobs=jobs, data_root=data_root))
+                                    jobs=jobs, data_root=data_root, timeout=timeout))
             _add_wall_s(out, time.perf_counter() - t0)
         paths.append(out)
     return paths

@@ -322,7 +322,9 @@ def write_page(out: Path, runs: list[ZooRun], names: list[str], profile: str, se
 def command_line(args: argparse.Namespace) -> str:
     """The command that regenerates the page (the options given, in a fixed order)."""
     return (f"python -m scart_bench.reports.zoo --profile {args.profile} --seeds {args.seeds} "
-            f"--detectors {args.detectors} --jobs {args.jobs} --runs {args.runs} --data {args.data} --out {args.out}")
+            f"--detectors {args.detectors} --jobs {args.jobs}"
+            + ("" if args.timeout is None else f" --timeout {args.timeout:g}")
+            + f" --runs {args.runs} --data {args.data} --out {args.out}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -332,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--detectors", default="paper,zoo",
                    help="names and tags, comma-separated (default paper,zoo: all 21 built-ins)")
     p.add_argument("--jobs", type=int, default=1, help="parallel jobs of each run (default 1)")
+    p.add_argument("--timeout", type=float, default=None,
+                   help="each job's time limit in seconds (default: the profile's; a job past it is a TIMEOUT row)")
     p.add_argument("--runs", type=Path, default=Path("runs/zoo"), help="folder of the run folders")
     p.add_argument("--data", type=Path, default=Path("data/datasets"), help="folder of the datasets")
     p.add_argument("--out", type=Path, default=Path("docs/results-zoo-standard.md"))
@@ -353,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             from scart_bench.benchmark.reference_runs import run_seeds
 
-            folders = run_seeds(args.profile, seeds, args.jobs, args.runs, args.data, names)
+            folders = run_seeds(args.profile, seeds, args.jobs, args.runs, args.data, names, args.timeout)
         runs = [load_v3(f) for f in folders]
         out = write_page(args.out, runs, names, args.profile, seeds, command_line(args))
     except ScartBenchError as exc:

@@ -134,6 +134,9 @@ def test_one_command_from_an_empty_runs_folder_writes_a_page_that_recounts(tmp_p
     assert made == [("quick", 0), ("quick", 1)]
     assert {p: p.stat().st_mtime_ns for p in runs.glob("*/jobs/*/scores.npz")} == stamps
     assert out.read_text() == page
+    # a detector no run has yet is named, not shown as 0
+    assert zoo.main([*argv[:5], "statistical,pca,kmeans,hbos", *argv[6:], "--render-only"]) == 0
+    assert "Not in any run folder yet (no job has finished): hbos." in out.read_text()
 
 
 def test_a_run_made_before_v3_is_read_from_its_v3_evaluation_or_refused(tmp_path, capsys):
@@ -171,6 +174,8 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, capsys):
     assert "no_such_detector" in capsys.readouterr().err
     assert zoo.main([*base, "--seeds", "0,x"]) == 2
     assert "--seeds" in capsys.readouterr().err
+    assert zoo.main([*base, "--seeds", "0", "--timeout", "-1"]) == 2
+    assert "--timeout" in capsys.readouterr().err
     assert zoo.main([*base, "--seeds", "0", "--render-only"]) == 2  # no run folder there
     assert "quick-seed0" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "runs").exists() and not (tmp_path / "data").exists()
