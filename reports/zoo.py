@@ -93,6 +93,18 @@ def load_v3(path: Path) -> ZooRun:
                       f"`scart-bench score {path} --phases ends` or resume it with `scart-bench run --resume`")
 
 
+def load_zoo_runs(folders: list[Path]) -> list[ZooRun]:
+    """:func:`load_v3` of each folder, each given a distinct label (``name``, ``name #2``, ...)."""
+    runs = [load_v3(f) for f in folders]
+    seen: dict[str, int] = {}
+    for run in runs:
+        label = run.results.label
+        seen[label] = seen.get(label, 0) + 1
+        if seen[label] > 1:
+            run.results.label = f"{label} #{seen[label]}"
+    return runs
+
+
 def _only(run: ZooRun, names: list[str]) -> RunResults:
     """The run's results restricted to ``names`` (other detectors the folder holds are not on the page)."""
     r = run.results
@@ -180,7 +192,7 @@ def page_lines(runs: list[ZooRun], names: list[str], profile: str, seeds: list[i
     counts = ("" if first is None else
               f"{int(first['n_simulation'])} simulation-mode and {int(first['n_csv'])} csv-mode attacked flights, "
               f"{int(first['n_no_attack'])} held-out normal flights and {int(first['n_validation'])} validation "
-              f"flights per seed (those of the first seed; the others' differ little), ")
+              f"flights per seed (the first seed's counts), ")
     updated = max(str(r.results.config.get("updated", ""))[:10] for r in runs)
     jobs = sorted({int((r.results.config.get("run") or {}).get("jobs", 1)) for r in runs})
     evaluated = [r.folder.name for r in runs if r.evaluation]
@@ -358,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
             from scart_bench.benchmark.reference_runs import run_seeds
 
             folders = run_seeds(args.profile, seeds, args.jobs, args.runs, args.data, names, args.timeout)
-        runs = [load_v3(f) for f in folders]
+        runs = load_zoo_runs(folders)
         out = write_page(args.out, runs, names, args.profile, seeds, command_line(args))
     except ScartBenchError as exc:
         print(f"zoo: {exc}", file=sys.stderr)
