@@ -45,7 +45,7 @@ def flown(tmp_path_factory):
 
 def test_a_timing_table_gives_flights_with_its_attitude_interval_cv(flown):
     cfg, views = flown
-    assert cfg.timing_table == (("attitude", 0.008, 0.0, REALISTIC["attitude"][2]),)
+    assert cfg.timing_table == (("attitude", 0.008, 0.0, REALISTIC["attitude"][2], 1.0),)
     cv = _cv(views["fitted"]["attitude"]["Timestamp"])
     assert 0.008 / CV_FACTOR <= cv <= 0.008 * CV_FACTOR, cv
     default = _cv(views["plain"]["attitude"]["Timestamp"])  # the realistic table's 0.092
@@ -65,6 +65,23 @@ def test_no_table_is_the_realistic_table_byte_for_byte():
     from scart_bench.generator.plan import plan_generation
 
     assert "timing_table" not in plan_generation("quick", n_normal=2).config_dict["flight_config"]
+
+
+def test_a_spread_varies_the_cv_between_flights_as_one_vehicle_on_every_topic():
+    ts = np.arange(0, 120_000_000, 20_000, dtype=np.int64)  # 50 Hz, 2 min
+    table = (("attitude", 0.01, 0.0, 0.0, 4.0), ("highres_imu", 0.03, 0.0, 0.0, 4.0))
+    got = []
+    for seed in range(40):
+        att = _cv(message_timing("realistic", seed, "attitude", ts, 50.0, table)[0])
+        imu = message_timing("realistic", seed, "highres_imu", ts, 50.0, table)[0]
+        got.append((att, _cv(np.sort(imu))))
+    att, imu = np.array(got).T
+    assert 0.01 / 4.4 <= att.min() and att.max() <= 0.01 * 4.4, (att.min(), att.max())
+    assert att.max() / att.min() > 6  # log-uniform over a 16x range: 40 flights span most of it
+    assert np.corrcoef(np.log(att), np.log(imu))[0, 1] > 0.9  # one quantile per flight for all its topics
+    same = _cv(message_timing("realistic", 3, "attitude", ts, 50.0, (("attitude", 0.01, 0.0, 0.0, 1.0),))[0])
+    assert abs(same - 0.01) < 0.001  # spread 1: every flight the table's CV
+    assert like_timing.cv_spread([0.01, 0.01]) == 1.0 and like_timing.cv_spread([0.002, 0.027]) > 3
 
 
 def test_the_interval_figures_read_a_millisecond_clock_drops_and_late_messages():
@@ -89,6 +106,7 @@ def test_like_writes_the_logs_timing_and_the_profile_reads_it_back(tmp_path):
     # ArduCopter's ATT at 10 Hz on a millisecond clock: CV about 0.007, the realistic table's is 0.092
     assert 0.002 <= table["attitude"][0] <= 0.015, table
     assert 0.01 <= table["highres_imu"][0] <= 0.06, table  # its IMU at 50 Hz: 0.03
+    assert all(e[3] == 1.0 for e in table.values())  # one log: no spread between vehicles
 
 
 @pytest.mark.parametrize("text, key, expected", [
@@ -98,6 +116,7 @@ def test_like_writes_the_logs_timing_and_the_profile_reads_it_back(tmp_path):
     ('[timing]\nattitude = {drop = "often"}\n', "timing.attitude.drop", "a number in [0, 1]"),
     ("[timing]\nattitude = 0.01\n", "timing.attitude", "an inline table"),
     ("[timing]\nattitude = {drop = 0.7, late = 0.6}\n", "timing.attitude", "drop + late at most 1"),
+    ("[timing]\nattitude = {spread = 0.5}\n", "timing.attitude.spread", "a number in [1, 10]"),
     ('[profile]\ntiming = "ideal"\n[timing]\nattitude = {cv = 0.01}\n', "timing", 'profile.timing = "realistic"'),
 ])
 def test_a_bad_timing_key_exits_2_naming_the_file_and_key(tmp_path, capsys, text, key, expected):

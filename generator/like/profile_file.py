@@ -10,7 +10,7 @@ A profile file maps onto the generator's own pieces, section by section, field b
   :class:`VehicleParams` (any field the dataclass has: a new one is accepted as soon as it exists),
   over the base profile's values; ``mission.missions`` lists mission files (``.plan`` or WPL), relative
   to the TOML file, flown as ``generate --missions`` flies them;
-- ``[timing]``: per link topic, ``topic = {cv = ..., drop = ..., late = ...}`` in place of that topic's
+- ``[timing]``: per link topic, ``topic = {cv = ..., drop = ..., late = ..., spread = ...}`` in place of that topic's
   entry of the "realistic" timing table (``FlightConfig.timing_table``,
   :func:`scart_bench.generator.telemetry.timing.check_timing_table`; a key left out keeps the table's);
 - ``[measured]`` and ``[not_expressible]``: what the logs showed that the generator cannot take yet,
@@ -181,7 +181,12 @@ def read_profile(path: str | Path) -> ProfileFile:
 def _timing_table(path, table: dict) -> tuple:
     """The ``[timing]`` section as ``FlightConfig.timing_table``: per topic, the given fields over the
     realistic table's entry."""
-    from scart_bench.generator.telemetry.timing import MAX_CV, REALISTIC, TABLE_FIELDS, check_timing_table
+    from scart_bench.generator.telemetry.timing import (
+        REALISTIC,
+        TABLE_FIELDS,
+        TABLE_RANGE,
+        check_timing_table,
+    )
 
     entries = []
     for topic, fields in table.items():
@@ -189,14 +194,14 @@ def _timing_table(path, table: dict) -> tuple:
         if topic not in REALISTIC:
             raise _fail(path, key, f"a topic of the timing table ({', '.join(sorted(REALISTIC))})", topic)
         if not isinstance(fields, dict):
-            raise _fail(path, key, "an inline table {cv = ..., drop = ..., late = ...}", fields)
-        values = dict(zip(TABLE_FIELDS, REALISTIC[topic], strict=True))
+            raise _fail(path, key, "an inline table {cv = ..., drop = ..., late = ..., spread = ...}", fields)
+        values = dict(zip(TABLE_FIELDS, (*REALISTIC[topic], 1.0), strict=True))
         for name, v in fields.items():
             if name not in TABLE_FIELDS:
                 raise _fail(path, f"{key}.{name}", f"one of {', '.join(TABLE_FIELDS)}", name)
-            top = MAX_CV if name == "cv" else 1.0
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= top:
-                raise _fail(path, f"{key}.{name}", f"a number in [0, {top:g}]", v)
+            lo, hi = TABLE_RANGE[name]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise _fail(path, f"{key}.{name}", f"a number in [{lo:g}, {hi:g}]", v)
             values[name] = float(v)
         if values["drop"] + values["late"] > 1.0:
             raise _fail(path, key, "drop + late at most 1", values["drop"] + values["late"])

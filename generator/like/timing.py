@@ -6,7 +6,10 @@ timing.message_timing`) makes them: a zero-mean jitter of each message's time (t
 variation of the intervals near the period), dropped messages (an interval of about two periods or more)
 and late ones (an interval of 1.25 periods or more followed by one of 0.75 or less). Logging gaps (2 s or
 more) are left out. Over the fleet each figure is the median over the logs that measured it
-(:func:`fleet_table`), written per generated link topic (:data:`LINK_TOPICS`).
+(:func:`fleet_table`), written per generated link topic (:data:`LINK_TOPICS`), with the CV's spread
+between the logs: a fleet's vehicles differ (the shared ArduCopter fleet's attitude CV runs from 0.002 to
+0.027 between logs), and generated flights that all had the median would be told from them by that
+alone (a classifier isolates a narrow band as well as a shifted one).
 
 The CV is carried over as a CV, not as an absolute jitter: the generated topic keeps its own rate (the
 dataset schema's: attitude at 50 Hz where an ArduCopter logs ATT at 10 Hz), and what a reader of the
@@ -36,6 +39,8 @@ LATE_LONG, LATE_SHORT = 1.25, 0.75
 GAP_S = 2.0
 #: least intervals a figure is measured on
 MIN_INTERVALS = 50
+#: the widest spread of the CV between flights a fit writes
+MAX_SPREAD = 10.0
 
 
 def interval_figures(t_s: np.ndarray) -> tuple[float, float, float, float] | None:
@@ -75,13 +80,25 @@ def fleet_table(per_log: list[dict[str, tuple[float, float, float, float]]], n_l
             continue
         hz, cv, drop, late = (float(np.median([f[k] for f in figs])) for k in range(4))
         capped = cv > max_cv
-        entry = {"cv": round(min(cv, max_cv), 4), "drop": round(drop, 5), "late": round(late, 5)}
+        spread = cv_spread([f[1] for f in figs])
+        entry = {"cv": round(min(cv, max_cv), 4), "drop": round(drop, 5), "late": round(late, 5),
+                 "spread": round(spread, 2)}
         what = (f"{logical} messages (median over {len(figs)} of {n_logs} logs, at their {hz:.3g} Hz): interval CV "
-                f"near the period {cv:.3g}{f' (capped at {max_cv:g})' if capped else ''}, dropped {100 * drop:.2g} %, "
-                f"late {100 * late:.2g} %")
+                f"near the period {cv:.3g}{f' (capped at {max_cv:g})' if capped else ''} (logs "
+                f"{min(f[1] for f in figs):.2g}-{max(f[1] for f in figs):.2g}: spread {spread:.2f}), dropped "
+                f"{100 * drop:.2g} %, late {100 * late:.2g} %")
         for topic in topics:
             out[topic] = (entry, what)
     return out
+
+
+def cv_spread(cvs: list[float], most: float = MAX_SPREAD) -> float:
+    """The ``spread`` k of a timing entry from the logs' CVs: log-uniform in [cv / k, cv * k] has the
+    logs' standard deviation of log CV (k = exp(sqrt(3) std)); 1 with fewer than 2 logs, at most ``most``."""
+    v = np.log([c for c in cvs if c > 0])
+    if len(v) < 2:
+        return 1.0
+    return float(min(np.exp(np.sqrt(3.0) * v.std()), most))
 
 
 def with_table(config, section: dict[str, tuple[dict[str, float], str]]):

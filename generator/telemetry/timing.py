@@ -20,9 +20,12 @@ and the simulator view of a flight, so the two still line up row for row.
   written, with fix type 1 "no fix").
 
 ``FlightConfig.timing_table`` (a profile TOML's ``[timing]`` section, which ``generate --like`` fills
-from a fleet's logs): per topic, ``(topic, cv, drop, late)`` in place of that topic's :data:`REALISTIC`
-entry, under ``"realistic"`` timing only; empty (the default) is :data:`REALISTIC` as it is, byte for
-byte. The rates stay the schedule's (the dataset schema's, one per topic for every flight).
+from a fleet's logs): per topic, ``(topic, cv, drop, late, spread)`` in place of that topic's
+:data:`REALISTIC` entry, under ``"realistic"`` timing only; empty (the default) is :data:`REALISTIC` as
+it is, byte for byte. ``spread`` > 1 varies the CV between flights as a fleet's vehicles differ: each
+flight's CV is ``cv * spread ** (2 q - 1)`` (log-uniform in [cv / spread, cv * spread]), with one
+quantile ``q`` per flight for every topic (a vehicle with a rough clock is rough on every topic). The
+rates stay the schedule's (the dataset schema's, one per topic for every flight).
 
 Everything is drawn from the flight's seed and the topic's name only (one generator per flight,
 topic and purpose, each used in one call), so a flight's timing is the same in any batch and on
@@ -78,11 +81,13 @@ GPS_TOPICS = ("gps_raw_int", "global_position_int")
 _CLIP = 0.45
 
 
-#: the fields of a timing table's entry, after its topic
-TABLE_FIELDS = ("cv", "drop", "late")
 #: the largest interval CV an entry may ask for: the offsets are clipped at +-0.45 period, beyond which
 #: the written CV no longer follows the asked one
 MAX_CV = 0.3
+#: the fields of a timing table's entry, after its topic
+TABLE_FIELDS = ("cv", "drop", "late", "spread")
+#: a field's allowed range
+TABLE_RANGE = {"cv": (0.0, MAX_CV), "drop": (0.0, 1.0), "late": (0.0, 1.0), "spread": (1.0, 10.0)}
 
 
 def check_timing(timing: str) -> str:
@@ -91,23 +96,24 @@ def check_timing(timing: str) -> str:
     return timing
 
 
-def check_timing_table(table) -> tuple[tuple[str, float, float, float], ...]:
-    """A timing table (``FlightConfig.timing_table``) as sorted ``(topic, cv, drop, late)`` tuples, or
-    ValueError naming the topic and what was expected: a topic of :data:`REALISTIC` once, ``cv`` in
-    [0, MAX_CV], ``drop`` and ``late`` probabilities with ``drop + late <= 1``."""
+def check_timing_table(table) -> tuple[tuple[str, float, float, float, float], ...]:
+    """A timing table (``FlightConfig.timing_table``) as sorted ``(topic, cv, drop, late, spread)`` tuples,
+    or ValueError naming the topic and what was expected: a topic of :data:`REALISTIC` once, each field
+    in its :data:`TABLE_RANGE` (``cv`` at most MAX_CV), ``drop + late <= 1``; ``spread`` may be left out (1)."""
     out = {}
     for entry in table or ():
-        if not isinstance(entry, (tuple, list)) or len(entry) != 4:
-            raise ValueError(f"timing table entry {entry!r}: expected (topic, cv, drop, late)")
+        if not isinstance(entry, (tuple, list)) or len(entry) not in (4, 5):
+            raise ValueError(f"timing table entry {entry!r}: expected (topic, cv, drop, late[, spread])")
         topic, *values = entry
+        values = [*values, 1.0][:4]
         if topic not in REALISTIC:
             raise ValueError(f"timing table topic {topic!r}: expected one of {', '.join(sorted(REALISTIC))}")
         if topic in out:
             raise ValueError(f"timing table topic {topic!r}: given twice")
         for name, v in zip(TABLE_FIELDS, values, strict=True):
-            top = MAX_CV if name == "cv" else 1.0
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= top:
-                raise ValueError(f"timing table {topic}.{name}: expected a number in [0, {top:g}], got {v!r}")
+            lo, hi = TABLE_RANGE[name]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise ValueError(f"timing table {topic}.{name}: expected a number in [{lo:g}, {hi:g}], got {v!r}")
         if values[1] + values[2] > 1.0:
             raise ValueError(f"timing table {topic}: drop + late must be at most 1, got {values[1] + values[2]:g}")
         out[topic] = (topic, *(float(v) for v in values))
@@ -144,7 +150,14 @@ def message_timing(timing: str, seed: int, topic: str, ts_us: np.ndarray, rate_h
         rate_hz = TOPICS[topic].rate_hz if topic in TOPICS else UORB_STREAMS[topic][0]
     rate = rate_hz
     period = 1e6 / rate  # nominal: the schedule's own intervals vary on the step clock
-    cv, drop_p, late_p = next((e[1:] for e in table if e[0] == topic), REALISTIC[topic])
+    entry = next((e[1:] for e in table if e[0] == topic), None)
+    if entry is None:
+        cv, drop_p, late_p = REALISTIC[topic]
+    else:
+        cv, drop_p, late_p, spread = entry
+        if spread > 1.0:  # this flight's place in the fleet: one quantile for all its topics
+            q = _rng(seed, "timing_spread", 3).random()
+            cv = min(cv * spread ** (2.0 * q - 1.0), MAX_CV)
     z = _rng(seed, topic, 1).standard_normal(n)
     rho = WANDERING.get(topic)
     if rho is None:
