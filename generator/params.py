@@ -103,11 +103,11 @@ class SensorParams:
     #: hover); real airframes shake theirs (the ArduCopter fleet: 8x), which a fitted profile sets
     gyro_vibration: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_bias_tau: float = 1000.0  # s
-    #: coloured IMU noise: cutoff (Hz) of a second-order Butterworth low-pass of the accelerometer's and the
-    #: gyro's noise and vibration at the IMU rate, their per-sample sigma kept (physics.sensors.lowpass_coefficients);
-    #: 0: white, as drawn (the default). Real logs show filtered IMU rows (ArduPilot's INS_GYRO_FILTER, PX4's
-    #: IMU_GYRO_CUTOFF) and a frame's own rocking: the ArduCopter fleet's gyro differences at hover have lag-1
-    #: autocorrelation 0.7-0.9 at 50 Hz, white noise -0.5; ``generate --like`` fits these (docs/like.md)
+    #: coloured IMU vibration: cutoff (Hz) of a second-order Butterworth low-pass of ``accel_vibration`` /
+    #: ``gyro_vibration`` at the IMU rate, their per-sample sigma kept (physics.sensors.lowpass_coefficients); the
+    #: sensor's own noise stays white. 0: white, as drawn (the default). A frame shakes and rocks at low
+    #: frequencies: the ArduCopter fleet's gyro differences at hover have lag-1 autocorrelation 0.7-0.9 at 50 Hz
+    #: (white noise -0.5), on the ground, motors running, -0.2 to -0.5; ``generate --like`` fits these (docs/like.md)
     accel_noise_cutoff_hz: float = 0.0
     gyro_noise_cutoff_hz: float = 0.0
     mag_rate_hz: float = 100.0

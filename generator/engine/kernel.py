@@ -356,24 +356,27 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     # IMU: specific force and rates in the body frame, bias random walks
     a0, a1, a2 = s[L.VACC], s[L.VACC + 1], s[L.VACC + 2] - G
     fs = (a0 * R[0] + a1 * R[3] + a2 * R[6], a0 * R[1] + a1 * R[4] + a2 * R[7], a0 * R[2] + a1 * R[5] + a2 * R[8])
-    # motor vibration (white), scaling with the rotors' mean speed over the hover speed (physics.sensors)
+    # motor vibration (white, or low-passed: SensorParams.*_noise_cutoff_hz), scaling with the rotors' mean speed
+    # over the hover speed (physics.sensors)
     vib = (s[L.ROTOR] + s[L.ROTOR + 1] + s[L.ROTOR + 2] + s[L.ROTOR + 3]) / 4.0 * p[K_INV_HOVER_ROT]
     vib = max(min(vib / VIBRATION_FULL_FROM, 1.0), vib)
     for a in range(3):
         s[L.ACC_BIAS + a] = p[K_A_AB] * s[L.ACC_BIAS + a] + p[K_C_AB] * w[k, NZ_ACC_BIAS + a]
         s[L.GYRO_BIAS + a] = p[K_A_GB] * s[L.GYRO_BIAS + a] + p[K_C_GB] * w[k, NZ_GYRO_BIAS + a]
         va = vib * p[K_ACC_VIB + a]
-        sig = math.sqrt(p[K_C_AN + a] * p[K_C_AN + a] + va * va)
         wa = w[k, NZ_ACC + a]
-        if p[K_ACC_LP + 5] != 0.0:  # coloured noise (SensorParams.accel_noise_cutoff_hz)
-            wa = _lowpass(s, L.IMU_LOWPASS + 2 * a, p, K_ACC_LP, wa)
-        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + sig * wa
+        if p[K_ACC_LP + 5] != 0.0:  # coloured vibration, white sensor noise (SensorParams.accel_noise_cutoff_hz)
+            na = p[K_C_AN + a] * wa + va * _lowpass(s, L.IMU_LOWPASS + 2 * a, p, K_ACC_LP, wa)
+        else:
+            na = math.sqrt(p[K_C_AN + a] * p[K_C_AN + a] + va * va) * wa
+        s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + na
         vg = vib * p[K_GYRO_VIB + a]
-        gsig = math.sqrt(p[K_C_GN] * p[K_C_GN] + vg * vg)
         wg = w[k, NZ_GYRO + a]
         if p[K_GYRO_LP + 5] != 0.0:
-            wg = _lowpass(s, L.IMU_LOWPASS + 6 + 2 * a, p, K_GYRO_LP, wg)
-        s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + gsig * wg
+            ng = p[K_C_GN] * wg + vg * _lowpass(s, L.IMU_LOWPASS + 6 + 2 * a, p, K_GYRO_LP, wg)
+        else:
+            ng = math.sqrt(p[K_C_GN] * p[K_C_GN] + vg * vg) * wg
+        s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + ng
     if due[L.D_MAG, step]:
         m0, m1, m2 = p[K_MAG_FIELD], p[K_MAG_FIELD + 1], p[K_MAG_FIELD + 2]
         if env:

@@ -627,11 +627,11 @@ FALLBACK = {"accel_vibration": (("accel_noise_density", None, ("acc_x", "acc_y")
             "gyro_vibration": (("gyro_noise_density", None, ("gyro_x", "gyro_y", "gyro_z")),)}
 
 
-#: coloured noise: (SensorParams cutoff field, the noise fields it colours, figures, the sensor's rate field (None:
+#: coloured noise: (SensorParams cutoff field, the noise fields it colours (the IMU's: the vibration), figures, the sensor's rate field (None:
 #: the IMU, sampled every simulation step), the figures' clock (Hz))
 COLOUR_PLAN = (
-    ("accel_noise_cutoff_hz", ("accel_vibration", "accel_noise_density"), ("acc_x", "acc_y", "acc_z"), None, NOISE_HZ),
-    ("gyro_noise_cutoff_hz", ("gyro_vibration", "gyro_noise_density"), ("gyro_x", "gyro_y", "gyro_z"), None, NOISE_HZ),
+    ("accel_noise_cutoff_hz", ("accel_vibration",), ("acc_x", "acc_y", "acc_z"), None, NOISE_HZ),
+    ("gyro_noise_cutoff_hz", ("gyro_vibration",), ("gyro_x", "gyro_y", "gyro_z"), None, NOISE_HZ),
     ("baro_noise_cutoff_hz", ("baro_noise_pa",), ("baro_alt",), "baro_rate_hz", BARO_HZ),
 )
 #: a lag-1 autocorrelation of the differences at or below this is white noise (cutoff 0; white: -0.5)

@@ -162,8 +162,10 @@ class Sensors:
         ``vibration`` (N,): the rotors' mean speed over their hover speed (:func:`vibration_scale`);
         the motors shake the accelerometer by ``accel_vibration`` and the gyro by ``gyro_vibration``
         times it (white, as the sensor's own noise: one draw of their combined sigma), none with the
-        motors stopped. With ``accel_noise_cutoff_hz`` / ``gyro_noise_cutoff_hz`` the draws are low-passed
-        first (:func:`lowpass_coefficients`: the same sigma per sample, coloured)."""
+        motors stopped. With ``accel_noise_cutoff_hz`` / ``gyro_noise_cutoff_hz`` the vibration is low-passed
+        (:func:`lowpass_coefficients`: the same sigma per sample, coloured; the same draws, so no new random
+        numbers) and the sensor's own noise stays white: a frame's shaking and rocking is coloured, the
+        firmware-filtered sensor noise at a log's 50 Hz is not (the ArduCopter fleet's gyro on the ground)."""
         p, dt = self.params, self.dt
         fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
         a_ab = np.exp(-dt / p.accel_bias_tau)
@@ -172,20 +174,23 @@ class Sensors:
         st.gyro_bias = a_gb * st.gyro_bias + p.gyro_bias_random_walk * np.sqrt(dt) * noise[:, 9:12]
         acc_sigma = p.accel_noise_density * np.sqrt(1 / dt) * np.array([1.0, 1.0, p.accel_noise_z_factor])
         gyro_sigma = p.gyro_noise_density * np.sqrt(1 / dt)
+        w_acc, w_gyro = noise[:, 0:3], noise[:, 3:6]
+        acc_noise, gyro_noise = acc_sigma * w_acc, gyro_sigma * w_gyro
         if vibration is not None:
             vib = np.asarray(vibration)[:, None] * np.array(p.accel_vibration)
-            acc_sigma = np.sqrt(acc_sigma * acc_sigma + vib * vib)
             vib_g = np.asarray(vibration)[:, None] * np.array(p.gyro_vibration)
-            gyro_sigma = np.sqrt(gyro_sigma * gyro_sigma + vib_g * vib_g)
-        w_acc, w_gyro = noise[:, 0:3], noise[:, 3:6]
-        if (self.accel_lowpass is not None or self.gyro_lowpass is not None) and st.imu_lowpass is None:
-            st.imu_lowpass = np.zeros((2, len(fs), 6))
-        if self.accel_lowpass is not None:
-            w_acc = lowpass_step(self.accel_lowpass, st.imu_lowpass[:, :, 0:3], w_acc)
-        if self.gyro_lowpass is not None:
-            w_gyro = lowpass_step(self.gyro_lowpass, st.imu_lowpass[:, :, 3:6], w_gyro)
-        acc = fs + st.accel_bias + acc_sigma * w_acc
-        gyro = omega + st.gyro_bias + gyro_sigma * w_gyro
+            if (self.accel_lowpass is not None or self.gyro_lowpass is not None) and st.imu_lowpass is None:
+                st.imu_lowpass = np.zeros((2, len(fs), 6))
+            if self.accel_lowpass is None:  # white: one draw of the combined sigma
+                acc_noise = np.sqrt(acc_sigma * acc_sigma + vib * vib) * w_acc
+            else:  # the sensor's own noise white, the vibration low-passed (the same draws)
+                acc_noise = acc_noise + vib * lowpass_step(self.accel_lowpass, st.imu_lowpass[:, :, 0:3], w_acc)
+            if self.gyro_lowpass is None:
+                gyro_noise = np.sqrt(gyro_sigma * gyro_sigma + vib_g * vib_g) * w_gyro
+            else:
+                gyro_noise = gyro_noise + vib_g * lowpass_step(self.gyro_lowpass, st.imu_lowpass[:, :, 3:6], w_gyro)
+        acc = fs + st.accel_bias + acc_noise
+        gyro = omega + st.gyro_bias + gyro_noise
         return acc, gyro
 
     def mag(self, R: np.ndarray, noise: np.ndarray, disturbance: np.ndarray | None = None) -> np.ndarray:
