@@ -138,8 +138,7 @@ def calibration_figures(config, n: int = CAL_FLIGHTS, seed: int = 4242) -> dict[
         _, sim = flight_views(batch, i, ())
         tables = {k: v for k, v in sim.items() if k not in ("truth", "setpoint")}
         per.append(figures(tables, flight_phases(tables)))
-    keys = {k for p in per for k in p}
-    return {k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}
+    return {k: _median(per, k)[0] for k in {k for p in per for k in p}}
 
 
 def fit_pilot(figs: list[dict[str, float]], names: list[str], config, cruise_speed: float = math.nan
