@@ -163,3 +163,15 @@ def test_like_reads_the_cutoff_back_from_a_log_s_colour(target):
     *_, dlag1 = _noise_figures(t, gyro[:, 0, 0], 50.0, [(0.0, t[-1])])
     assert abs(dlag1 - target) < 0.06, (cutoff, dlag1, target)
     assert cutoff_for(-0.5, 250.0, 5) == 0.0 and cutoff_for(-0.46, 250.0, 5) == 0.0
+
+
+def test_the_fit_s_least_cutoff_keeps_a_capped_level_at_the_logs_white_noise():
+    """`--like` caps the coloured vibration per sample at the logs' hover std (it enters the controllers) and so
+    colours no lower than the cutoff at which that cap still gives the logs' sample-to-sample noise: the fleet's
+    gyro (0.032 white, 0.136 std at hover) no lower than about 2.9 Hz."""
+    from scart_bench.generator.like.fit import cutoff_at_least, white_factor
+
+    fc = cutoff_at_least(0.032 / 0.136, 250.0, 5)
+    assert 2.5 < fc < 3.5, fc
+    assert white_factor(fc, 250.0, 5) >= 0.032 / 0.136 > white_factor(0.9 * fc, 250.0, 5)
+    assert cutoff_at_least(1.0, 250.0, 5) == 0.0  # white noise is needed

@@ -570,6 +570,7 @@ def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, floa
     mission = dataclasses.replace(config.mission, missions=(), takeoff_hold_s=25.0)
     cfg = dataclasses.replace(config, mission=mission)
     batch = simulate(normal_seeds(seed, n), cfg)
+    landed = float(np.mean(np.asarray(batch.status) == "landed"))
     per = []
     for i in range(n):
         _, sim = flight_views(batch, i, ())
@@ -581,7 +582,7 @@ def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, floa
         per.append({**m.hover, **{f"white_{k}": v for k, v in m.hover_white.items()},
                     **{f"dlag1_{k}": v for k, v in m.hover_dlag1.items()}})
     keys = {k for p in per for k in p}
-    return {k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}
+    return {**{k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}, "landed": landed}
 
 
 @dataclass
@@ -667,6 +668,17 @@ def cutoff_for(dlag1: float, rate_hz: float, every: int) -> float:
     return round(math.exp(0.5 * (lo + hi)), 3)
 
 
+def cutoff_at_least(factor: float, rate_hz: float, every: int) -> float:
+    """The lowest cutoff (Hz) whose :func:`white_factor` is at least ``factor`` (0: white is needed)."""
+    if factor >= white_factor(0.5 * rate_hz / every, rate_hz, every):
+        return 0.0
+    lo, hi = math.log(0.2), math.log(0.5 * rate_hz / every)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if white_factor(math.exp(mid), rate_hz, every) >= factor else (mid, hi)
+    return math.ceil(math.exp(hi) * 1000.0) / 1000.0
+
+
 def white_factor(cutoff_hz: float, rate_hz: float, every: int) -> float:
     """The sample-to-sample noise of the low-passed noise read every ``every`` samples, per unit of its sigma
     (white: 1): sqrt(1 - lag-1 autocorrelation)."""
@@ -741,25 +753,57 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
                 changed[f] = tuple(cur)
         return changed
 
+    # a coloured vibration no larger per sample than the logs' hover signal (high-passed std): the noise enters
+    # the estimator and the controllers, and a larger one stands for motion the vehicle does not make
+    cap = {(f, i): min((figures[f"hover_{k}"].value for k in ks if f"hover_{k}" in figures
+                        and math.isfinite(figures[f"hover_{k}"].value)), default=math.inf)
+           for f, i, ks in plan if f in colour_of and f.endswith("_vibration")}  # the IMU's: in the figure's unit
+
+    def least_cutoff(c) -> float:
+        """The lowest cutoff at which the capped levels still reach the logs' sample-to-sample noise."""
+        need = [float(np.mean([want[k].value for k in ks])) / cap[(f, i)] for f, i, ks in plan
+                if colour_of.get(f) is c and (f, i) in cap and math.isfinite(cap[(f, i)]) and cap[(f, i)] > 0]
+        return cutoff_at_least(max(need), *sampling[c[0]]) if need else 0.0
+
+    def capped(c, fc: float) -> float:
+        low = least_cutoff(c)
+        return fc if fc == 0.0 or fc >= low else low
+
+    for c in colours:
+        cutoff[c[0]] = capped(c, cutoff[c[0]])
     gen: dict[str, float] = {}
+    good: tuple[dict, dict] | None = None
     for r in range(rounds + 1):
         gen = calibration_figures(dataclasses.replace(config, sensors=dataclasses.replace(s, **fields())))
+        if gen.get("landed", 1.0) < 1.0 and good is not None:  # a calibration flight crashed or did not land:
+            level, cutoff = dict(good[0]), dict(good[1])          # back to the last round whose flights all landed
+            lines.append(f"calibration round {r + 1}: {1 - gen['landed']:.0%} of the flights did not land; the noise "
+                         "of the round before kept")
+            gen = calibration_figures(dataclasses.replace(config, sensors=dataclasses.replace(s, **fields())))
+            break
+        good = (dict(level), dict(cutoff))
         if r == rounds:
             break
         before = {f: factor(f) for f, _, _ in plan}
         for c in colours:
+            if not any(level[(f, i)] > 0 for f, i, _ in plan if colour_of.get(f) is c):
+                continue  # nothing coloured yet: the flights' figure is their motion's
             target = float(np.mean([colour_want[k].value for k in c[2]]))
             got = float(np.nanmean([gen.get(f"dlag1_{k}", math.nan) for k in c[2]]))
-            if math.isfinite(got):  # aim the theory past the target by what the flights add to it
+            if math.isfinite(got):  # aim the theory past the target by what the flights add to it, 1.5x at most a round
                 theory = lowpass_lag1(cutoff[c[0]], *sampling[c[0]])[1]
-                cutoff[c[0]] = cutoff_for(float(np.clip(target - (got - theory), -0.5, MAX_DLAG1)), *sampling[c[0]])
+                fc = cutoff_for(float(np.clip(target - (got - theory), -0.5, MAX_DLAG1)), *sampling[c[0]])
+                old = cutoff[c[0]]
+                if old > 0 and fc > 0:
+                    fc = float(np.clip(fc, old / 1.5, old * 1.5))
+                cutoff[c[0]] = round(capped(c, fc), 3)
         for f, i, ks in plan:
             target = float(np.mean([want[k].value for k in ks]))
             got = float(np.nanmean([gen.get(f"white_{k}", math.nan) for k in ks]))
             if math.isfinite(got) and got > 0:
                 history[(f, i)].append((level[(f, i)] * before[f], got))
                 nxt = next_level(history[(f, i)], target) / factor(f)
-                level[(f, i)] = float(np.clip(nxt, floor[(f, i)], 1e3))
+                level[(f, i)] = float(np.clip(nxt, floor[(f, i)], min(1e3, cap.get((f, i), math.inf))))
     final = fields()
     notes: dict[str, list[str]] = {}
     for f, _i, ks in plan:
