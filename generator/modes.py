@@ -134,22 +134,34 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
     fields = input_fields(flights, LABEL_COLUMNS)  # with what a recording's listen view knows (meanings.Fields)
     lengths = {t: np.array([len(f[t]) for f in flights]) for t in topics}
     times = {t: max((f[t] for f in flights), key=len)["Timestamp"].to_numpy(np.int64) for t in topics}
-    values = {}
-    for t in topics:
-        arr = np.full((n, len(times[t]), len(fields[t])), np.nan)
-        first: dict[int, int] = {}  # one table replayed for several flights (copies of a log) is read once
-        for i, f in enumerate(flights):
-            j = first.setdefault(id(f[t]), i)
-            arr[i, : len(f[t])] = arr[j, : len(f[t])] if j != i else f[t][list(fields[t])].to_numpy(np.float64)
-        values[t] = arr
     rates = {t: (len(times[t]) - 1) / max((times[t][-1] - times[t][0]) / 1e6, 1e-9) if len(times[t]) > 1 else 1.0
              for t in topics}
     layer = AttackLayer(scenarios, seeds, fields=fields, rates=rates, physics=False)
-    out_vals = {t: values[t].copy() for t in topics}
-    delivered = {t: np.ones((n, len(times[t])), dtype=bool) for t in topics}
+    one_by_one = os.environ.get("SCART_BENCH_CSV_REPLAY") == "per-message"
+    # the replay hands the layer only the topics it must see (listened, targeted, or a lat/lon pair while an
+    # origin is unknown: a set that only shrinks), so the others' values are never stacked per flight:
+    # an all-topic log's hundred untouched topics cost their tables, not (flights x rows x fields) arrays
+    seen = set(topics) if one_by_one else layer.must_see(topics)
+    own: dict[tuple[str, int], np.ndarray] = {}  # one table replayed for several flights is read once
+
+    def table_values(t: str, i: int) -> np.ndarray:
+        key = (t, id(flights[i][t]))
+        if key not in own:
+            own[key] = flights[i][t][list(fields[t])].to_numpy(np.float64)
+        return own[key]
+
+    values = {}
+    for t in topics:
+        if t not in seen:
+            continue
+        arr = np.full((n, len(times[t]), len(fields[t])), np.nan)
+        for i, f in enumerate(flights):
+            arr[i, : len(f[t])] = table_values(t, i)
+        values[t] = arr
+    out_vals = {t: values[t].copy() for t in values}
+    delivered = {t: np.ones((n, len(times[t])), dtype=bool) for t in values}
     # every message in timestamp order, topics at the same time together (generator.scart.replay)
-    (per_message if os.environ.get("SCART_BENCH_CSV_REPLAY") == "per-message" else replay)(
-        layer, times, values, out_vals, delivered)
+    (per_message if one_by_one else replay)(layer, times, values, out_vals, delivered)
     results = []
     for i, f in enumerate(flights):
         end_us = int(max(f[t]["Timestamp"].iloc[-1] for t in topics if len(f[t]))) + 1
@@ -157,6 +169,9 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
         nav = {}
         for t in topics:
             k = lengths[t][i]
+            if t not in values:  # never handed to the layer: passed unchanged
+                nav[t] = labelled_table(times[t][:k], table_values(t, i), list(fields[t]), windows)
+                continue
             keep = delivered[t][i, :k]
             nav[t] = labelled_table(times[t][:k][keep], out_vals[t][i, :k][keep], list(fields[t]), windows)
         results.append((nav, windows, layer.event_log(i, end_us)))

@@ -499,12 +499,19 @@ def _load_compact_view(path: Path, meta: dict, topics: list[str] | None) -> dict
 # scart-bench flight folder
 
 
+def flight_view_tables(path: Path, view: dict[str, pd.DataFrame], topics: list[str] | None = None
+                       ) -> dict[str, pd.DataFrame]:
+    """What :func:`load_flight_file` gives for the compact flight folder ``path`` whose navigator view's
+    tables (as ``read_view`` gives them) are ``view``: for a caller that has read them already."""
+    raw = {}
+    for stem, df in view.items():
+        raw.update(_frame_topics(df, path / "navigator.parquet", stem, False, split=False, unit="us"))
+    return finish_tables(raw, path, topics, origin=0)
+
+
 def _load_flight_folder(path: Path, topics: list[str] | None) -> dict[str, pd.DataFrame]:
     if (path / "navigator.parquet").exists():  # the compact layout: every topic in one file
-        raw = {}
-        for stem, df in read_view(path, "navigator").items():
-            raw.update(_frame_topics(df, path / "navigator.parquet", stem, False, split=False, unit="us"))
-        return finish_tables(raw, path, topics, origin=0)
+        return flight_view_tables(path, read_view(path, "navigator"), topics)
     folder = path / "sensors" / "navigator"
     if not folder.is_dir():
         hint = ""

@@ -33,8 +33,9 @@ from scart_bench.dataset import (
     open_dataset,
     replacing,
 )
+from scart_bench.dataset.write import SourceView
 from scart_bench.generator.logs.copies import copy_record
-from scart_bench.generator.logs.importers import load_flight_file
+from scart_bench.generator.logs.importers import flight_view_tables, load_flight_file
 from scart_bench.generator.logs.logged_time import (
     LoggedClock,
     gap_line,
@@ -471,9 +472,13 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
         reasons["act in the closed loop (simulation mode only)"] = n_closed * len(rows)
     progress = progress or quiet()
     progress.expect("read", len(rows))
-    flights = []
+    flights, views = [], {}
     for fid in rows["flight_id"].astype(str):
-        tables = load_flight_file(ds.flight_dir(fid))
+        view = None if full_copies else _source_view(ds, fid)
+        stored = None if view is None else view.tables()
+        tables = load_flight_file(ds.flight_dir(fid)) if stored is None else flight_view_tables(ds.flight_dir(fid), stored)
+        if view is not None:
+            views[fid] = view
         clock = LoggedClock().fit(tables)
         listen = with_phases(tables, clock)
         fit, why = applicable(jobs, listen, f"flight {fid}")
@@ -508,12 +513,24 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                 say(f"attack: {fid}: {len(moved_any)} trigger(s) moved on the log's time, e.g. {moved_any[0]} "
                     "(each copy's raw/config.json lists its own)")
 
-    append_flights(ds.path, records(), share_sources=not full_copies)
+    append_flights(ds.path, records(), share_sources=not full_copies, source_views=views)
     say(summary_line(reasons, (len(jobs) + n_closed) * len(flights)))
     if not added:
         raise DatasetError(f"{scenario_path}: the attack never started on any source flight; nothing was added "
                            f"(start conditions: {_start_conditions(jobs[0])})")
     return added
+
+
+def _source_view(ds, fid: str) -> SourceView | None:
+    """A compact source flight's navigator view, read once for both the replay (its tables) and the
+    writer's comparison of each copy with it; None where it is not one (the flight is then read as
+    before, and a damaged one reported as before)."""
+    if not ds.is_compact(fid):
+        return None
+    try:
+        return SourceView(ds.flight_dir(fid) / "navigator.parquet", fid)
+    except DatasetError:
+        return None
 
 
 def attack_file(input_path: str | Path, scenario_path: str | Path, out: str | Path, fmt: str = "parquet",

@@ -88,12 +88,13 @@ class DatasetWriter:
     ``share_sources`` (appending, compact layout, no workers): a flight whose manifest
     ``source_flight`` is a normal flight already in the dataset (an attacked copy) stores only
     the fields that differ from that flight's navigator view and reads the others from its file
-    (:class:`SourceView`), so a copy costs what its attack changed, not what the log holds.
+    (:class:`SourceView`), so a copy costs what its attack changed, not what the log holds;
+    ``source_views``: those flights' views already read (by flight id; the attack reads them once).
     """
 
     def __init__(self, out: str | Path, fmt: str = "parquet", info: dict | None = None,
                  overwrite: bool = False, workers: int = 0, append: bool = False, layout: str | None = None,
-                 share_sources: bool = False):
+                 share_sources: bool = False, source_views: dict[str, SourceView] | None = None):
         if fmt not in FORMATS:
             raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
         self.out = Path(out)
@@ -105,6 +106,7 @@ class DatasetWriter:
         self._lock = dataset_lock(self.out).acquire() if append else None
         self._dataset = None
         self._source: SourceView | None = None
+        self.source_views = dict(source_views or {})
         if append and is_dataset(self.out):
             ds = self._dataset = open_dataset(self.out)
             self.existing = ds.manifest
@@ -160,7 +162,9 @@ class DatasetWriter:
         if rows.empty or str(rows["mode"].iloc[0]) != "normal" or not ds.is_compact(fid) or ds.sources(fid):
             return None
         ds.verify(fid)  # a copy must not inherit damage: the source's checksum is compared first
-        self._source = SourceView(ds.flight_dir(fid) / "navigator.parquet", fid)
+        path = ds.flight_dir(fid) / "navigator.parquet"
+        given = self.source_views.get(fid)
+        self._source = given if given is not None and given.path == path else SourceView(path, fid)
         return self._source
 
     def add_written(self, rows: list[dict]) -> None:
@@ -260,11 +264,21 @@ class SourceView:
         self._stacked: dict[tuple, np.ndarray] = {}
         self._tables: dict[str, tuple[pd.DataFrame, list[str]]] = {}
         try:
-            meta = compact.read_meta(self.path)
+            meta = self.meta = compact.read_meta(self.path)
             self.arrays = compact.read_topics(self.path, list(meta["topics"]), meta, arrays=True)
             self.dtypes = {s["name"]: dict(map(tuple, s["columns"])) for s in meta["stored"]}
         except compact.CompactError as exc:
             raise DatasetError(f"{exc}; the source flight {flight_id!r} of the copies cannot be read") from None
+
+    def tables(self) -> dict[str, pd.DataFrame] | None:
+        """The view's topic tables as ``read_view`` gives them, made from the arrays already read (so
+        that ``attack`` reads its source once for the replay and the comparison); None when the file
+        keeps topics elsewhere (only a copy's does: read it with ``read_view``). The tables own their
+        values: changing one leaves the comparison's arrays as stored."""
+        spans = {s["name"]: s for s in self.meta["stored"]}
+        if self.meta.get("reuse") or any(s.get("shared") for s in spans.values()) or set(spans) != set(self.arrays):
+            return None
+        return {n: compact.topic_frame(self.arrays[n], spans[n], copy=True) for n in self.meta["topics"] if n in spans}
 
     def fields(self, name: str, df: pd.DataFrame) -> list[str]:
         """The numeric fields of ``df`` (topic ``name``) that this flight's same topic holds bit for
@@ -409,16 +423,18 @@ def _write_compact(root: Path, record: FlightRecord, source: SourceView | None =
 
 
 def append_flights(out: str | Path, records: Iterable[FlightRecord], fmt: str = "parquet",
-                   info: dict | None = None, layout: str | None = None, share_sources: bool = False) -> Path:
+                   info: dict | None = None, layout: str | None = None, share_sources: bool = False,
+                   source_views: dict[str, SourceView] | None = None) -> Path:
     """Add flights to the dataset at ``out`` (created when there is none), atomically.
 
     ``records`` may be a generator (one flight in memory at a time). A repeated flight id, or any
     error while the records are made or written, removes the flights written so far and leaves
     the dataset as it was; the manifest is replaced last, in one rename. Returns the manifest path.
     ``share_sources``: attacked copies keep their untouched fields in their source flight's file
-    (:class:`DatasetWriter`).
+    (:class:`DatasetWriter`; ``source_views``: theirs already read).
     """
-    writer = DatasetWriter(out, fmt=fmt, info=info, append=True, layout=layout, share_sources=share_sources)
+    writer = DatasetWriter(out, fmt=fmt, info=info, append=True, layout=layout, share_sources=share_sources,
+                           source_views=source_views)
     try:
         for r in records:
             writer.write(r)
