@@ -228,7 +228,7 @@ class MissionParams:
     #: yaw stick standard deviation (deg of heading) and throttle stick (fraction of g of vertical acceleration)
     pilot_yaw_deg: float = 0.0
     pilot_throttle: float = 0.0
-    #: the sticks' amplitude while the velocity setpoint is still, relative to a leg's (2 m/s or faster)
+    #: the sticks' amplitude while the velocity setpoint is still, relative to a leg's (1 m/s or faster)
     pilot_hover_factor: float = 0.5
     #: share of the flights flown with the pilot (drawn per flight from its seed)
     pilot_share: float = 1.0

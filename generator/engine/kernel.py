@@ -858,7 +858,7 @@ def _velocity_control(s, p):
         alt = -_out(s, 2, 0)
         vsp = math.sqrt(s[L.CTRL_VEL_SP] ** 2 + s[L.CTRL_VEL_SP + 1] ** 2)
         level = _clip((alt - 1.0) / 2.0, 0.0, 1.0)
-        level = level * (p[K_PILOT + 7] + (1.0 - p[K_PILOT + 7]) * min(vsp / 2.0, 1.0)) * s[L.PILOT_GAIN]
+        level = level * (p[K_PILOT + 7] + (1.0 - p[K_PILOT + 7]) * min(vsp / 1.0, 1.0)) * s[L.PILOT_GAIN]
         roll_stick = _pilot_stick(s, p, 0, level)
         pitch_stick = _pilot_stick(s, p, 1, level)
         yaw_stick = _pilot_stick(s, p, 2, level)

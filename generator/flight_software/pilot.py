@@ -38,8 +38,9 @@ SPREAD = 0.5
 #: the activity level's altitude ramp (m above home): none below ALT_OFF, full from ALT_FULL
 ALT_OFF = 1.0
 ALT_FULL = 3.0
-#: m/s: a velocity setpoint this fast or faster is a leg (full stick), slower towards a hover
-LEG_SPEED = 2.0
+#: m/s: a velocity setpoint this fast or faster is a leg (full stick), slower towards a hover (1 m/s: where the
+#: window classifier's cruise begins; a hand-flown fleet's legs are slow, the shared one's median 1.6 m/s)
+LEG_SPEED = 1.0
 _M32 = 0xFFFFFFFF
 _SQRT3 = math.sqrt(3.0)
 

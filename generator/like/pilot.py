@@ -31,7 +31,7 @@ IMU_HZ = 50.0
 WINDOW_S = 10.0
 STEP_S = 5.0
 BANDS = ((0.5, 2.0), (2.0, 5.0))
-#: calibration: flights, rounds, the square's speed at least (m/s: a leg, full stick)
+#: calibration: flights, rounds (the square flown at the fleet's cruise speed, at least 1 m/s: a leg, full stick)
 CAL_FLIGHTS = 3
 CAL_ROUNDS = 4
 #: the starting point of the calibration (deg, deg, g, Hz)
@@ -161,7 +161,7 @@ def fit_pilot(figs: list[dict[str, float]], names: list[str], config, cruise_spe
     hover, n_hover = _median(hand, "hover_tilt_0.5_2")
     factor = float(np.clip(math.sqrt(hover / target["tilt_0.5_2"][0]), 0.2, 1.0)) if n_hover else 0.5
     level = dict(START)
-    speed = max(cruise_speed if math.isfinite(cruise_speed) else config.mission.cruise_speed, 2.0)
+    speed = max(cruise_speed if math.isfinite(cruise_speed) else config.mission.cruise_speed, 1.0)
     gen: dict[str, float] = {}
     plan = (("pilot_stick_deg", "tilt_0.5_2"), ("pilot_yaw_deg", "yaw"), ("pilot_throttle", "accz"))
     for r in range(CAL_ROUNDS + 1):
