@@ -8,7 +8,7 @@ that dataset with the grid (default data/scenarios/quick.toml cut to ``--actions
 both targets and triggers, so that it runs in minutes; ``--actions all --levels all`` for the whole
 grid): ``attack_dataset(full_copies=True)``, the old path, and the default. Prints per path the
 copies, the wall and CPU time, copies per second and the flights' size on disk, the ratios (wall, and
-CPU seconds, which a loaded shared machine disturbs less), and checks that
+CPU seconds, which a loaded shared machine disturbs less) and the load average before and after, and checks that
 every copy reads back the same tables in both datasets (navigator and simulator, every topic and the
 combined most_frequent table).
 """
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import os
 import shutil
 import tempfile
 import time
@@ -77,6 +78,7 @@ def main(argv: list[str] | None = None) -> None:
     logs = sorted(glob.glob(args.logs))
     if not logs:
         raise SystemExit(f"{args.logs}: no log")
+    print("load average (1, 5, 15 min) at the start: " + ", ".join(f"{v:.2f}" for v in os.getloadavg()), flush=True)
     with tempfile.TemporaryDirectory(prefix="attack_speed_") as tmp:
         tmp = Path(tmp)
         grid = cut_grid(args.grid, args.actions, args.levels, tmp / "grid.toml")
@@ -97,7 +99,8 @@ def main(argv: list[str] | None = None) -> None:
                   f"({cpu[full]:.1f} CPU s, {len(ids[full]) / cpu[full]:.3f} copies per CPU s), "
                   f"{(size_mb(folder) - before) / max(len(ids[full]), 1):.2f} MB per copy", flush=True)
         print(f"ratio: {rates[False] / rates[True]:.1f}x copies per second (wall), "
-              f"{cpu[True] / cpu[False]:.1f}x per CPU second")
+              f"{cpu[True] / cpu[False]:.1f}x per CPU second; load average at the end: "
+              + ", ".join(f"{v:.2f}" for v in os.getloadavg()), flush=True)
         if not args.no_check:
             assert ids[True] == ids[False]
             n = same_tables(tmp / "full", tmp / "shared", ids[True])
