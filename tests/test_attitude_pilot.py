@@ -129,5 +129,5 @@ def test_like_says_hand_flown_from_the_modes():
     m = measure_log(FLEET_LOG)
     assert like_pilot.is_hand_flown(m.pilot)
     assert m.pilot["cruise_tilt_0.5_2"] > like_pilot.HAND_TILT_POWER
-    fields, lines = like_pilot.fit_pilot([{"hand": 0.0}, {"hand": 0.0}], ["a", "b"], FlightConfig())
+    fields, lines = like_pilot.fit_pilot([{"hand": 0.0}, {"hand": 0.0}], ["a", "b"], FlightConfig(), None)
     assert fields == {} and len(lines) == 1 and "0 of 2" in lines[0]

@@ -272,8 +272,15 @@ def measure_log(path: str | Path, base_sensors=None, vehicle=None) -> LogMeasure
     _rates(m, tables, gaps)
     _gps(m, tables)
     _mag_field(m, tables, phases)
-    m.pilot = like_pilot.figures(tables, phases)
+    m.pilot = pilot_figures(tables, phases)
     return m
+
+
+def pilot_figures(tables, phases) -> dict[str, float]:
+    """A log's hand flight and attitude spectra (generator.like.pilot.figures) from its series found by meaning."""
+    imu = QUANTITIES["imu"]
+    return like_pilot.figures(tables, phases, _tilt(tables), _velocity(tables),
+                              _series(tables, imu["zgyro"], densest=True), _series(tables, imu["zacc"], densest=True))
 
 
 def _flight_shape(m: LogMeasure, track: tracks.Track, phases: pd.DataFrame, tables) -> None:
@@ -852,7 +859,7 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     values["timing"] = like_timing.fleet_table([m.timing for m in logs], n_logs, MAX_CV)
     config = like_timing.with_table(config, values["timing"])
     if calibrate:  # the pilot in attitude mode first: its motion is part of what the noise calibration measures
-        pilot, said = like_pilot.fit_pilot([m.pilot for m in logs], [m.name for m in logs], config,
+        pilot, said = like_pilot.fit_pilot([m.pilot for m in logs], [m.name for m in logs], config, pilot_figures,
                                            figs["cruise_speed"].value)
         values["mission"].update(pilot)
         lines.extend(said)

@@ -61,24 +61,19 @@ def hand_modes(tables) -> list[str]:
     return sorted({HAND_MODES[v] for v in seen if v in HAND_MODES})
 
 
-def figures(tables, phases) -> dict[str, float]:
-    """A log's pilot figures (see the module doc): ``{phase}_tilt_{band}`` (rad^2, mean of roll and pitch),
-    ``{phase}_yaw`` ((rad/s)^2 of gyro z in 0.5-2 Hz), ``{phase}_accz`` ((m/s^2)^2 in 0.5-2 Hz), ``{phase}_windows``,
-    and ``hand`` (1: hand-flown modes logged, 0: only other modes, NaN: no mode messages)."""
-    from scart_bench.generator.like.fit import _series, _tilt, _velocity
-    from scart_bench.generator.scart.meanings import QUANTITIES
-
+def figures(tables, phases, tilt, vel, gz, az) -> dict[str, float]:
+    """A log's pilot figures (see the module doc) from its mode messages (``tables``), phases and series
+    (``generator.like.fit.pilot_figures`` finds them by meaning: (t, roll, pitch) in rad, (t, (n, 3) velocity),
+    (topic, t, gyro z) and (topic, t, accelerometer z), or None): ``{phase}_tilt_{band}`` (rad^2, mean of roll and
+    pitch), ``{phase}_yaw`` ((rad/s)^2 of gyro z in 0.5-2 Hz), ``{phase}_accz`` ((m/s^2)^2 in 0.5-2 Hz),
+    ``{phase}_windows``, and ``hand`` (1: hand-flown modes logged, 0: only other modes, NaN: no mode messages)."""
     out: dict[str, float] = {}
     df = tables.get("mode")
     out["hand"] = float(bool(hand_modes(tables))) if df is not None and len(df) else math.nan
-    tilt = _tilt(tables)
     if tilt is None or phases is None:
         return out
     tp = phases["Timestamp"].to_numpy(np.int64) / 1e6
     air = (phases["phase"].to_numpy(object) != "landed") & (phases["altitude_m"].to_numpy(float) > 1.5)
-    vel = _velocity(tables)
-    gz = _series(tables, QUANTITIES["imu"]["zgyro"], densest=True)
-    az = _series(tables, QUANTITIES["imu"]["zacc"], densest=True)
     t0, t1 = float(tilt[0][0]), float(tilt[0][-1])
     per: dict[str, list[list[float]]] = {"cruise": [], "hover": []}
     a = t0
@@ -123,9 +118,9 @@ def _median(figs: list[dict[str, float]], key: str) -> tuple[float, int]:
     return (float(np.median(v)), len(v)) if v else (math.nan, 0)
 
 
-def calibration_figures(config, n: int = CAL_FLIGHTS, seed: int = 4242) -> dict[str, float]:
+def calibration_figures(config, measure, n: int = CAL_FLIGHTS, seed: int = 4242) -> dict[str, float]:
     """The pilot figures (median over ``n`` flights) of generated flights of ``config``: the square at its
-    cruise speed with a 15 s hover after take-off, measured as a log's."""
+    cruise speed with a 15 s hover after take-off, measured as a log's (``measure(tables, phases)``)."""
     from scart_bench.generator.engine.simulate import simulate
     from scart_bench.generator.logs.phases import flight_phases
     from scart_bench.generator.plan import normal_seeds
@@ -137,18 +132,19 @@ def calibration_figures(config, n: int = CAL_FLIGHTS, seed: int = 4242) -> dict[
     for i in range(n):
         _, sim = flight_views(batch, i, ())
         tables = {k: v for k, v in sim.items() if k not in ("truth", "setpoint")}
-        per.append(figures(tables, flight_phases(tables)))
+        per.append(measure(tables, flight_phases(tables)))
     return {k: _median(per, k)[0] for k in {k for p in per for k in p}}
 
 
-def fit_pilot(figs: list[dict[str, float]], names: list[str], config, cruise_speed: float = math.nan
+def fit_pilot(figs: list[dict[str, float]], names: list[str], config, measure, cruise_speed: float = math.nan
               ) -> tuple[dict[str, tuple[object, str]], list[str]]:
     """``[mission]`` fields (value, comment) of the pilot fitted to the logs' figures, and lines said.
 
     On when at least half of the logs that say (modes or cruise spectrum) are hand-flown; each amplitude
     scaled by sqrt(fleet / generated) of its figure per round, the corner by the square root of the ratio of
     the fleet's 2-5 Hz share of the roll power to the generated one, the hover factor (starting at the fleet's
-    sqrt(hover / cruise) roll power) by sqrt(fleet / generated) of the hover's."""
+    sqrt(hover / cruise) roll power) by sqrt(fleet / generated) of the hover's. ``measure(tables, phases)``: a
+    flight's figures (``generator.like.fit.pilot_figures``)."""
     hand = [f for f in figs if is_hand_flown(f)]
     said = [f for f, n in zip(figs, names) if math.isfinite(f.get("hand", math.nan)) or "cruise_tilt_0.5_2" in f]
     lines: list[str] = []
@@ -166,7 +162,7 @@ def fit_pilot(figs: list[dict[str, float]], names: list[str], config, cruise_spe
     plan = (("pilot_stick_deg", "tilt_0.5_2"), ("pilot_yaw_deg", "yaw"), ("pilot_throttle", "accz"))
     for r in range(CAL_ROUNDS + 1):
         mission = dataclasses.replace(config.mission, cruise_speed=speed, pilot_hover_factor=factor, **level)
-        gen = calibration_figures(dataclasses.replace(config, mission=mission))
+        gen = calibration_figures(dataclasses.replace(config, mission=mission), measure)
         if r == CAL_ROUNDS:
             break
         for fld, key in plan:
