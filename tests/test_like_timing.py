@@ -82,6 +82,10 @@ def test_a_spread_varies_the_cv_between_flights_as_one_vehicle_on_every_topic():
     same = _cv(message_timing("realistic", 3, "attitude", ts, 50.0, (("attitude", 0.01, 0.0, 0.0, 1.0),))[0])
     assert abs(same - 0.01) < 0.001  # spread 1: every flight the table's CV
     assert like_timing.cv_spread([0.01, 0.01]) == 1.0 and like_timing.cv_spread([0.002, 0.027]) > 3
+    two = [{"imu": (50.0, 0.012, 0.0, 0.0), "attitude": (10.0, 0.002, 0.0, 0.0)},
+           {"imu": (50.0, 0.046, 0.0, 0.0), "attitude": (10.0, 0.027, 0.0, 0.0)}]
+    section = like_timing.fleet_table(two, 2, 0.3)
+    assert section["attitude"][0]["spread"] > 3 and section["highres_imu"][0]["spread"] == 1.0
 
 
 def test_the_interval_figures_read_a_millisecond_clock_drops_and_late_messages():
