@@ -153,7 +153,7 @@ def _rates(runs: list[RunResults], keys: tuple[str, ...]) -> pd.DataFrame:
     return pd.concat(frames).groupby(level=0).mean()
 
 
-def _pooled(runs: list[RunResults], dimension: str) -> pd.DataFrame:
+def pooled_tp(runs: list[RunResults], dimension: str) -> pd.DataFrame:
     """TP rate per detector, value and mode of a breakdown dimension, flights pooled over the runs."""
     parts = [r.table("breakdown.csv") for r in runs if (r.path / "breakdown.csv").is_file()]
     if not parts:
@@ -171,25 +171,25 @@ def _summed(b: pd.DataFrame) -> pd.DataFrame:
     return g
 
 
-def _families(runs: list[RunResults]) -> pd.DataFrame:
-    """_pooled by attack family: a configuration of one action counts under its action; one that
+def tp_by_family(runs: list[RunResults]) -> pd.DataFrame:
+    """pooled_tp by attack family: a configuration of one action counts under its action; one that
     combines k actions (the paper grid's 2- and 3-scenario flights) under "k actions combined"
     (38 combinations would make a table nobody reads)."""
-    fam = _pooled(runs, "action")
+    fam = pooled_tp(runs, "action")
     if not len(fam):
         return fam
     k = fam["value"].astype(str).str.count(r"\+") + 1
     return _summed(fam.assign(value=fam["value"].where(k == 1, k.astype(str) + " actions combined")))
 
 
-def _family_order(values) -> list[str]:
+def family_order(values) -> list[str]:
     """Single actions alphabetically, then the combinations by size."""
     return sorted(set(values), key=lambda v: (v.endswith("combined"), v))
 
 
 def figures(det: pd.DataFrame, fam: pd.DataFrame, folder: Path) -> list[Path]:
-    """TP by detectability bin (``_pooled(runs, "detectability_bin")``), and TP by attack family and mode
-    (``_families(runs)``), as PNG files in ``folder``."""
+    """TP by detectability bin (``pooled_tp(runs, "detectability_bin")``), and TP by attack family and mode
+    (``tp_by_family(runs)``), as PNG files in ``folder``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -215,7 +215,7 @@ def figures(det: pd.DataFrame, fam: pd.DataFrame, folder: Path) -> list[Path]:
         fig.savefig(out[-1], dpi=110)
         plt.close(fig)
     if len(fam):
-        families = _family_order(fam["value"])
+        families = family_order(fam["value"])
         fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
         for ax, mode in zip(axes, ("simulation", "csv")):
             m = fam[fam["mode"] == mode].pivot(index="detector", columns="value", values="tp_rate")
@@ -274,7 +274,7 @@ def why(runs: list[RunResults], rule: pd.DataFrame, det: pd.DataFrame, fam: pd.D
         others: dict[str, list[RunResults]] | None = None) -> list[str]:
     """Where the gap to the paper comes from, in numbers: the detection rule, the attacks' strength
     (``det``: the pooled detectability bins), the counting window, csv vs simulation mode per family
-    (``fam``: ``_families``) and (with other profiles' runs) the grid."""
+    (``fam``: ``tp_by_family``) and (with other profiles' runs) the grid."""
     lines = ["Where the differences come from (from the experiments below):", ""]
     deep = [d for d in DEEPOD if d in rule.index]
     if deep:
@@ -378,7 +378,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
     rule_keys = ("tp_simulation", "tp_csv", "tp_end_simulation", "tp_end_csv", "flagged_simulation", "flagged_csv",
                  "far_no_attack", "tn_no_attack")
     rule = _rates(runs, rule_keys)
-    bins, fam = _pooled(runs, "detectability_bin"), _families(runs)
+    bins, fam = pooled_tp(runs, "detectability_bin"), tp_by_family(runs)
     figs = figures(bins, fam, out.parent / out.stem)
     n = board.iloc[0] if len(board) else None
     first = runs[0].metrics.set_index("detector")
@@ -470,7 +470,7 @@ def write_page(out: Path, profile: str, seeds: list[int], runs: list[RunResults]
         lines += ["", "## Per attack family", "", "TP in window, flights pooled over the seeds (simulation / csv; "
                   "n flights per mode in the header; a flight that combines several actions counts under "
                   "\"k actions combined\").", ""]
-        families = _family_order(fam["value"])
+        families = family_order(fam["value"])
         nper = fam[fam["detector"] == fam["detector"].iloc[0]].set_index(["value", "mode"])["n"]
         head = [f"{f} ({int(nper.get((f, 'simulation'), 0))}/{int(nper.get((f, 'csv'), 0))})" for f in families]
         lines += ["| Detector | " + " | ".join(head) + " |", "|---" * (len(families) + 1) + "|"]

@@ -35,7 +35,7 @@ from scart_bench.reports.leaderboard import (
     failures,
     leaderboard_of,
 )
-from scart_bench.reports.reference import DETECTABILITY_ORDER, _families, _family_order, _pooled
+from scart_bench.reports.reference import DETECTABILITY_ORDER, family_order, pooled_tp, tp_by_family
 from scart_bench.reports.results import RunResults, load_run, read_table
 
 #: The counting rule a run must be scored under to stand on this page: protocol v3 (the default).
@@ -265,10 +265,10 @@ def page_lines(runs: list[ZooRun], names: list[str], profile: str, seeds: list[i
 
 def _family_lines(results: list[RunResults], order: list[str]) -> list[str]:
     """TP per detector and attack family, simulation / csv, flights pooled over the seeds."""
-    fam = _families(results)
+    fam = tp_by_family(results)
     if not len(fam):
         return []
-    families = _family_order(fam["value"])
+    families = family_order(fam["value"])
     nper = fam.groupby(["value", "mode"])["n"].max()
     head = [f"{f} ({int(nper.get((f, 'simulation'), 0))}/{int(nper.get((f, 'csv'), 0))})" for f in families]
     lines = ["", "## Per attack family", "",
@@ -285,7 +285,7 @@ def _family_lines(results: list[RunResults], order: list[str]) -> list[str]:
 
 def _bin_lines(results: list[RunResults], order: list[str]) -> list[str]:
     """TP per detector and detectability bin, both modes, flights pooled over the seeds."""
-    bins = _pooled(results, "detectability_bin")
+    bins = pooled_tp(results, "detectability_bin")
     bins = bins[bins["mode"] == "all"]
     if not len(bins):
         return []

@@ -80,11 +80,11 @@ def test_flights_combining_actions_are_counted_by_how_many_they_combine(monkeypa
     pooled = pd.DataFrame({"detector": ["d"] * 4, "mode": ["simulation"] * 4,
                            "value": ["bias", "bias+drift", "drift+sinusoid", "bias+drift+sinusoid"],
                            "n": [10, 4, 6, 5], "detected": [5, 1, 5, 5]})
-    monkeypatch.setattr(reference, "_pooled", lambda runs, dimension: pooled)
-    fam = reference._families([]).set_index("value")
+    monkeypatch.setattr(reference, "pooled_tp", lambda runs, dimension: pooled)
+    fam = reference.tp_by_family([]).set_index("value")
     assert fam.loc["2 actions combined", "n"] == 10 and fam.loc["2 actions combined", "tp_rate"] == 0.6
     assert fam.loc["3 actions combined", "tp_rate"] == 1.0 and fam.loc["bias", "tp_rate"] == 0.5
-    assert reference._family_order(fam.index) == ["bias", "2 actions combined", "3 actions combined"]
+    assert reference.family_order(fam.index) == ["bias", "2 actions combined", "3 actions combined"]
 
 
 def test_a_retrained_configuration_can_change_the_alarm_rule(tmp_path, monkeypatch):
