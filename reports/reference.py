@@ -354,16 +354,21 @@ def _detectability_lines(det: pd.DataFrame) -> list[str]:
     if not len(det):
         return []
     det = det[det["mode"] == "all"]
+    return ["", "## Per detectability bin", "", "TP in window, both modes, flights pooled over the seeds, by how far "
+            "the attack moves the attacked field in standard deviations of that field on validation flights "
+            "(n attacked flights in the header; n/a: the attack changed no value the detectors see against a "
+            "clean reference, e.g. it only dropped messages, or acted before the flight controller in simulation "
+            "mode, where the two views agree by construction):", "", *detectability_table(det, list(PAPER))]
+
+
+def detectability_table(det: pd.DataFrame, detectors: list[str]) -> list[str]:
+    """A markdown table of TP per detector (rows, in the given order) and detectability bin (columns, with
+    their attacked-flight counts) from ``pooled_tp(runs, "detectability_bin")`` rows of one mode."""
     order = [b for b in (*DETECTABILITY_ORDER, "n/a") if b in set(det["value"])]
-    nper = det[det["detector"] == det["detector"].iloc[0]].set_index("value")["n"]
-    lines = ["", "## Per detectability bin", "", "TP in window, both modes, flights pooled over the seeds, by how far "
-             "the attack moves the attacked field in standard deviations of that field on validation flights "
-             "(n attacked flights in the header; n/a: the attack changed no value the detectors see against a "
-             "clean reference, e.g. it only dropped messages, or acted before the flight controller in simulation "
-             "mode, where the two views agree by construction):", "",
-             "| Detector | " + " | ".join(f"{b} ({int(nper.get(b, 0))})" for b in order) + " |",
+    nper = det.groupby("value")["n"].max()
+    lines = ["| Detector | " + " | ".join(f"{b} ({int(nper.get(b, 0))})" for b in order) + " |",
              "|---" * (len(order) + 1) + "|"]
-    for name in PAPER:
+    for name in detectors:
         d = det[det["detector"] == name].set_index("value")["tp_rate"]
         lines.append(f"| {name} | " + " | ".join(_pct(d.get(b, np.nan)) for b in order) + " |")
     return lines

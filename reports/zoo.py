@@ -35,7 +35,7 @@ from scart_bench.reports.leaderboard import (
     failures,
     leaderboard_of,
 )
-from scart_bench.reports.reference import DETECTABILITY_ORDER, family_order, pooled_tp, tp_by_family
+from scart_bench.reports.reference import detectability_table, family_order, pooled_tp, tp_by_family
 from scart_bench.reports.results import RunResults, load_run, read_table
 
 #: The counting rule a run must be scored under to stand on this page: protocol v3 (the default).
@@ -289,18 +289,11 @@ def _bin_lines(results: list[RunResults], order: list[str]) -> list[str]:
     bins = bins[bins["mode"] == "all"]
     if not len(bins):
         return []
-    values = [b for b in (*DETECTABILITY_ORDER, "n/a") if b in set(bins["value"])]
-    nper = bins.groupby("value")["n"].max()
-    lines = ["", "## Per detectability bin", "",
-             "TP in window, both modes, flights pooled over the seeds, by how far the attack moves the attacked "
-             "field in standard deviations of that field on validation flights (n attacked flights in the "
-             "header; n/a: the attack changed no value the detectors see against a clean reference).", "",
-             "| Detector | " + " | ".join(f"{b} ({int(nper.get(b, 0))})" for b in values) + " |",
-             "|---" * (len(values) + 1) + "|"]
-    for det in order:
-        d = bins[bins["detector"] == det].set_index("value")["tp_rate"]
-        lines.append(f"| {det} | " + " | ".join(_pct(d.get(b, np.nan)) for b in values) + " |")
-    return lines
+    return ["", "## Per detectability bin", "",
+            "TP in window, both modes, flights pooled over the seeds, by how far the attack moves the attacked "
+            "field in standard deviations of that field on validation flights (n attacked flights in the "
+            "header; n/a: the attack changed no value the detectors see against a clean reference).", "",
+            *detectability_table(bins, order)]
 
 
 def _cost_lines(cost: pd.DataFrame, order: list[str]) -> list[str]:
