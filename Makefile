@@ -57,7 +57,7 @@ run: setup
 TEST_WORKERS ?= 2
 
 test: setup setup-tf $(PLUGIN)/.installed
-	PYTHONPATH=$(abspath $(PLUGIN)) $(BIN)/pytest -q -n $(TEST_WORKERS) --dist loadfile
+	PYTHONPATH=$(abspath $(PLUGIN)) $(BIN)/pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=30
 
 lint: setup
 	$(BIN)/ruff check .
