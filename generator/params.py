@@ -110,6 +110,11 @@ class SensorParams:
     #: (white noise -0.5), on the ground, motors running, -0.2 to -0.5; ``generate --like`` fits these (docs/like.md)
     accel_noise_cutoff_hz: float = 0.0
     gyro_noise_cutoff_hz: float = 0.0
+    #: where the IMU sits relative to the centre of gravity, m, body frame (FRD): the accelerometer reads the
+    #: specific force there, alpha x r + omega x (omega x r) on top of the centre's (physics.sensors). (0, 0, 0):
+    #: at the centre (the default). Half the ArduCopter fleet's logs show it: their 0.5-5 Hz acc_y follows the
+    #: roll acceleration with 2-12 cm; ``generate --like`` fits it (docs/like.md "The IMU's lever arm")
+    imu_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mag_rate_hz: float = 100.0
     mag_noise: float = 0.0015  # gauss, 1 sigma per sample: the shared SITL logs 0.0009-0.0023 (Gazebo: 0.004)
     # Earth field at the PX4 SITL home (Zurich), NED, gauss
@@ -118,6 +123,12 @@ class SensorParams:
     baro_noise_pa: float = 1.0  # Pa RMS
     #: the same low-pass of the baro's pressure noise at ``baro_rate_hz`` (0: white, the default)
     baro_noise_cutoff_hz: float = 0.0
+    #: the rotors' downwash on the baro, Pa per sample at hover thrust, scaling with the rotors' thrust over the
+    #: hover's (physics.sensors.thrust_scale: ~0.15 at idle on the ground, none with the motors stopped); with it
+    #: ``baro_noise_pa`` is the sensor's own noise (white) and ``baro_noise_cutoff_hz`` colours the downwash only.
+    #: 0: off (the default). The ArduCopter fleet's baro on the ground is quieter and whiter than at hover
+    #: (sample-to-sample x0.5, 0.5-5 Hz power x0.25); ``generate --like`` fits it (docs/like.md)
+    baro_downwash_pa: float = 0.0
     baro_drift_pa: float = 0.6  # Pa, 1 sigma of the slowly varying offset
     gps_rate_hz: float = 10.0
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)

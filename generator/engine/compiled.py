@@ -164,6 +164,8 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "accel_lowpass": _lowpass(sp.accel_noise_cutoff_hz, 1.0 / dt),
         "gyro_lowpass": _lowpass(sp.gyro_noise_cutoff_hz, 1.0 / dt),
         "baro_lowpass": _lowpass(sp.baro_noise_cutoff_hz, sp.baro_rate_hz),
+        "imu_offset": np.r_[np.asarray(sp.imu_offset_m, dtype=float), float(any(sp.imu_offset_m))],
+        "baro_downwash": sp.baro_downwash_pa,
     }
     return K.param_vector(values)
 

@@ -61,6 +61,7 @@ K_ACC_VIB, K_INV_HOVER_ROT = _I["accel_vibration"], _I["inv_hover_rotor"]
 K_TAKEOFF_AFTER_ARM, K_GYRO_VIB = _I["takeoff_after_arm"], _I["gyro_vibration"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
 K_ACC_LP, K_GYRO_LP, K_BARO_LP = _I["accel_lowpass"], _I["gyro_lowpass"], _I["baro_lowpass"]
+K_IMU_OFFSET, K_BARO_DOWNWASH = _I["imu_offset"], _I["baro_downwash"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
 K_ATT_MAG_GAIN, K_DECL, K_F, K_Q, K_GATE2 = _I["att_mag_gain"], _I["decl"], _I["kf_F"], _I["kf_Q"], _I["gate2"]
@@ -356,6 +357,20 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     # IMU: specific force and rates in the body frame, bias random walks
     a0, a1, a2 = s[L.VACC], s[L.VACC + 1], s[L.VACC + 2] - G
     fs = (a0 * R[0] + a1 * R[3] + a2 * R[6], a0 * R[1] + a1 * R[4] + a2 * R[7], a0 * R[2] + a1 * R[5] + a2 * R[8])
+    if p[K_IMU_OFFSET + 3] != 0.0:  # the IMU's lever arm (SensorParams.imu_offset_m; physics.sensors.lever_arm)
+        r0, r1, r2 = p[K_IMU_OFFSET], p[K_IMU_OFFSET + 1], p[K_IMU_OFFSET + 2]
+        w0, w1, w2 = s[L.OMEGA], s[L.OMEGA + 1], s[L.OMEGA + 2]
+        dt = p[K_DT]
+        al0 = (w0 - s[L.PREV_OMEGA]) / dt
+        al1 = (w1 - s[L.PREV_OMEGA + 1]) / dt
+        al2 = (w2 - s[L.PREV_OMEGA + 2]) / dt
+        s[L.PREV_OMEGA], s[L.PREV_OMEGA + 1], s[L.PREV_OMEGA + 2] = w0, w1, w2
+        c0 = w1 * r2 - w2 * r1
+        c1 = w2 * r0 - w0 * r2
+        c2 = w0 * r1 - w1 * r0
+        fs = (fs[0] + (al1 * r2 - al2 * r1 + (w1 * c2 - w2 * c1)),
+              fs[1] + (al2 * r0 - al0 * r2 + (w2 * c0 - w0 * c2)),
+              fs[2] + (al0 * r1 - al1 * r0 + (w0 * c1 - w1 * c0)))
     # motor vibration (white, or low-passed: SensorParams.*_noise_cutoff_hz), scaling with the rotors' mean speed
     # over the hover speed (physics.sensors)
     vib = (s[L.ROTOR] + s[L.ROTOR + 1] + s[L.ROTOR + 2] + s[L.ROTOR + 3]) / 4.0 * p[K_INV_HOVER_ROT]
@@ -387,10 +402,21 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     if due[L.D_BARO, step]:
         alt = p[K_HOME_ALT] - s[L.POS + 2]
         wb = w[k, NZ_BARO]
-        if p[K_BARO_LP + 5] != 0.0:
-            wb = _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
-        s[L.PRESSURE] = (SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET]
-                         + p[K_BARO_NOISE] * wb)
+        if p[K_BARO_DOWNWASH] > 0.0:  # white sensor noise and the rotors' downwash (physics.sensors.Sensors.baro)
+            ih = p[K_INV_HOVER_ROT]
+            r0, r1, r2, r3 = s[L.ROTOR], s[L.ROTOR + 1], s[L.ROTOR + 2], s[L.ROTOR + 3]
+            amp = p[K_BARO_DOWNWASH] * ((r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3) / 4.0 * (ih * ih))
+            own = p[K_BARO_NOISE]
+            if p[K_BARO_LP + 5] != 0.0:
+                nb = own * wb + amp * _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
+            else:
+                nb = math.sqrt(own * own + amp * amp) * wb
+            s[L.PRESSURE] = SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET] + nb
+        else:
+            if p[K_BARO_LP + 5] != 0.0:
+                wb = _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
+            s[L.PRESSURE] = (SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET]
+                             + p[K_BARO_NOISE] * wb)
         s[L.BARO_TEMP] = s[L.SENSOR_TEMP] - 0.0065 * (-s[L.POS + 2]) + 0.05 * w[k, NZ_BARO + 1]
     if due[L.D_GPS, step]:
         old = (step + 1) % delay if step + 1 >= delay else 0

@@ -193,3 +193,13 @@ FIELDS.update({"pilot_rng": (PILOT_RNG, 1), "pilot_gain": (PILOT_GAIN, 1), "pilo
 PARAMS += ("pilot",)
 PARAM_INDEX["pilot"] = N_PARAMS
 N_PARAMS += 9
+
+# -- the IMU's lever arm (SensorParams.imu_offset_m; physics.sensors.lever_arm): after every column above ------------
+PREV_OMEGA = WIDTH  # 3, rad/s body: the body rates at the last IMU sample (the angular acceleration's difference)
+WIDTH = PREV_OMEGA + 3
+FIELDS.update({"prev_omega": (PREV_OMEGA, 3)})
+#: imu_offset: r (3, m body) and on (1: an offset is set); baro_downwash: Pa per sample at hover thrust (0: off)
+PARAMS += ("imu_offset", "baro_downwash")
+PARAM_INDEX["imu_offset"] = N_PARAMS
+PARAM_INDEX["baro_downwash"] = N_PARAMS + 4
+N_PARAMS += 5

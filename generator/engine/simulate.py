@@ -50,7 +50,7 @@ from scart_bench.generator.params import (  # noqa: F401 (re-exported)
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NOISE_DIM, NOISE_FIELDS, NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat
-from scart_bench.generator.physics.sensors import vibration_scale
+from scart_bench.generator.physics.sensors import thrust_scale, vibration_scale
 from scart_bench.generator.physics.vehicle import Vehicle
 from scart_bench.generator.telemetry.schedule import (
     SENSOR_TOPICS,
@@ -242,7 +242,7 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
                 sens_msgs["sensor_mag"] = mag
         if due_sens["sensor_baro"][step]:
             prev_baro = pressure, baro_temp
-            pressure, baro_temp = sensors.baro(ss, vs.pos, w[:, nz["baro"]])
+            pressure, baro_temp = sensors.baro(ss, vs.pos, w[:, nz["baro"]], thrust_scale(vs.rotor_speed, hover_rotor))
             if env is not None and env.sensor_lost:
                 pressure = instance_value(env, "baro", pressure, prev_baro[0], scale=-11.8)  # Pa per m up
                 baro_temp = instance_value(env, "baro_temp", baro_temp, prev_baro[1])

@@ -104,6 +104,10 @@ class LogMeasure:
     mag_field_ned: tuple[float, float, float] | None = None
     mission: list[tracks.Waypoint] | None = None
     mission_rows: list | None = None  # the log's own mission items (ArduPilot CMD), WPL rows
+    #: the IMU's offset from the centre of gravity (m, body frame; :func:`lever_arm_figures`), None: not measured
+    #: or not meaningful (then ``imu_offset_fit`` says why), and the correlation of its fit
+    imu_offset: tuple[float, float, float] | None = None
+    imu_offset_fit: float = math.nan
     mission_source: str = ""
     track_error_m: float = math.nan  # the recovered mission's largest distance from the flown track
     notes: list[str] = field(default_factory=list)
@@ -268,6 +272,7 @@ def measure_log(path: str | Path, base_sensors=None, vehicle=None) -> LogMeasure
     if track is not None:
         _flight_shape(m, track, phases, tables)
     _noise(m, tables, phases)
+    _lever_arm(m, tables, phases)
     _wind(m, tables, phases, vehicle)
     _rates(m, tables, gaps)
     _gps(m, tables)
@@ -382,6 +387,94 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
     if missing:
         m.notes.append(f"no {', '.join(missing)} in the log: {'that' if len(missing) == 1 else 'their'} "
                        "noise default kept")
+
+
+#: the lever arm's band (Hz): the rocking, above the flight's manoeuvres and below the frame's vibration
+LEVER_BAND_HZ = (0.5, 5.0)
+#: least airborne time (s) and correlation of the fitted lever arm's acceleration with the logged one for a log's
+#: fit to count, and the largest offset (m) taken for one (a larger one is something else following the rates)
+LEVER_MIN_S = 10.0
+LEVER_MIN_CORR = 0.3
+LEVER_MAX_M = 0.3
+
+
+def lever_arm_figures(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, hz: float = NOISE_HZ
+                      ) -> tuple[np.ndarray, float, float]:
+    """(r (3,) m in the body frame, correlation, seconds used): the IMU's offset from the centre of gravity that
+    best explains the band-passed (:data:`LEVER_BAND_HZ`) horizontal accelerometer (``acc`` (n, 3), m/s^2) by
+    the angular acceleration (the band-passed ``gyro`` (n, 3) rad/s, differentiated): acc_x = alpha_y r_z -
+    alpha_z r_y, acc_y = alpha_z r_x - alpha_x r_z (alpha x r; the centripetal part is second order at these
+    rates), least squares over both axes; the correlation is of that fit with the logged x/y. ``t`` (n,) s,
+    evenly sampled at ``hz`` and without gaps; acc_z is left out (the throttle moves it)."""
+    from scipy import signal
+
+    if len(t) < 3 * hz:
+        return np.zeros(3), math.nan, 0.0
+    b, a = signal.butter(2, LEVER_BAND_HZ, btype="band", fs=hz)
+    alpha = np.gradient(signal.filtfilt(b, a, gyro, axis=0), 1.0 / hz, axis=0)
+    r, corr = _lever_fit(signal.filtfilt(b, a, acc, axis=0), alpha)
+    return r, corr, len(t) / hz
+
+
+def _lever_arm(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
+    """The log's IMU offset (:func:`lever_arm_figures`) on its airborne rows, each stretch between logging gaps
+    band-passed on its own; a fit that explains little (correlation under :data:`LEVER_MIN_CORR`) is not kept."""
+    imu = QUANTITIES["imu"]
+    cols = [_series(tables, imu[f"{a}{q}"], densest=True) for q in ("acc", "gyro") for a in AXES]
+    if any(c is None for c in cols):
+        m.notes.append("IMU lever arm: no accelerometer and gyro on all three axes in the log: offset 0 kept")
+        return
+    if phases is None:
+        return  # said with the phases
+    t_ph = phases["Timestamp"].to_numpy(np.int64) / 1e6
+    air = (phases["phase"].to_numpy(object) != "landed") & (phases["altitude_m"].to_numpy(float) > 1.0)
+    t0 = cols[0][1]
+    hz = min(NOISE_HZ, 1.05 / float(np.median(np.diff(t0)))) if len(t0) > 1 else NOISE_HZ
+    cut = np.r_[t0[0] - 1.0, t0[np.flatnonzero(np.diff(t0) > 0.5)], t0[-1]]  # stretches between logging gaps
+    parts: list[tuple[np.ndarray, np.ndarray]] = []
+    for a, b in _segments(t_ph, air):
+        for lo, hi in zip(cut[:-1], cut[1:]):
+            g0, g1 = max(a, lo) + EDGE_S, min(b, hi) - EDGE_S
+            if g1 - g0 < 5.0:
+                continue
+            grid = np.arange(g0, g1, 1.0 / hz)
+            xs = np.column_stack([np.interp(grid, c[1], c[2]) for c in cols])
+            parts.append((grid, xs))
+    if not parts:
+        return
+    # band-pass each stretch alone, then one least-squares fit over all of them
+    from scipy import signal
+
+    bb, ba = signal.butter(2, LEVER_BAND_HZ, btype="band", fs=hz)
+    ok = [(g, x) for g, x in parts if len(g) > 3 * hz]
+    if not ok:
+        m.notes.append("IMU lever arm: no airborne stretch of 5 s between logging gaps: offset 0 kept")
+        return
+    acc = np.vstack([signal.filtfilt(bb, ba, x[:, 0:3], axis=0) for _, x in ok])
+    alpha = np.vstack([np.gradient(signal.filtfilt(bb, ba, x[:, 3:6], axis=0), 1.0 / hz, axis=0) for _, x in ok])
+    seconds = sum(len(g) for g, _ in ok) / hz
+    if seconds < LEVER_MIN_S:
+        m.notes.append(f"IMU lever arm: {seconds:.0f} s airborne, {LEVER_MIN_S:g} s needed: offset 0 kept")
+        return
+    r, corr = _lever_fit(acc, alpha)
+    m.imu_offset_fit = corr
+    if not (corr >= LEVER_MIN_CORR and float(np.max(np.abs(r))) <= LEVER_MAX_M):
+        m.notes.append(f"IMU lever arm: the accelerometer does not follow the angular acceleration (correlation "
+                       f"{corr:.2f}, r {', '.join(f'{v:+.3f}' for v in r)} m): offset 0 kept")
+        return
+    m.imu_offset = (float(r[0]), float(r[1]), float(r[2]))
+
+
+def _lever_fit(acc: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`lever_arm_figures`' least squares on already band-passed accelerometer and angular acceleration."""
+    zero = np.zeros(len(acc))
+    design = np.vstack([np.column_stack([zero, -alpha[:, 2], alpha[:, 1]]),
+                        np.column_stack([alpha[:, 2], zero, -alpha[:, 0]])])
+    y = np.r_[acc[:, 0], acc[:, 1]]
+    r, *_ = np.linalg.lstsq(design, y, rcond=None)
+    pred = design @ r
+    den = float(np.sqrt(np.dot(pred, pred) * np.dot(y, y)))
+    return r, (float(np.dot(pred, y) / den) if den > 0 else math.nan)
 
 
 def _wind(m: LogMeasure, tables, phases: pd.DataFrame | None, vehicle) -> None:
@@ -640,7 +733,7 @@ FALLBACK = {"accel_vibration": (("accel_noise_density", None, ("acc_x", "acc_y")
 COLOUR_PLAN = (
     ("accel_noise_cutoff_hz", ("accel_vibration",), ("acc_x", "acc_y", "acc_z"), None, NOISE_HZ),
     ("gyro_noise_cutoff_hz", ("gyro_vibration",), ("gyro_x", "gyro_y", "gyro_z"), None, NOISE_HZ),
-    ("baro_noise_cutoff_hz", ("baro_noise_pa",), ("baro_alt",), "baro_rate_hz", BARO_HZ),
+    ("baro_noise_cutoff_hz", ("baro_noise_pa", "baro_downwash_pa"), ("baro_alt",), "baro_rate_hz", BARO_HZ),
 )
 #: a lag-1 autocorrelation of the differences at or below this is white noise (cutoff 0; white: -0.5)
 WHITE_DLAG1 = -0.45
@@ -694,6 +787,47 @@ def white_factor(cutoff_hz: float, rate_hz: float, every: int) -> float:
     return math.sqrt(max(1.0 - lowpass_lag1(cutoff_hz, rate_hz, every)[0], 1e-6))
 
 
+def pa_per_m() -> float:
+    """The static pressure's fall per metre up at the generator's home altitude (Pa/m)."""
+    from scart_bench.dataset.schema import HOME_ALT
+    from scart_bench.generator.geo import pressure_at
+
+    return float(pressure_at(HOME_ALT) - pressure_at(HOME_ALT + 1.0))
+
+
+#: the downwash is fitted when the logs' baro on the ground is at most this fraction of the hover's sample-to-sample
+#: noise (a quieter ground: the rotors' air stirs the baro in flight)
+DOWNWASH_GROUND_RATIO = 0.8
+
+
+def _with_downwash(s, plan: list, figures: dict[str, Figure], out: dict, lines: list[str]) -> tuple[object, list, dict]:
+    """(sensors, plan, starting levels): where the logs' baro is quieter on the ground than at hover
+    (:data:`DOWNWASH_GROUND_RATIO`), its noise split in two: ``baro_noise_pa`` the ground's sample-to-sample
+    noise (set here, white: the sensor's own) and ``baro_downwash_pa`` calibrated for the hover's in place of the
+    ``baro_noise_pa`` of ``plan``, starting from the rest in squares; its comment goes to ``out``."""
+    i = next((k for k, item in enumerate(plan) if item[0] == "baro_noise_pa"), None)
+    if i is None or not hasattr(s, "baro_downwash_pa"):
+        return s, plan, {}
+    ground, hover = figures.get("white_ground_baro_alt"), figures.get("white_hover_baro_alt")
+    if ground is None or not ground.n or not math.isfinite(ground.value) or not ground.value > 0:
+        lines.append("baro downwash: no log's baro measured on the ground before take-off: one baro noise for "
+                     "ground and air kept")
+        return s, plan, {}
+    ratio = ground.value / hover.value
+    if ratio > DOWNWASH_GROUND_RATIO:
+        lines.append(f"baro downwash: the logs' baro on the ground is {ratio:.2f}x the hover's sample-to-sample noise "
+                     f"(over {DOWNWASH_GROUND_RATIO:g}x): one baro noise for ground and air kept")
+        return s, plan, {}
+    k = pa_per_m()
+    own = round(ground.value * k, 6)
+    out["baro_noise_pa"] = (own, f"the sensor's own noise, white: sample-to-sample baro altitude on the ground before "
+                                 f"take-off {ground.value:.4g} m x {k:.2f} Pa/m (median over {ground.n} logs; "
+                                 f"{ratio:.2f}x the hover's {hover.value:.4g} m: baro_downwash_pa is the rest)")
+    start = {"baro_downwash_pa": math.sqrt(max(hover.value ** 2 - ground.value ** 2, (0.3 * hover.value) ** 2)) * k}
+    plan = [*plan[:i], ("baro_downwash_pa", None, plan[i][2]), *plan[i + 1:]]
+    return dataclasses.replace(s, baro_noise_pa=own), plan, start
+
+
 def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tuple[dict[str, tuple[object, str]], list[str]]:
     """SensorParams noise fields set so that generated hover flights measure like the fleet, in level and colour.
 
@@ -722,6 +856,7 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
         plan.extend(item for item in group if hasattr(s, item[0]) and all(k in want for k in item[2]))
     if not plan:
         return out, ["no hover noise measured in any log: sensor noise defaults kept"]
+    s, plan, start = _with_downwash(s, plan, figures, out, lines)
     colour_want = {k[len("dlag1_hover_"):]: f for k, f in figures.items() if k.startswith("dlag1_hover_") and f.n
                    and math.isfinite(f.value)}
     fitted = {f for f, _, _ in plan}
@@ -739,7 +874,7 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
         v = getattr(s, field_name)
         return float(v[idx] if idx is not None else v)
 
-    level = {(f, i): value(f, i) for f, i, _ in plan}
+    level = {(f, i): start.get(f, value(f, i)) for f, i, _ in plan}
     floor = {key: 0.1 * v for key, v in level.items()}  # below a tenth of the base's, the figure is the flight's motion
     history: dict[tuple, list[tuple[float, float]]] = {key: [] for key in level}
     # the theory's cutoffs to start from, each level scaled to keep its sample-to-sample noise
@@ -838,6 +973,24 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
     return out, lines
 
 
+def fit_imu_offset(logs: list[LogMeasure], sensors, lines: list[str]) -> dict[str, tuple[object, str]]:
+    """``imu_offset_m``: per axis the median of the logs' fitted offsets (:func:`_lever_arm`, the logs whose
+    accelerometer follows their angular acceleration); none (a line in ``lines``) when no log's does."""
+    if not hasattr(sensors, "imu_offset_m"):
+        return {}
+    fits = [m for m in logs if m.imu_offset is not None]
+    if not fits:
+        lines.append(f"IMU lever arm: no log's accelerometer follows its angular acceleration ({len(logs)} logs): "
+                     "offset 0 kept")
+        return {}
+    r = [round(float(np.median([m.imu_offset[a] for m in fits])), 4) for a in range(3)]
+    corr = [m.imu_offset_fit for m in fits]
+    return {"imu_offset_m": (r, f"IMU offset from the centre of gravity (m, FRD): the 0.5-5 Hz horizontal accelerometer "
+                                f"on the angular acceleration (alpha x r), median over {len(fits)} of {len(logs)} logs "
+                                f"(correlation {min(corr):.2f}-{max(corr):.2f}; r_z "
+                                f"{min(m.imu_offset[2] for m in fits):+.3f} to {max(m.imu_offset[2] for m in fits):+.3f})")}
+
+
 def _fmt(v: float) -> str:
     return f"{v:.3g}" if math.isfinite(v) else "n/a"
 
@@ -864,6 +1017,11 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         values["mission"].update(pilot)
         lines.extend(said)
         config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, **{k: v for k, (v, _) in pilot.items()}))
+    # the IMU's lever arm: its acceleration is part of what the noise calibration measures
+    values["sensors"].update(fit_imu_offset(logs, config.sensors, lines))
+    if "imu_offset_m" in values["sensors"]:
+        config = dataclasses.replace(config, sensors=dataclasses.replace(
+            config.sensors, imu_offset_m=tuple(values["sensors"]["imu_offset_m"][0])))
     # sensor noise, by flying calibration flights
     if calibrate:
         noise, said = calibrate_noise(config, figs)

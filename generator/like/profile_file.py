@@ -105,6 +105,20 @@ def _check_value(path, key: str, value, default):
     return value
 
 
+#: fields with a range of their own beyond their default's type: key -> (least, most, what it is)
+RANGES = {"sensors.imu_offset_m": (-1.0, 1.0, "m from the centre of gravity, body frame")}
+
+
+def _check_range(path, key: str, value) -> None:
+    """ProfileFileError when a field of :data:`RANGES` (each element of a list) is out of its range."""
+    if key not in RANGES:
+        return
+    lo, hi, what = RANGES[key]
+    for i, v in enumerate(value if isinstance(value, tuple) else (value,)):
+        if not lo <= v <= hi:
+            raise _fail(path, f"{key}[{i}]" if isinstance(value, tuple) else key, f"a number in [{lo:g}, {hi:g}] ({what})", v)
+
+
 def _tuples(value):
     """TOML lists as tuples, nested ones too (``families = [["survey", 0.5], ...]``)."""
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
@@ -165,6 +179,7 @@ def read_profile(path: str | Path) -> ProfileFile:
             if key not in names:
                 raise _fail(path, f"{section}.{key}", f"a field of {cls.__name__} ({', '.join(sorted(names))})", key)
             edits[key] = _check_value(path, f"{section}.{key}", value, getattr(current, key))
+            _check_range(path, f"{section}.{key}", edits[key])
         config = dataclasses.replace(config, **{CONFIG_ATTR[section]: dataclasses.replace(current, **edits)})
     if missions:
         from scart_bench.generator.flight_software.mission_files import with_missions

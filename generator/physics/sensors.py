@@ -57,6 +57,8 @@ class SensorState:
     #: (2, N, 6) state of the IMU noise's low-pass (accelerometer x/y/z, gyro x/y/z; SensorParams.*_noise_cutoff_hz)
     imu_lowpass: np.ndarray | None = None
     baro_lowpass: np.ndarray | None = None  # (2, N) the baro noise's
+    #: (N, 3) rad/s, the body rates of the IMU's last sample: its angular acceleration (SensorParams.imu_offset_m)
+    prev_omega: np.ndarray | None = None
 
 
 def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.ndarray]:
@@ -127,6 +129,25 @@ def vibration_scale(rotor_speed: np.ndarray, hover_rotor_speed: float) -> np.nda
     return np.maximum(np.minimum(r / VIBRATION_FULL_FROM, 1.0), r)
 
 
+def thrust_scale(rotor_speed: np.ndarray, hover_rotor_speed: float) -> np.ndarray:
+    """(N,) the rotors' thrust over the hover thrust (mean of the squared speeds over the hover speed's square):
+    how hard the downwash stirs the baro (SensorParams.baro_downwash_pa); about 0.15 at idle, 0 stopped."""
+    return np.mean(np.asarray(rotor_speed) ** 2, axis=1) * (1.0 / (hover_rotor_speed * hover_rotor_speed))
+
+
+def lever_arm(omega: np.ndarray, alpha: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(N, 3) what an accelerometer at ``r`` (m, body frame) reads beyond the centre of gravity's specific force:
+    alpha x r + omega x (omega x r), the body rates ``omega`` (rad/s) and their rate of change ``alpha`` (rad/s^2).
+    The compiled kernel has the same lines."""
+    w0, w1, w2 = omega[:, 0], omega[:, 1], omega[:, 2]
+    c0 = w1 * r[2] - w2 * r[1]
+    c1 = w2 * r[0] - w0 * r[2]
+    c2 = w0 * r[1] - w1 * r[0]
+    return np.column_stack([alpha[:, 1] * r[2] - alpha[:, 2] * r[1] + (w1 * c2 - w2 * c1),
+                            alpha[:, 2] * r[0] - alpha[:, 0] * r[2] + (w2 * c0 - w0 * c2),
+                            alpha[:, 0] * r[1] - alpha[:, 1] * r[0] + (w0 * c1 - w1 * c0)])
+
+
 class Sensors:
     """All sensors of a batch of vehicles; call the sample methods at their own rates."""
 
@@ -165,9 +186,17 @@ class Sensors:
         motors stopped. With ``accel_noise_cutoff_hz`` / ``gyro_noise_cutoff_hz`` the vibration is low-passed
         (:func:`lowpass_coefficients`: the same sigma per sample, coloured; the same draws, so no new random
         numbers) and the sensor's own noise stays white: a frame's shaking and rocking is coloured, the
-        firmware-filtered sensor noise at a log's 50 Hz is not (the ArduCopter fleet's gyro on the ground)."""
+        firmware-filtered sensor noise at a log's 50 Hz is not (the ArduCopter fleet's gyro on the ground).
+
+        With ``imu_offset_m`` the accelerometer sits that far from the centre of gravity and reads the rocking's
+        :func:`lever_arm` too, the angular acceleration being the change of ``omega`` since the last call."""
         p, dt = self.params, self.dt
         fs = rotate_t(R, accel_ned - np.array([0.0, 0.0, GRAVITY]))
+        if any(p.imu_offset_m):
+            if st.prev_omega is None:
+                st.prev_omega = np.zeros_like(omega)
+            fs = fs + lever_arm(omega, (omega - st.prev_omega) / dt, np.asarray(p.imu_offset_m, dtype=float))
+            st.prev_omega = np.array(omega, dtype=float)
         a_ab = np.exp(-dt / p.accel_bias_tau)
         a_gb = np.exp(-dt / p.gyro_bias_tau)
         st.accel_bias = a_ab * st.accel_bias + p.accel_bias_random_walk * np.sqrt(dt) * noise[:, 6:9]
@@ -200,9 +229,25 @@ class Sensors:
             field = field + disturbance
         return rotate_t(R, field) + self.params.mag_noise * noise
 
-    def baro(self, st: SensorState, pos: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Static pressure (Pa) and temperature (degC); the pressure noise low-passed with ``baro_noise_cutoff_hz``."""
+    def baro(self, st: SensorState, pos: np.ndarray, noise: np.ndarray, thrust: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """Static pressure (Pa) and temperature (degC); the pressure noise low-passed with ``baro_noise_cutoff_hz``.
+
+        With ``baro_downwash_pa``: the sensor's own noise ``baro_noise_pa`` white and the rotors' downwash on top,
+        ``baro_downwash_pa`` times ``thrust`` (N,) (:func:`thrust_scale`; None: motors stopped), low-passed (the
+        same draws, as the IMU's vibration)."""
         w = noise[:, 0]
+        if self.params.baro_downwash_pa > 0.0:
+            own = self.params.baro_noise_pa
+            amp = 0.0 if thrust is None else self.params.baro_downwash_pa * np.asarray(thrust)
+            if self.baro_lowpass is not None:  # the downwash low-passed, the sensor's own noise white (the same draws)
+                if st.baro_lowpass is None:
+                    st.baro_lowpass = np.zeros((2, len(w)))
+                noise_pa = own * w + amp * lowpass_step(self.baro_lowpass, st.baro_lowpass, w)
+            else:  # white: one draw of the combined sigma
+                noise_pa = np.sqrt(own * own + amp * amp) * w
+            press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + noise_pa
+            return press, st.temperature - 0.0065 * (-pos[:, 2]) + 0.05 * noise[:, 1]
         if self.baro_lowpass is not None:
             if st.baro_lowpass is None:
                 st.baro_lowpass = np.zeros((2, len(w)))

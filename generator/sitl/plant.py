@@ -36,7 +36,7 @@ from scart_bench.generator.params import (
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat, quat_to_rot
-from scart_bench.generator.physics.sensors import Sensors, vibration_scale
+from scart_bench.generator.physics.sensors import Sensors, thrust_scale, vibration_scale
 from scart_bench.generator.physics.vehicle import Vehicle, VehicleState, Wind
 from scart_bench.generator.telemetry.schedule import (  # is_due: re-exported for the sitl
     FCSnapshot,
@@ -149,7 +149,7 @@ class Plant:
         if mag_due:
             self.mag = self.sensors.mag(R_true, w[:, 12:15], env.magnetic_field(vs.pos) if env is not None else None)
         if baro_due:
-            self.pressure, self.baro_temp = self.sensors.baro(ss, vs.pos, w[:, 15:17])
+            self.pressure, self.baro_temp = self.sensors.baro(ss, vs.pos, w[:, 15:17], thrust_scale(vs.rotor_speed, hover_rotor))
         if gps_due:
             self.gps = self.sensors.gps(ss, k, w[:, 17:26], self.gps_dt, env)
         ok = self._sensor_point(sensor_hook, mag_due, baro_due, gps_due) if sensor_hook is not None else {}
