@@ -217,6 +217,13 @@ class _Group:
         self.action_targets = [(a, topic) for a in self.actions for topic in a.fields]
         self.random_targets = [(a, topic) for a, topic in self.action_targets if a.random]
         self._ctx: _Context | None = None
+        #: the topics the start and the end conditions read (a message of one can change them)
+        self._start_topics = set().union(*(c.topics() for c in self.start_conds))
+        self._end_topics = set().union(*(c.topics() for c in self.end_conds))
+        #: csv replay (AttackLayer.plan_ticks): updates before this time (µs) change nothing, while no
+        #: group has changed state since (the layer's epoch) and the conditions that count read no topic
+        self._quiet_until = -1
+        self._quiet_epoch = -1
         self.origin_cache: tuple[np.ndarray, tuple] | None = None  # see _Context.fixed_origin  # made on first use (the layer's History comes after its groups)
 
     def stream(self, action: Action, topic: str, dim: int) -> NoiseStream:
@@ -255,10 +262,17 @@ class _Group:
 
     def update(self, t_us: int) -> _Context:
         """Evaluate the callback; log transitions."""
+        if t_us < self._quiet_until and self._quiet_epoch == self.layer._epoch:
+            return self.context(t_us)  # a change point further on: this update would change nothing
         ctx = self.context(t_us)
         self._settled = True  # until _transitions changes something
         if self._vanilla:
-            return self._update_vanilla(ctx, t_us)
+            epoch = self.layer._epoch
+            self._update_vanilla(ctx, t_us)
+            if self.layer._ticks is not None and self.layer._epoch == epoch:
+                self._plan_quiet(t_us)
+                ctx = self.context(t_us)  # first_change moved its time
+            return ctx
         start, end = self._conditions(ctx)
         can_start = self.windows_used < self.max_windows
         new_active = np.asarray(self.callback(ctx, start, end, self.active, can_start), dtype=bool)
@@ -296,6 +310,34 @@ class _Group:
         can_start = self.windows_used < self.max_windows
         self._transitions(np.where(active, ~end, start & can_start), t_us)
         return ctx
+
+    def _plan_quiet(self, t_us: int, span: int = 512) -> None:
+        """After an update at ``t_us`` that changed nothing: the time of the next of the replay's
+        calls (AttackLayer.plan_ticks) at which an update could change this group, looking ``span``
+        calls ahead, when what its conditions read is time and state only (no message can change
+        them). The updates before it are left out: the same as making them (the same comparisons as
+        :meth:`first_change`); any group's transition (the layer's epoch) ends the span."""
+        if self._dead:
+            return
+        ticks = self.layer._ticks
+        lo = int(np.searchsorted(ticks, t_us, side="right"))
+        part = ticks[lo:lo + span]
+        if not len(part):
+            return
+        k = self.first_change(part)
+        until = int(part[k]) if k < len(part) else (
+            int(ticks[lo + span]) if lo + span < len(ticks) else np.iinfo(np.int64).max)
+        # a message of a topic the conditions that count read: the update at its time is made
+        topics = (self._start_topics if not self.all_active else set()) | (self._end_topics if self.any_active else set())
+        for topic in topics:
+            arrive = self.layer._arrivals.get(topic)
+            if arrive is None:
+                continue  # not in the replay: no message of it arrives
+            j = int(np.searchsorted(arrive, t_us, side="right"))
+            if j < len(arrive):
+                until = min(until, int(arrive[j]))
+        self._quiet_until = until
+        self._quiet_epoch = self.layer._epoch
 
     def first_change(self, ticks: np.ndarray) -> int:
         """Index of the first of ``ticks`` (µs, ascending, after the last call) at which ``update``
@@ -349,6 +391,8 @@ class _Group:
         began = new_active & ~self.active
         ended = self.active & ~new_active
         self._settled = self._settled and not (began.any() or ended.any())
+        if not self._settled:
+            self.layer._epoch += 1  # a state other groups' conditions may read, and this group's own
         if began.any():
             self.start_us[began] = t_us
             self.windows_used[began] += 1
@@ -422,6 +466,21 @@ class AttackLayer:
         # the simulator calls a point when a group acts there or a listener needs its messages
         self.points = self.points | {p for p in ("link", "sensor", "command") if self.listened & set(point_topics(p))}
         self.final_us: int | None = None
+        #: csv replay: the times of every call to come, ascending (plan_ticks); None: not known
+        self._ticks: np.ndarray | None = None
+        self._arrivals: dict[str, np.ndarray] = {}
+        #: group transitions so far (a group's quiet span, _Group._plan_quiet, holds within one epoch)
+        self._epoch = 0
+        self._all_kept = np.ones(self.n, dtype=bool)
+        self._all_kept.flags.writeable = False
+
+    def plan_ticks(self, ticks: np.ndarray, arrivals: dict[str, np.ndarray]) -> None:
+        """csv mode: the times (µs, ascending) of the calls the replay may make, and per topic handed
+        to the layer the times (ascending, distinct) of the calls that carry one of its messages.
+        A group then skips the updates before its next change point (the next time its conditions
+        can change, or a message they read arrives), which change nothing."""
+        self._ticks = np.asarray(ticks, dtype=np.int64)
+        self._arrivals = {t: np.asarray(v, dtype=np.int64) for t, v in arrivals.items()}
 
     def fields(self, topic: str) -> tuple[str, ...]:
         if topic not in self._fields:
@@ -468,7 +527,10 @@ class AttackLayer:
             if topic in self.listened:
                 self._fields.setdefault(topic, self.fields(topic))
                 self.history.append(topic, t_us, vals)
-        out = {t: (v, np.ones(self.n, dtype=bool)) for t, v in messages.items()}
+        if self._ticks is None:
+            out = {t: (v, np.ones(self.n, dtype=bool)) for t, v in messages.items()}
+        else:  # csv replay: it only reads them (an action copies before it changes one, below)
+            out = {t: (v, self._all_kept) for t, v in messages.items()}
         done = False
         for g in self._live:
             if point is not None and point not in g.points:
@@ -534,7 +596,8 @@ class AttackLayer:
             groups.append(g)
         for lo in range(0, len(ticks), chunk):
             part = ticks[lo:lo + chunk]
-            first = min((g.first_change(part) for g in groups), default=len(part))
+            first = min((g.first_change(part) if g._quiet_epoch != self._epoch or part[0] >= g._quiet_until
+                         else int(np.searchsorted(part, g._quiet_until)) for g in groups), default=len(part))
             if first < len(part):
                 return lo + first
         return len(ticks)

@@ -57,6 +57,7 @@ def replay(layer: AttackLayer, times: dict[str, np.ndarray], values: dict[str, n
         return
     ticks = np.unique(np.concatenate([np.asarray(times[t], dtype=np.int64) for t in topics]))
     last = {t: _last_per_time(np.asarray(times[t], dtype=np.int64)) for t in topics}
+    layer.plan_ticks(ticks, {t: last[t][0] for t in topics})  # every call below is at one of the ticks
     pos = 0  # next tick not yet replayed
     while True:
         origin_open = layer.origin_open
