@@ -120,7 +120,7 @@ def csv_flights(writer: DatasetWriter, configs: list[list[Scenario]], sources: l
     batch numbers (see :func:`simulation_flights`); ``sources`` must then still be the full list.
     ``advance`` is told ``("csv", flights)`` after each batch."""
     skipped = [config_id(c) for c in configs if not csv_applicable(c)]
-    if skipped and batches is None:
+    if skipped and (batches is None or 0 in batches):
         say(f"csv mode: no copy of {len(skipped)} configuration(s) with no link scenario (sensor, command, "
             f"environment, vehicle), which a recording cannot replay: {', '.join(skipped[:5])}"
             + (" ..." if len(skipped) > 5 else ""))
@@ -155,17 +155,26 @@ def attack_flights(writer: DatasetWriter, profile, normal_sources: list[tuple[st
     sources, so the files are the same as one after the other); its manifest rows follow the
     simulation flights', as before."""
     configs = load_configurations(grid_path(profile.scenario_grid))
-    side = _CsvProcess.start(writer, profile, normal_sources, config_dict, say, stds, advance)
+    # csv mode in up to CSV_PROCESSES processes, each a run of whole batches (rows in batch order)
+    nb = batch_count(sum(map(csv_applicable, configs)), profile.batch_size)
+    cut = [round(nb * k / max(1, min(CSV_PROCESSES, nb))) for k in range(max(1, min(CSV_PROCESSES, nb)) + 1)]
+    sides = [_CsvProcess.start(writer, profile, normal_sources, config_dict, say, stds, advance,
+                               range(lo, hi) if len(cut) > 2 else None) for lo, hi in zip(cut, cut[1:])]
+    sides = [s for s in sides if s is not None]
     try:
         simulation_flights(writer, configs, seed, cfg, config_dict, profile.batch_size, say, stds, advance=advance)
+        if not sides:
+            csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds, advance=advance)
+        for side in sides:
+            writer.add_written(side.rows())
     except BaseException:
-        if side is not None:
+        for side in sides:  # a failed one's partner writes nothing more either
             side.stop()
         raise
-    if side is None:
-        csv_flights(writer, configs, normal_sources, config_dict, profile.batch_size, say, stds, advance=advance)
-    else:
-        writer.add_written(side.rows())
+
+
+#: processes csv mode runs in beside the simulation-mode flights (issue 51: one was the long pole)
+CSV_PROCESSES = 2
 
 
 class RowWriter:
@@ -187,7 +196,7 @@ class RowWriter:
 
 
 def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, sources, config_dict: dict,
-              batch_size: int, stds) -> None:
+              batch_size: int, stds, batches: range | None = None) -> None:
     """Entry of the csv-mode process: replay every configuration, write the flights, send the rows."""
     from scart_bench.dataset import exit_with_parent
 
@@ -196,7 +205,7 @@ def _csv_main(conn, parent: int, out: Path, fmt: str, layout: str, grid: str, so
         w = RowWriter(out, fmt, layout)
         csv_flights(w, load_configurations(grid_path(grid)), sources, config_dict, batch_size,
                     lambda msg: conn.send(("say", msg)), stds,
-                    advance=lambda part, n: conn.send(("progress", (part, n))))
+                    batches=batches, advance=lambda part, n: conn.send(("progress", (part, n))))
         conn.send(("rows", w.rows))
     except BaseException as exc:  # noqa: BLE001 - handed to the parent, which raises it
         try:
@@ -223,7 +232,8 @@ class _CsvProcess:
 
     @classmethod
     def start(cls, writer: DatasetWriter, profile, sources, config_dict: dict, say: Callable[[str], None],
-              stds, advance: Callable[[str, int], None] | None = None) -> _CsvProcess | None:
+              stds, advance: Callable[[str, int], None] | None = None, batches: range | None = None
+              ) -> _CsvProcess | None:
         if getattr(writer, "_pool", None) is None:  # no worker process: stay in this one
             return None
         import multiprocessing
@@ -233,7 +243,8 @@ class _CsvProcess:
         recv, send = ctx.Pipe(duplex=False)
         proc = ctx.Process(target=_csv_main, name="scart-bench-csv-mode", daemon=True,
                            args=(send, os.getpid(), writer.out, writer.fmt, writer.layout,
-                                 str(profile.scenario_grid), sources, config_dict, profile.batch_size, stds))
+                                 str(profile.scenario_grid), sources, config_dict, profile.batch_size, stds,
+                                 batches))
         proc.start()
         send.close()
         return cls(proc, recv, say, advance)
