@@ -12,6 +12,13 @@ other in one run (issue 51 acceptance 1: realistic at most 1.3x ideal), wall and
 (this process and its children: the csv-mode process and the writer) and the ratios::
 
     python -m perf.generate_speed --profile paper --flights 16 --timing-ratio
+
+``--csv-mode N``: csv mode alone, CPU seconds per flight and a hash of its output, on ``N`` paper-grid
+configurations from ``--skip`` (the generator's order) replayed on the csv-source flights of the first
+16 normal flights of ``--flights 16`` (11 recordings, ``--timing``), as csv mode's batch replays them;
+run it with two versions for speed and same output::
+
+    python -m perf.generate_speed --csv-mode 128 --skip 0 --timing realistic
 """
 
 from __future__ import annotations
@@ -38,7 +45,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--flights", type=int, default=None, help="normal flights (default: the profile's)")
     p.add_argument("--scenarios", default=None, help="a scenario, grid or sweep file instead of the profile's grid")
     p.add_argument("--timing-ratio", action="store_true", help="realistic against ideal timing, in one run")
+    p.add_argument("--csv-mode", type=int, default=0, metavar="N", help="csv mode alone on N paper configurations")
+    p.add_argument("--skip", type=int, default=0, help="with --csv-mode: configurations skipped first")
+    p.add_argument("--timing", default="realistic", help="with --csv-mode: the recordings' timing")
     args = p.parse_args(argv)
+    if args.csv_mode:
+        csv_mode_speed(args.csv_mode, args.skip, args.timing)
+        return
     if args.timing_ratio:
         timing_ratio(args)
         return
@@ -70,6 +83,46 @@ def _cpu() -> float:
     """CPU seconds of this process and its finished children (the csv-mode process, the writer)."""
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def csv_mode_speed(n: int, skip: int, timing: str) -> None:
+    """CPU seconds per flight of csv mode on ``n`` paper configurations and a sha256 of what it returns."""
+    import dataclasses
+    import hashlib
+
+    import numpy as np
+
+    from scart_bench.generator.attacks import RowWriter, _order, csv_applicable, grid_path
+    from scart_bench.generator.modes import csv_mode
+    from scart_bench.generator.plan import fly_normal_batch, plan_generation
+    from scart_bench.generator.profiles import get_profile
+    from scart_bench.generator.scart.grid import load_configurations
+
+    cfg = dataclasses.replace(get_profile("paper"), timing=timing).flight_config()
+    plan = plan_generation("paper", 0, 16, True, cfg, None, None, 16)
+    with tempfile.TemporaryDirectory(prefix="generate_speed_") as tmp:
+        (Path(tmp) / "flights").mkdir()
+        sources = fly_normal_batch(RowWriter(Path(tmp), "parquet", "compact"), plan, 0, lambda m: None)["csv_source"]
+    configs = [c for c in load_configurations(grid_path("paper.toml")) if csv_applicable(c)]
+    idx = _order(configs)[skip:skip + n]
+    src = [sources[i % len(sources)] for i in idx]
+    link = [{t: df for t, df in s[1].items() if t != "truth"} for s in src]
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    c0 = own.ru_utime + own.ru_stime
+    results = csv_mode(link, [configs[i] for i in idx], [s[2] for s in src])
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = own.ru_utime + own.ru_stime - c0
+    h = hashlib.sha256()
+    for nav, windows, events in results:
+        for topic in sorted(nav):
+            df = nav[topic]
+            h.update(topic.encode() + repr(list(df.columns)).encode())
+            for col in df.columns:
+                arr = df[col].to_numpy()
+                h.update(repr(arr.tolist()).encode() if arr.dtype == object else np.ascontiguousarray(arr).tobytes())
+        h.update(repr(windows).encode() + repr(events).encode())
+    print(f"csv mode, {timing} timing: {len(idx)} configurations from {skip} on {len(sources)} recordings: "
+          f"{cpu:.1f} CPU s, {cpu / len(idx):.3f} per flight; output sha256 {h.hexdigest()[:16]}")
 
 
 def timing_ratio(args) -> None:
