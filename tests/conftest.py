@@ -2,41 +2,81 @@
 
 from __future__ import annotations
 
+import os
+import pickle
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
+from filelock import FileLock
 
 from scart_bench.generator.scart.scenario import load_scenarios
 
 SCENARIOS = "data/scenarios"
 
 
+def _shared_root(tmp_path_factory) -> Path:
+    """A folder of this test session that every xdist worker sees (the workers' base temp's parent)."""
+    root = tmp_path_factory.getbasetemp()
+    return root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root
+
+
+def _flown_once(tmp_path_factory, name: str, fly):
+    """``fly()``'s result, computed by the first xdist worker that asks and pickled for the others
+    (each worker used to fly the same batch again: 30-60 s each on a loaded 2-core machine)."""
+    root = _shared_root(tmp_path_factory)
+    path = root / f"{name}.pkl"
+    with FileLock(str(root / f"{name}.lock")):
+        if path.exists():
+            return pickle.loads(path.read_bytes())
+        result = fly()
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+        tmp.replace(path)  # complete or absent: a worker that dies while writing leaves no half file
+        return result
+
+
 @pytest.fixture(scope="session")
-def normal_fleet():
+def normal_fleet(tmp_path_factory):
     """20 normal flights with different seeds (and so different winds), flown as one batch."""
     from scart_bench.generator.engine.simulate import simulate
 
-    return simulate(list(range(100, 120)))
+    return _flown_once(tmp_path_factory, "normal-fleet", lambda: simulate(list(range(100, 120))))
 
 
-@pytest.fixture(scope="session")
-def attacked_fleet():
-    """One seed flown four times in one batch: normal, link GPS spoofing, sensor GPS jump, sensor drift."""
+def _attacked_fleet():
     from scart_bench.generator.modes import simulation_mode
 
     spoof = load_scenarios(f"{SCENARIOS}/gps_spoof.toml")
     jump = load_scenarios(f"{SCENARIOS}/sensor_gps_jump.toml")
     drift = load_scenarios(f"{SCENARIOS}/sensor_gps_drift.toml")
-    batch, layer = simulation_mode([5, 5, 5, 5], [[], spoof, jump, drift])
+    return simulation_mode([5, 5, 5, 5], [[], spoof, jump, drift])
+
+
+@pytest.fixture(scope="session")
+def attacked_fleet(tmp_path_factory):
+    """One seed flown four times in one batch: normal, link GPS spoofing, sensor GPS jump, sensor drift."""
+    batch, layer = _flown_once(tmp_path_factory, "attacked-fleet", _attacked_fleet)
     return batch, layer, {"normal": 0, "spoof": 1, "jump": 2, "drift": 3}
 
 
 @pytest.fixture(scope="session")
 def quick_dataset(tmp_path_factory):
-    """A small dataset of the quick profile: 6 normal flights and the quick grid in both modes."""
+    """A small dataset of the quick profile: 6 normal flights and the quick grid in both modes.
+
+    Generated once per test session, not once per xdist worker: the first worker to ask writes it
+    under a file lock, the others wait and read it (tests only read it)."""
     from scart_bench.generator.generate import generate_dataset
 
-    out = tmp_path_factory.mktemp("datasets") / "quick"
-    return generate_dataset("quick", out, seed=3, n_normal=6)
+    root = _shared_root(tmp_path_factory)
+    out, done = root / "quick-dataset" / "quick", root / "quick-dataset.done"
+    with FileLock(str(root / "quick-dataset.lock")):
+        if not done.exists():
+            shutil.rmtree(out.parent, ignore_errors=True)  # a worker that died while writing it
+            generate_dataset("quick", out, seed=3, n_normal=6)
+            done.touch()
+    return out
 
 
 def truth(batch, i):
