@@ -236,6 +236,9 @@ class MissionParams:
     pilot_stick_deg: float = 0.0
     #: Hz, corner of the sticks' spectrum (two first-order lags: flat below it, -40 dB/decade above)
     pilot_stick_hz: float = 1.5
+    #: Hz, a first-order high-pass of the sticks (a band-pass with ``pilot_stick_hz``): a hand's corrections come
+    #: and go, where two lags alone leave power below 0.5 Hz (the fleet's roll 0.3x the generated there); 0: none
+    pilot_stick_highpass_hz: float = 0.0
     #: yaw stick standard deviation (deg of heading) and throttle stick (fraction of g of vertical acceleration)
     pilot_yaw_deg: float = 0.0
     pilot_throttle: float = 0.0

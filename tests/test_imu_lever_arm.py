@@ -118,3 +118,45 @@ def test_a_bad_imu_offset_in_a_profile_exits_2_naming_the_key(tmp_path, capsys, 
     assert code == 2 and len(err.splitlines()) == 1, err
     assert str(bad) in err and expected in err, err
     assert not out.exists()
+
+
+
+def test_the_kernel_s_band_passed_sticks_are_the_reference_s():
+    """The pilot's band-pass (MissionParams.pilot_stick_highpass_hz): the compiled kernel's sticks are the numpy
+    reference's value for value, of unit standard deviation per unit amplitude, with a fraction of the two lags'
+    power below the high-pass corner."""
+    import math
+
+    from scipy.signal import welch
+
+    from scart_bench.generator.engine import kernel as K
+    from scart_bench.generator.engine import kernel_layout as L
+    from scart_bench.generator.flight_software.pilot import Pilot, pilot_start, stick_highpass, stick_params
+
+    lags = MissionParams(ground_phase=False, pilot_stick_deg=5.0, pilot_stick_hz=0.5, pilot_yaw_deg=2.0,
+                         pilot_throttle=0.04)
+    band = dataclasses.replace(lags, pilot_stick_highpass_hz=0.5)
+    start = pilot_start([11], band)
+    ref = Pilot(band)
+    st = ref.init_state(start)
+    row = np.zeros(L.WIDTH)
+    row[L.PILOT_RNG], row[L.PILOT_GAIN] = start[0]
+    p = np.zeros(L.N_PARAMS)
+    p[L.PARAM_INDEX["pilot"]:L.PARAM_INDEX["pilot"] + 9] = stick_params(band)
+    p[L.PARAM_INDEX["pilot_hp"]:L.PARAM_INDEX["pilot_hp"] + 4] = stick_highpass(band)
+    for _ in range(300):
+        want = ref.step(st, np.array([10.0]), np.array([3.0]))[0]
+        got = [K._pilot_stick(row, p, a, row[L.PILOT_GAIN]) for a in range(4)]
+        assert got == list(want)
+
+    def roll(m: MissionParams) -> np.ndarray:
+        pilot = Pilot(m)
+        s = pilot.init_state(np.array([[12345.0, 1.0]]))
+        return np.array([pilot.step(s, np.array([10.0]), np.array([3.0]))[0, 0] for _ in range(30000)])
+
+    x_band, x_lags = roll(band), roll(lags)
+    assert abs(x_band.std() / math.radians(5.0) - 1) < 0.1 and abs(x_lags.std() / math.radians(5.0) - 1) < 0.1
+    f, p_band = welch(x_band, fs=50.0, nperseg=2000)
+    _, p_lags = welch(x_lags, fs=50.0, nperseg=2000)
+    low = (f > 0) & (f < 0.2)
+    assert p_band[low].sum() < 0.3 * p_lags[low].sum()

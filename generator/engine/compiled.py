@@ -33,7 +33,7 @@ from scart_bench.generator.engine.flight_batch import alive, instance_gps, insta
 from scart_bench.generator.engine.pcg_noise import fill_rows, fill_rows_parallel, pcg_states
 from scart_bench.generator.flight_software.commander import BatchCommander, exchange
 from scart_bench.generator.flight_software.flight_controller import AxisKF
-from scart_bench.generator.flight_software.pilot import stick_params
+from scart_bench.generator.flight_software.pilot import stick_highpass, stick_params
 from scart_bench.generator.flight_software.startup import takeoff_after_arm
 from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import DT, GRAVITY, NAV_RATE_HZ
@@ -161,6 +161,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "takeoff_after_arm": takeoff_after_arm(mp.ground_phase),
         "gyro_vibration": sp.gyro_vibration,
         "pilot": stick_params(mp),
+        "pilot_hp": stick_highpass(mp),
         "accel_lowpass": _lowpass(sp.accel_noise_cutoff_hz, 1.0 / dt),
         "gyro_lowpass": _lowpass(sp.gyro_noise_cutoff_hz, 1.0 / dt),
         "baro_lowpass": _lowpass(sp.baro_noise_cutoff_hz, sp.baro_rate_hz),

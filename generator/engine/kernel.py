@@ -76,6 +76,7 @@ K_APPROACH, K_CLIMB, K_LAND_SPEED, K_ACCEPT = _I["approach_gain"], _I["climb_spe
 K_LAT0, K_LON0, K_SIN_LAT0, K_COS_LAT0 = _I["lat0"], _I["lon0"], _I["sin_lat0"], _I["cos_lat0"]
 K_HOVER, K_TAIL, K_YAW_STEP, K_OUT_DECAY = _I["hover"], _I["tail_steps"], _I["yaw_step_max"], _I["out_decay"]
 K_PILOT = _I["pilot"]
+K_PILOT_HP = _I["pilot_hp"]
 
 G = GRAVITY
 PI = math.pi
@@ -868,6 +869,10 @@ def _pilot_stick(s, p, lag_axis, level):
     z = L.PILOT_LAG + 2 * lag_axis
     s[z] = p[K_PILOT + 4] * s[z] + p[K_PILOT + 5] * n
     s[z + 1] = p[K_PILOT + 4] * s[z + 1] + p[K_PILOT + 5] * s[z]
+    if p[K_PILOT_HP + 3] != 0.0:  # band-pass: the lags' output minus its own slow lag
+        h = L.PILOT_HP + lag_axis
+        s[h] = p[K_PILOT_HP] * s[h] + p[K_PILOT_HP + 1] * s[z + 1]
+        return p[K_PILOT + lag_axis] * p[K_PILOT_HP + 2] * (s[z + 1] - s[h]) * level
     return p[K_PILOT + lag_axis] * p[K_PILOT + 6] * s[z + 1] * level
 
 

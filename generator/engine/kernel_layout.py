@@ -203,3 +203,12 @@ PARAMS += ("imu_offset", "baro_downwash")
 PARAM_INDEX["imu_offset"] = N_PARAMS
 PARAM_INDEX["baro_downwash"] = N_PARAMS + 4
 N_PARAMS += 5
+
+# -- the pilot's band-pass (MissionParams.pilot_stick_highpass_hz; flight_software.pilot.stick_highpass) --------------
+PILOT_HP = WIDTH  # 4: the high-pass's slow lag per stick (roll, pitch, yaw, throttle)
+WIDTH = PILOT_HP + 4
+FIELDS.update({"pilot_hp": (PILOT_HP, 4)})
+#: alpha, 1 - alpha, the band-pass's norm, on
+PARAMS += ("pilot_hp",)
+PARAM_INDEX["pilot_hp"] = N_PARAMS
+N_PARAMS += 4

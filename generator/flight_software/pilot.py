@@ -81,6 +81,23 @@ def stick_params(mission: MissionParams) -> np.ndarray:
                      a, 1.0 - a, norm, mission.pilot_hover_factor, 1.0 if pilot_on(mission) else 0.0])
 
 
+def stick_highpass(mission: MissionParams, rate_hz: float = NAV_RATE_HZ) -> np.ndarray:
+    """The kernel's parameters of the sticks' high-pass (``MissionParams.pilot_stick_highpass_hz``): alpha,
+    1 - alpha, the norm of the band-pass (two lags, then the lags' output minus its own lag at the high-pass
+    corner: unit-variance white input gives unit variance) and on (1/0; 0: the two lags' :func:`stick_lag` norm)."""
+    hz = mission.pilot_stick_highpass_hz
+    if not hz > 0.0:
+        return np.zeros(4)
+    from scipy import signal
+
+    a, _ = stick_lag(mission.pilot_stick_hz, rate_hz)
+    ah = math.exp(-2.0 * math.pi * hz / rate_hz)
+    n = int(40 * rate_hz / min(hz, mission.pilot_stick_hz)) + 200
+    y = signal.lfilter([1 - a], [1, -a], signal.lfilter([1 - a], [1, -a], np.r_[1.0, np.zeros(n)]))
+    h = y - signal.lfilter([1 - ah], [1, -ah], y)
+    return np.array([ah, 1.0 - ah, 1.0 / float(np.sqrt(np.dot(h, h))), 1.0])
+
+
 def xorshift32(x: np.ndarray) -> np.ndarray:
     """The next state of 32-bit xorshift (13, 17, 5) generators held in int64 (exact: below 2^45)."""
     x = x ^ ((x << 13) & _M32)
@@ -94,10 +111,11 @@ class Pilot:
     def __init__(self, mission: MissionParams):
         self.m = mission
         self.p = stick_params(mission)
+        self.hp = stick_highpass(mission)
 
     def init_state(self, start: np.ndarray) -> np.ndarray:
-        """(N, 2 + 2 * AXES): xorshift state, amplitude factor, the lags' states (zero)."""
-        st = np.zeros((start.shape[0], 2 + 2 * AXES))
+        """(N, 2 + 3 * AXES): xorshift state, amplitude factor, the lags' states, the high-pass's (zero)."""
+        st = np.zeros((start.shape[0], 2 + 3 * AXES))
         st[:, :2] = start
         return st
 
@@ -117,6 +135,11 @@ class Pilot:
             n = (total - 2.0) * _SQRT3
             st[:, 2 + 2 * a] = p[4] * st[:, 2 + 2 * a] + p[5] * n
             st[:, 3 + 2 * a] = p[4] * st[:, 3 + 2 * a] + p[5] * st[:, 2 + 2 * a]
-            out[:, a] = p[a] * p[6] * st[:, 3 + 2 * a] * level
+            if self.hp[3] != 0.0:  # band-pass: the lags' output minus its own slow lag
+                h = 2 + 2 * AXES + a
+                st[:, h] = self.hp[0] * st[:, h] + self.hp[1] * st[:, 3 + 2 * a]
+                out[:, a] = p[a] * self.hp[2] * (st[:, 3 + 2 * a] - st[:, h]) * level
+            else:
+                out[:, a] = p[a] * p[6] * st[:, 3 + 2 * a] * level
         st[:, 0] = x
         return out

@@ -973,6 +973,11 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
     return out, lines
 
 
+#: Hz, the pilot's sticks high-passed here (MissionParams.pilot_stick_highpass_hz; 0: two lags alone): the fleet's
+#: roll below 0.5 Hz is 0.3x the generated one's at the fitted 0.5-2 Hz power
+PILOT_HIGHPASS_HZ = 0.5
+
+
 def fit_imu_offset(logs: list[LogMeasure], sensors, lines: list[str]) -> dict[str, tuple[object, str]]:
     """``imu_offset_m``: per axis the median of the logs' fitted offsets (:func:`_lever_arm`, the logs whose
     accelerometer follows their angular acceleration); none (a line in ``lines``) when no log's does."""
@@ -1012,8 +1017,14 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     values["timing"] = like_timing.fleet_table([m.timing for m in logs], n_logs, MAX_CV)
     config = like_timing.with_table(config, values["timing"])
     if calibrate:  # the pilot in attitude mode first: its motion is part of what the noise calibration measures
+        if hasattr(config.mission, "pilot_stick_highpass_hz") and PILOT_HIGHPASS_HZ:  # a band-pass stick
+            config = dataclasses.replace(config, mission=dataclasses.replace(
+                config.mission, pilot_stick_highpass_hz=PILOT_HIGHPASS_HZ))
         pilot, said = like_pilot.fit_pilot([m.pilot for m in logs], [m.name for m in logs], config, pilot_figures,
                                            figs["cruise_speed"].value)
+        if pilot and config.mission.pilot_stick_highpass_hz:
+            pilot["pilot_stick_highpass_hz"] = (config.mission.pilot_stick_highpass_hz, "the sticks' high-pass (Hz; not "
+                                                "fitted: the low edge of the roll/pitch band the pilot is fitted on)")
         values["mission"].update(pilot)
         lines.extend(said)
         config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, **{k: v for k, (v, _) in pilot.items()}))
