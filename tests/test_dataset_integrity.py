@@ -3,6 +3,9 @@ dataset.json are caught and named, before a run uses them."""
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import pandas as pd
 import pytest
 from run_fixtures import plugin, write_dataset
@@ -13,20 +16,32 @@ from scart_bench.dataset import DatasetError, open_dataset
 ZS = plugin("ZScore")
 
 
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory):
+    """The run fixtures' dataset, written once for the module (the tests below damage their copies)."""
+    return write_dataset(tmp_path_factory.mktemp("pristine") / "ds")
+
+
+@pytest.fixture()
+def fresh(pristine, tmp_path):
+    """A copy of it at ``tmp_path / "ds"``, byte for byte what ``write_dataset`` writes there."""
+    return Path(shutil.copytree(pristine, tmp_path / "ds"))
+
+
 def _flip(path, offset: int = 2000) -> None:
     data = bytearray(path.read_bytes())
     data[offset] ^= 0xFF
     path.write_bytes(bytes(data))
 
 
-def test_every_flight_records_its_checksum(tmp_path):
-    ds = open_dataset(write_dataset(tmp_path / "ds"))
+def test_every_flight_records_its_checksum(fresh):
+    ds = open_dataset(fresh)
     assert ds.manifest["checksum"].str.match(r"^b2:[0-9a-f]{32}$").all()
     ds.flight("normal-000")  # reads and verifies
 
 
-def test_one_flipped_byte_is_caught_with_the_flights_name(tmp_path):
-    root = write_dataset(tmp_path / "ds")
+def test_one_flipped_byte_is_caught_with_the_flights_name(fresh, tmp_path):
+    root = fresh
     _flip(root / "flights" / "normal-005" / "navigator.parquet")
     ds = open_dataset(root)
     ds.flight("normal-000")
@@ -36,8 +51,8 @@ def test_one_flipped_byte_is_caught_with_the_flights_name(tmp_path):
         ds.check_flights(["normal-000", "normal-005"])
 
 
-def test_resume_refuses_a_dataset_whose_contents_changed(tmp_path, capsys):
-    root = write_dataset(tmp_path / "ds")
+def test_resume_refuses_a_dataset_whose_contents_changed(fresh, tmp_path, capsys):
+    root = fresh
     run = tmp_path / "run"
     args = ["run", "--detectors", "zscore_test", "--plugin", ZS, "--dataset", str(root), "--out", str(run)]
     assert main(args) == 0
@@ -49,8 +64,8 @@ def test_resume_refuses_a_dataset_whose_contents_changed(tmp_path, capsys):
     assert (run / "metrics.csv").read_bytes() == before  # nothing of the run was touched
 
 
-def test_swapped_attack_windows_are_refused(tmp_path):
-    root = write_dataset(tmp_path / "ds")
+def test_swapped_attack_windows_are_refused(fresh, tmp_path):
+    root = fresh
     m = pd.read_parquet(root / "manifest.parquet")
     i = m.index[m["flight_id"] == "sim-001"][0]
     m.loc[i, ["attack_start_us", "attack_end_us"]] = m.loc[i, ["attack_end_us", "attack_start_us"]].to_numpy()
@@ -59,8 +74,8 @@ def test_swapped_attack_windows_are_refused(tmp_path):
         open_dataset(root)
 
 
-def test_a_broken_dataset_json_is_named(tmp_path):
-    root = write_dataset(tmp_path / "ds")
+def test_a_broken_dataset_json_is_named(fresh, tmp_path):
+    root = fresh
     (root / "dataset.json").write_text("{not json")
     with pytest.raises(DatasetError, match=r"dataset\.json: not valid JSON"):
         open_dataset(root)
@@ -85,13 +100,13 @@ def test_import_says_how_many_cells_are_not_finite(tmp_path, capsys):
     assert "attitude.roll 3" in lines[0] and "gps.alt 1" in lines[0]
 
 
-def test_a_killed_overwrite_is_cleaned_up_by_the_next_command(tmp_path):
+def test_a_killed_overwrite_is_cleaned_up_by_the_next_command(fresh, tmp_path):
     """A generate --overwrite killed mid-write leaves its hidden partial folder; killed between its two
     renames, the old dataset sits aside. The next command on that folder removes the first and puts
     the second back."""
     from scart_bench.dataset import check_output_dir
 
-    root = write_dataset(tmp_path / "ds")
+    root = fresh
     partial = tmp_path / ".ds.partial"
     partial.mkdir()
     (partial / "half.parquet").write_bytes(b"x" * 1000)
@@ -107,12 +122,12 @@ def is_complete(path) -> bool:
     return (path / "manifest.parquet").exists() and len(open_dataset(path)) == 16
 
 
-def test_appending_to_a_dataset_from_before_checksums_records_every_flights(tmp_path):
+def test_appending_to_a_dataset_from_before_checksums_records_every_flights(fresh, tmp_path):
     """Only a dataset without a checksum column is "older"; appending to one gives it the column, so
     the flights already there get theirs too (an empty checksum is refused by the reader)."""
     from scart_bench.dataset import append_flights, flight_record
 
-    root = write_dataset(tmp_path / "ds")
+    root = fresh
     m = pd.read_parquet(root / "manifest.parquet").drop(columns="checksum")
     m.to_parquet(root / "manifest.parquet", index=False)
     ds = open_dataset(root)
