@@ -398,27 +398,36 @@ LEVER_MIN_CORR = 0.3
 LEVER_MAX_M = 0.3
 
 
-def lever_arm_figures(t: np.ndarray, acc: np.ndarray, gyro: np.ndarray, hz: float = NOISE_HZ
-                      ) -> tuple[np.ndarray, float, float]:
+def lever_arm_figures(stretches: list[np.ndarray], hz: float = NOISE_HZ) -> tuple[np.ndarray, float, float]:
     """(r (3,) m in the body frame, correlation, seconds used): the IMU's offset from the centre of gravity that
-    best explains the band-passed (:data:`LEVER_BAND_HZ`) horizontal accelerometer (``acc`` (n, 3), m/s^2) by
-    the angular acceleration (the band-passed ``gyro`` (n, 3) rad/s, differentiated): acc_x = alpha_y r_z -
-    alpha_z r_y, acc_y = alpha_z r_x - alpha_x r_z (alpha x r; the centripetal part is second order at these
-    rates), least squares over both axes; the correlation is of that fit with the logged x/y. ``t`` (n,) s,
-    evenly sampled at ``hz`` and without gaps; acc_z is left out (the throttle moves it)."""
+    best explains the band-passed (:data:`LEVER_BAND_HZ`) horizontal accelerometer by the angular acceleration (the
+    band-passed gyro, differentiated): acc_x = alpha_y r_z - alpha_z r_y, acc_y = alpha_z r_x - alpha_x r_z (alpha x r;
+    the centripetal part is second order at these rates), least squares over both axes and every stretch; the
+    correlation is of that fit with the logged x/y. ``stretches``: (n, 6) arrays of acc x/y/z (m/s^2) and gyro x/y/z
+    (rad/s), each evenly sampled at ``hz`` without a gap, band-passed on its own (those under 3 s are left out);
+    acc_z is not used (the throttle moves it)."""
     from scipy import signal
 
-    if len(t) < 3 * hz:
-        return np.zeros(3), math.nan, 0.0
     b, a = signal.butter(2, LEVER_BAND_HZ, btype="band", fs=hz)
-    alpha = np.gradient(signal.filtfilt(b, a, gyro, axis=0), 1.0 / hz, axis=0)
-    r, corr = _lever_fit(signal.filtfilt(b, a, acc, axis=0), alpha)
-    return r, corr, len(t) / hz
+    ok = [x for x in stretches if len(x) > 3 * hz]
+    if not ok:
+        return np.zeros(3), math.nan, 0.0
+    acc = np.vstack([signal.filtfilt(b, a, x[:, 0:2], axis=0) for x in ok])
+    alpha = np.vstack([np.gradient(signal.filtfilt(b, a, x[:, 3:6], axis=0), 1.0 / hz, axis=0) for x in ok])
+    zero = np.zeros(len(acc))
+    design = np.vstack([np.column_stack([zero, -alpha[:, 2], alpha[:, 1]]),
+                        np.column_stack([alpha[:, 2], zero, -alpha[:, 0]])])
+    y = np.r_[acc[:, 0], acc[:, 1]]
+    r, *_ = np.linalg.lstsq(design, y, rcond=None)
+    pred = design @ r
+    den = float(np.sqrt(np.dot(pred, pred) * np.dot(y, y)))
+    return r, (float(np.dot(pred, y) / den) if den > 0 else math.nan), len(acc) / hz
 
 
 def _lever_arm(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
     """The log's IMU offset (:func:`lever_arm_figures`) on its airborne rows, each stretch between logging gaps
-    band-passed on its own; a fit that explains little (correlation under :data:`LEVER_MIN_CORR`) is not kept."""
+    on its own; a fit that explains little (correlation under :data:`LEVER_MIN_CORR`) or gives more than
+    :data:`LEVER_MAX_M` is not kept (one line in the notes, as is a log without :data:`LEVER_MIN_S` of air)."""
     imu = QUANTITIES["imu"]
     cols = [_series(tables, imu[f"{a}{q}"], densest=True) for q in ("acc", "gyro") for a in AXES]
     if any(c is None for c in cols):
@@ -431,50 +440,24 @@ def _lever_arm(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
     t0 = cols[0][1]
     hz = min(NOISE_HZ, 1.05 / float(np.median(np.diff(t0)))) if len(t0) > 1 else NOISE_HZ
     cut = np.r_[t0[0] - 1.0, t0[np.flatnonzero(np.diff(t0) > 0.5)], t0[-1]]  # stretches between logging gaps
-    parts: list[tuple[np.ndarray, np.ndarray]] = []
+    stretches = []
     for a, b in _segments(t_ph, air):
         for lo, hi in zip(cut[:-1], cut[1:]):
             g0, g1 = max(a, lo) + EDGE_S, min(b, hi) - EDGE_S
-            if g1 - g0 < 5.0:
-                continue
-            grid = np.arange(g0, g1, 1.0 / hz)
-            xs = np.column_stack([np.interp(grid, c[1], c[2]) for c in cols])
-            parts.append((grid, xs))
-    if not parts:
-        return
-    # band-pass each stretch alone, then one least-squares fit over all of them
-    from scipy import signal
-
-    bb, ba = signal.butter(2, LEVER_BAND_HZ, btype="band", fs=hz)
-    ok = [(g, x) for g, x in parts if len(g) > 3 * hz]
-    if not ok:
-        m.notes.append("IMU lever arm: no airborne stretch of 5 s between logging gaps: offset 0 kept")
-        return
-    acc = np.vstack([signal.filtfilt(bb, ba, x[:, 0:3], axis=0) for _, x in ok])
-    alpha = np.vstack([np.gradient(signal.filtfilt(bb, ba, x[:, 3:6], axis=0), 1.0 / hz, axis=0) for _, x in ok])
-    seconds = sum(len(g) for g, _ in ok) / hz
+            if g1 - g0 >= 5.0:
+                grid = np.arange(g0, g1, 1.0 / hz)
+                stretches.append(np.column_stack([np.interp(grid, c[1], c[2]) for c in cols]))
+    r, corr, seconds = lever_arm_figures(stretches, hz)
     if seconds < LEVER_MIN_S:
-        m.notes.append(f"IMU lever arm: {seconds:.0f} s airborne, {LEVER_MIN_S:g} s needed: offset 0 kept")
+        m.notes.append(f"IMU lever arm: {seconds:.0f} s in the air in stretches of 5 s between logging gaps, "
+                       f"{LEVER_MIN_S:g} s needed: offset 0 kept")
         return
-    r, corr = _lever_fit(acc, alpha)
     m.imu_offset_fit = corr
     if not (corr >= LEVER_MIN_CORR and float(np.max(np.abs(r))) <= LEVER_MAX_M):
         m.notes.append(f"IMU lever arm: the accelerometer does not follow the angular acceleration (correlation "
                        f"{corr:.2f}, r {', '.join(f'{v:+.3f}' for v in r)} m): offset 0 kept")
         return
     m.imu_offset = (float(r[0]), float(r[1]), float(r[2]))
-
-
-def _lever_fit(acc: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, float]:
-    """:func:`lever_arm_figures`' least squares on already band-passed accelerometer and angular acceleration."""
-    zero = np.zeros(len(acc))
-    design = np.vstack([np.column_stack([zero, -alpha[:, 2], alpha[:, 1]]),
-                        np.column_stack([alpha[:, 2], zero, -alpha[:, 0]])])
-    y = np.r_[acc[:, 0], acc[:, 1]]
-    r, *_ = np.linalg.lstsq(design, y, rcond=None)
-    pred = design @ r
-    den = float(np.sqrt(np.dot(pred, pred) * np.dot(y, y)))
-    return r, (float(np.dot(pred, y) / den) if den > 0 else math.nan)
 
 
 def _wind(m: LogMeasure, tables, phases: pd.DataFrame | None, vehicle) -> None:
