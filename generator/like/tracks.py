@@ -9,6 +9,12 @@ one item), otherwise the flown track simplified to waypoints with the Ramer-Doug
 A log without a horizontal position (no GPS fix) gives the altitude profile over home: its holds
 and climbs as waypoints at home.
 
+A logging gap is no hold: the track's samples inside a gap (the log's gaps as ``import`` reports
+them, or any stretch of :data:`GAP_S` without an altitude row) are left out and the mission is
+recovered on the logged time, so the flight goes on from where the log stopped to where it
+resumed without the gap's time (an ArduCopter log stops while disarmed: interpolated, a landing
+and the next take-off read as minutes of hover at 1 m).
+
 The mission is written as a MAVLink WPL file (``QGC WPL 110``) that
 :func:`scart_bench.generator.flight_software.mission_files.read_wpl` reads back.
 """
@@ -37,6 +43,8 @@ TRACK_HZ = 2.0
 SMOOTH_S = 2.0
 #: waypoints closer than this (m) to the previous one are merged into it
 MIN_LEG_M = 1.0
+#: s, the longest interval between the altitude's rows that is not a gap in the track
+GAP_S = 2.0
 
 
 @dataclass
@@ -53,6 +61,15 @@ class Track:
     takeoff_s: float
     landing_s: float
     notes: list[str] = field(default_factory=list)
+    gaps: list[tuple[float, float]] = field(default_factory=list)  # (s, s): no row between, inside the flight
+
+    @property
+    def logged(self) -> np.ndarray:
+        """Per track sample: False strictly inside a gap (the track's value there is interpolation)."""
+        ok = np.ones(len(self.t), bool)
+        for a, b in self.gaps:
+            ok &= ~((self.t > a) & (self.t < b))
+        return ok
 
     @property
     def has_position(self) -> bool:
@@ -107,8 +124,28 @@ def _gps_fixed(tables: dict[str, pd.DataFrame]) -> tuple[str, np.ndarray, np.nda
     return None
 
 
+def track_gaps(tables: dict[str, pd.DataFrame], phases: pd.DataFrame, t0: float, t1: float) -> list[tuple[float, float]]:
+    """The gaps (s) that overlap ``t0``-``t1``: the log's logging gaps and the stretches of more than
+    :data:`GAP_S` between the phases' altitude rows, merged."""
+    from scart_bench.generator.logs.logged_time import logging_gaps
+
+    found = [(a / 1e6, b / 1e6) for a, b in logging_gaps(tables)]
+    t_ph = phases["Timestamp"].to_numpy(np.int64) / 1e6
+    k = np.flatnonzero(np.diff(t_ph) > GAP_S)
+    found += [(float(t_ph[i]), float(t_ph[i + 1])) for i in k]
+    merged: list[tuple[float, float]] = []
+    for a, b in sorted(found):
+        if b <= t0 or a >= t1:
+            continue
+        if merged and a <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], b))
+        else:
+            merged.append((a, b))
+    return merged
+
+
 def flown_track(tables: dict[str, pd.DataFrame], phases: pd.DataFrame) -> Track | None:
-    """The airborne track of a log (None when it never leaves the ground)."""
+    """The airborne track of a log (None when it never leaves the ground), with its gaps."""
     from scart_bench.generator.geo import ne_from_latlon
 
     t_ph = phases["Timestamp"].to_numpy(np.int64) / 1e6
@@ -146,7 +183,11 @@ def flown_track(tables: dict[str, pd.DataFrame], phases: pd.DataFrame) -> Track 
             north = np.interp(grid, x[1], x[2]) - np.interp(t0, x[1], x[2])
             east = np.interp(grid, y[1], y[2]) - np.interp(t0, y[1], y[2])
             horizontal = f"{xs.split('.')[0]} x/y"
-    return Track(grid, north, east, up, horizontal, home, t0, t1, notes)
+    gaps = track_gaps(tables, phases, t0, t1)
+    if gaps:
+        notes.append(f"{len(gaps)} gap{'' if len(gaps) == 1 else 's'} in the flight "
+                     f"({sum(b - a for a, b in gaps):.0f} s): the mission goes on across each without its time")
+    return Track(grid, north, east, up, horizontal, home, t0, t1, notes, gaps)
 
 
 def rdp(points: np.ndarray, epsilon: float) -> np.ndarray:
@@ -194,18 +235,30 @@ def _holds(track: Track) -> np.ndarray:
         n = _smooth(pd.Series(track.north).ffill().bfill().fillna(0.0).to_numpy())
         e = _smooth(pd.Series(track.east).ffill().bfill().fillna(0.0).to_numpy())
         still &= np.hypot(np.gradient(n, dt), np.gradient(e, dt)) < STILL_H_M_S
-    return still
+    return still & track.logged
 
 
 def recover_mission(track: Track, epsilon: float = RDP_EPSILON_M) -> list[Waypoint]:
     """The flown track as waypoints (take-off point first, the landing spot last), at most
-    :data:`mission_files.MAX_NAV_ITEMS` - 1 positions: the RDP tolerance doubles until it fits."""
+    :data:`mission_files.MAX_NAV_ITEMS` - 1 positions: the RDP tolerance doubles until it fits.
+    Samples inside the track's gaps are left out and time is the logged time (each gap's dropped): a
+    leg across a gap keeps the speed before it."""
     n = np.nan_to_num(track.north, nan=np.nan) if track.has_position else np.zeros(len(track.t))
     # a stretch without a fix keeps the last known position (the mission flies straight across it)
     n = pd.Series(n).ffill().bfill().fillna(0.0).to_numpy()
     e = pd.Series(track.east if track.has_position else np.zeros(len(track.t))).ffill().bfill().fillna(0.0).to_numpy()
     u = track.up
     still = _holds(track)
+    keep = track.logged
+    t = track.t.copy()
+    for a, b in track.gaps:  # the logged clock: each gap's time taken out of what follows it
+        t[track.t >= b] -= b - a
+    resumed = np.zeros(len(t), bool)  # the first kept sample after a gap
+    for _a, b in track.gaps:
+        after = np.flatnonzero(keep & (track.t >= b))
+        if len(after):
+            resumed[after[0]] = True
+    n, e, u, t, still, resumed = n[keep], e[keep], u[keep], t[keep], still[keep], resumed[keep]
     # breakpoints: RDP vertices, plus the start and end of every hold long enough to count
     runs = _runs(still, int(math.ceil(MIN_HOLD_S * TRACK_HZ)))
     pts = np.column_stack([n, e, u])
@@ -214,7 +267,7 @@ def recover_mission(track: Track, epsilon: float = RDP_EPSILON_M) -> list[Waypoi
         for a, b in runs:
             idx.update((a, b))
         idx = sorted(idx)
-        wps = _waypoints(track.t, pts, idx, runs)
+        wps = _waypoints(t, pts, idx, runs, resumed)
         if len(wps) <= mf.MAX_NAV_ITEMS - 2 or epsilon > 1e4:
             return wps
         epsilon *= 2.0
@@ -228,9 +281,12 @@ def _runs(mask: np.ndarray, min_len: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(starts, ends) if b - a + 1 >= min_len]
 
 
-def _waypoints(t: np.ndarray, pts: np.ndarray, idx: list[int], runs: list[tuple[int, int]]) -> list[Waypoint]:
+def _waypoints(t: np.ndarray, pts: np.ndarray, idx: list[int], runs: list[tuple[int, int]],
+               resumed: np.ndarray | None = None) -> list[Waypoint]:
     """Waypoints at the breakpoints ``idx``: a hold run becomes one waypoint (its mean position) with its
-    duration; a leg's speed is its horizontal path length over its time."""
+    duration; a leg's speed is its horizontal path length over its time (0, the speed before kept, for a
+    leg across a gap: True in ``resumed`` at the first sample after it)."""
+    resumed = np.zeros(len(t), bool) if resumed is None else resumed
     hold_of = {a: b for a, b in runs}
     inside = np.zeros(len(t), bool)
     for a, b in runs:
@@ -246,7 +302,7 @@ def _waypoints(t: np.ndarray, pts: np.ndarray, idx: list[int], runs: list[tuple[
         seg = pts[last:i + 1]
         path = float(np.sum(np.hypot(np.diff(seg[:, 0]), np.diff(seg[:, 1])))) if len(seg) > 1 else 0.0
         dur = float(t[i] - t[last]) if i > last else 0.0
-        speed = path / dur if dur > 0 else 0.0
+        speed = path / dur if dur > 0 and not resumed[last + 1:i + 1].any() else 0.0
         if out and math.hypot(p[0] - out[-1].north, p[1] - out[-1].east) < MIN_LEG_M and abs(p[2] - out[-1].up) < MIN_LEG_M:
             prev = out[-1]
             out[-1] = Waypoint(prev.north, prev.east, prev.up, prev.speed, prev.hold_s + hold + dur)
