@@ -99,6 +99,11 @@ GPS_SIGNALS = GROUPS["position"] + GROUPS["velocity"]
 #: GPS topics and their fix field (a log has a fix when one message says >= 3)
 GPS_TOPICS = (("gps_raw_int", "fix_type"), ("vehicle_gps_position", "fix_type"), ("sensor_gps", "fix_type"),
               ("gps", "Status"), ("gps_0", "Status"))
+#: topics that carry the baro's value on another sensor's message (MAVLink's HIGHRES_IMU at the IMU's
+#: rate): the baro altitude is read from the baro's own message where a flight has one (ArduPilot's BARO,
+#: PX4's vehicle_air_data, MAVLink's SCALED_PRESSURE), so that both sides' samples and message timing are
+#: the barometer's, not the IMU's
+BARO_CARRIERS = ("highres_imu",)
 #: pressure fields (baro altitude from a pressure where no altitude is logged)
 PRESSURE_FIELDS = ("press_abs", "abs_pressure", "pressure", "baro_pressure_pa", "Press", "fluid_pressure")
 #: per-window features of a signal
@@ -150,6 +155,19 @@ def _has_fix(tables: dict[str, pd.DataFrame]) -> bool | None:
     return seen
 
 
+def pressure_altitude(pressure: np.ndarray, topic: str, col: str) -> np.ndarray:
+    """The ISA barometric altitude (m) of a pressure field (hPa or Pa, by its unit in
+    ``generator.scart.units``): the atmosphere's own curve, not one Pa-per-metre figure, so that a
+    flight's baro read from its pressure has the same metres as one logged as an altitude (a linear
+    ``HPA_PER_M`` read a generated flight's ``scaled_pressure.press_abs`` 1.5 % larger than its
+    ``highres_imu.pressure_alt``)."""
+    from scart_bench.generator.geo import altitude_at
+    from scart_bench.generator.scart.units import HPA_PER_M, scale
+
+    pa_per_unit = 100.0 if np.isclose(scale(topic, col), HPA_PER_M) else 1.0
+    return altitude_at(np.asarray(pressure, np.float64) * pa_per_unit)
+
+
 def signals_from_tables(name: str, tables: dict[str, pd.DataFrame], side: str) -> FlightSignals:
     """A flight's signals from its topic tables (``{topic: DataFrame}`` with an int64 ``Timestamp`` in
     µs, as the importers and the dataset reader give), found by meaning."""
@@ -179,14 +197,15 @@ def signals_from_tables(name: str, tables: dict[str, pd.DataFrame], side: str) -
                 continue
             # the candidate spanning most of the flight (to the second), then the fastest: a ULog's
             # sensor_combined (200 Hz) over its sensor_accel (1 Hz), a flight's local position (from
-            # the start) over its global position (from the GPS fix)
-            rank = (round(float(t[ok][-1] - t[ok][0])), int(ok.sum()))
+            # the start) over its global position (from the GPS fix); the baro from its own message
+            own = not (sig == "baro_alt" and topic in BARO_CARRIERS)
+            rank = (own, round(float(t[ok][-1] - t[ok][0])), int(ok.sum()))
             if best is None or rank > best[0]:
-                best = rank, cand, t[ok], x[ok] / scale(topic, col)
+                best = rank, cand, t[ok], x[ok] if col in PRESSURE_FIELDS else x[ok] / scale(topic, col)
         if best is not None:
             _, cand, t, x = best
             if cand.partition(".")[2] in PRESSURE_FIELDS:
-                x = -x  # a pressure (in metres by its scale) falls as the altitude rises
+                x = pressure_altitude(x, *cand.split(".", 1))
             if sig == "yaw":
                 x = np.unwrap(x)
             f.signals[sig] = (t, x)
