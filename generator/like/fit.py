@@ -333,12 +333,13 @@ def _flight_shape(m: LogMeasure, track: tracks.Track, phases: pd.DataFrame, tabl
 
 
 def track_error(track: tracks.Track, wps: list[tracks.Waypoint]) -> float:
-    """The largest 3-D distance (m) of the flown track from the recovered mission's polyline."""
+    """The largest 3-D distance (m) of the flown track (its logged samples: not inside a gap) from the
+    recovered mission's polyline."""
     if len(wps) < 2:
         return math.nan
     n = pd.Series(track.north if track.has_position else np.zeros(len(track.t))).ffill().bfill().fillna(0.0)
     e = pd.Series(track.east if track.has_position else np.zeros(len(track.t))).ffill().bfill().fillna(0.0)
-    pts = np.column_stack([n.to_numpy(), e.to_numpy(), track.up])
+    pts = np.column_stack([n.to_numpy(), e.to_numpy(), track.up])[track.logged]
     poly = np.array([[w.north, w.east, w.up] for w in wps])
     best = np.full(len(pts), np.inf)
     for a, b in zip(poly[:-1], poly[1:]):
