@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from scart_bench.dataset import LABEL_COLUMNS, FlightRecord, flight_record, label_columns
 from scart_bench.generator.modes import csv_record
@@ -61,6 +62,18 @@ def _same_columns(a: pd.DataFrame, keep: list[str], bits: list, floats: np.ndarr
     return all(np.array_equal(_bits(a[c].to_numpy()), x) for c, x in zip(keep[1:], bits[1:]))
 
 
+def _same_text(column: pd.Series, expected: np.ndarray) -> bool:
+    """Whether a text column holds ``expected`` (str objects) value for value, compared as Arrow arrays
+    (no Python object per row) where the column is Arrow text, as a table built from str objects is."""
+    arr = pa.array(column.array) if isinstance(column.dtype, pd.StringDtype) and column.dtype.storage == "pyarrow" \
+        else None
+    if isinstance(arr, pa.ChunkedArray):
+        arr = arr.combine_chunks()
+    if arr is None or not (pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type)):
+        return bool(np.array_equal(column.to_numpy(dtype=object), expected))
+    return arr.null_count == 0 and arr.equals(pa.array(expected, type=arr.type))
+
+
 #: The source flight whose columns were taken last: the copies of one source come one after the other.
 _last: list[_SourceColumns] = []
 
@@ -93,7 +106,7 @@ def untouched(nav: dict[str, pd.DataFrame], source: dict[str, pd.DataFrame], win
         if flag.dtype != labels["Is_Anomaly"].dtype or not np.array_equal(flag, labels["Is_Anomaly"]):
             continue
         if any(d != _TEXT_DTYPE for d in da[2:1 + len(LABEL_COLUMNS)]) or \
-                any(not np.array_equal(a[c].to_numpy(dtype=object), labels[c]) for c in LABEL_COLUMNS[1:]):
+                any(not _same_text(a[c], labels[c]) for c in LABEL_COLUMNS[1:]):
             continue
         out.add(topic)
     return out

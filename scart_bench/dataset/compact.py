@@ -110,8 +110,9 @@ def _arrow(values: pd.Series, key: str, downcast: bool) -> pa.Array:
     if downcast and values.dtype == np.float64:
         return pa.array(values.to_numpy(np.float32), type=pa.float32())
     if key in ("Anomaly_Ids", "Anomaly_Kind"):
-        if isinstance(values.dtype, pd.StringDtype) and values.dtype.storage == "pyarrow" and not values.hasnans:
-            # already Arrow text with nothing missing: the same array without a round trip through Python
+        if isinstance(values.dtype, pd.StringDtype) and values.dtype.storage == "pyarrow":
+            # already Arrow text with nothing missing (no null: pandas keeps a missing value as one): the
+            # same array without a round trip through Python
             arr = pa.array(values)
             if arr.null_count == 0 and (pa.types.is_string(arr.type) or pa.types.is_large_string(arr.type)):
                 return arr.cast(pa.string())
@@ -140,6 +141,21 @@ def shared_fields(df: pd.DataFrame, other: pd.DataFrame) -> list[str] | None:
     return [str(c) for c in df.columns if c in other.columns and same_bits(df[c], other[c])]
 
 
+_DTYPE_NAMES: dict = {}
+
+
+def _dtype_name(dtype) -> str:
+    """``str(dtype)``, remembered: a wide log's topics name the same few dtypes thousands of times."""
+    key = (type(dtype), dtype)
+    try:
+        return _DTYPE_NAMES[key]
+    except KeyError:
+        name = _DTYPE_NAMES[key] = str(dtype)
+        return name
+    except TypeError:  # an unhashable extension dtype
+        return str(dtype)
+
+
 def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = None,
                shared: dict[str, tuple[str, list[str]]] | None = None) -> tuple[pa.Table, dict]:
     """One view's topics as a stacked Arrow table plus its metadata. ``reuse`` maps a topic name
@@ -161,15 +177,16 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
         cols = []
         elsewhere_view, elsewhere = shared.get(name, ("", []))
         elsewhere = [c for c in elsewhere if c not in SHARED_COLUMNS]
-        kept_elsewhere, dtypes = set(elsewhere), df.dtypes
-        for col in df.columns:
-            key = _column_key(name, str(col))
-            if str(col) in kept_elsewhere:
-                cols.append([str(col), str(dtypes[col])])
+        kept_elsewhere = set(elsewhere)
+        for label, dtype in zip(df.columns, df.dtypes.tolist()):  # dtypes once per topic, not per column
+            col = str(label)
+            if col in kept_elsewhere:
+                cols.append([col, _dtype_name(dtype)])
                 continue
+            key = _column_key(name, col)
             if owner.setdefault(key, name) != name and key not in SHARED_COLUMNS:
                 raise CompactError(f"topic {name!r} column {col!r}: the name {key!r} is taken by topic {owner[key]!r}")
-            arr = _arrow(df[col], key, float32_safe(name, str(col)))
+            arr = _arrow(df[label], key, float32_safe(name, col))
             if key in types and types[key] != arr.type:
                 try:
                     arr = arr.cast(types[key])
@@ -178,7 +195,7 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
                                        f"{types[key]} of the other topics") from exc
             types.setdefault(key, arr.type)
             chunks.setdefault(key, []).append((offset, arr))
-            cols.append([str(col), str(df[col].dtype)])
+            cols.append([col, _dtype_name(dtype)])
         span = {"name": name, "offset": offset, "rows": len(df), "columns": cols}
         if elsewhere:
             span["shared"] = {"view": elsewhere_view, "columns": elsewhere}

@@ -366,8 +366,19 @@ def _most_frequent_rows(topics: dict[str, pd.DataFrame]) -> int:
     """Rows of the view's most_frequent table (distinct timestamps of its most frequent topic)."""
     if not topics:
         return 0
-    counts = [(name, pd.Index(df["Timestamp"]).nunique()) for name, df in topics.items()]
+    counts = [(name, _distinct(df["Timestamp"])) for name, df in topics.items()]
     return max(counts, key=lambda item: item[1])[1]
+
+
+def _distinct(times: pd.Series) -> int:
+    """``pd.Index(times).nunique()``, counted on the array where the timestamps are integers in order
+    (every topic of a flight: an attacked all-topic log's copies count a hundred topics each)."""
+    x = times.to_numpy()
+    if x.dtype.kind == "i" and len(x) > 1:
+        d = np.diff(x)
+        if (d >= 0).all():
+            return int(np.count_nonzero(d)) + 1
+    return pd.Index(times).nunique()
 
 
 def _write_paper(root: Path, fmt: str, record: FlightRecord) -> None:
