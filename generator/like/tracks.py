@@ -126,12 +126,13 @@ def _gps_fixed(tables: dict[str, pd.DataFrame]) -> tuple[str, np.ndarray, np.nda
 
 def track_gaps(tables: dict[str, pd.DataFrame], phases: pd.DataFrame, t0: float, t1: float) -> list[tuple[float, float]]:
     """The gaps (s) that overlap ``t0``-``t1``: the log's logging gaps and the stretches of more than
-    :data:`GAP_S` between the phases' altitude rows, merged."""
-    from scart_bench.generator.logs.logged_time import logging_gaps
+    :data:`GAP_S` (and 20 typical intervals, as a logging gap) between the phases' altitude rows, merged."""
+    from scart_bench.generator.logs.logged_time import GAP_FACTOR, logging_gaps
 
     found = [(a / 1e6, b / 1e6) for a, b in logging_gaps(tables)]
     t_ph = phases["Timestamp"].to_numpy(np.int64) / 1e6
-    k = np.flatnonzero(np.diff(t_ph) > GAP_S)
+    d = np.diff(t_ph)
+    k = np.flatnonzero(d > max(GAP_S, GAP_FACTOR * float(np.median(d)))) if len(d) else np.zeros(0, int)
     found += [(float(t_ph[i]), float(t_ph[i + 1])) for i in k]
     merged: list[tuple[float, float]] = []
     for a, b in sorted(found):
