@@ -96,3 +96,16 @@ def distance_to_path(points_ne: np.ndarray, waypoints_ne: np.ndarray) -> np.ndar
         proj = a + t[:, None] * ab
         best = np.minimum(best, np.linalg.norm(points_ne - proj, axis=1))
     return best
+
+
+def kernel_matches_numpy(cfg, seeds=(3, 4), atol: float = 1e-9):
+    """Fly ``seeds`` under ``cfg`` in the numpy reference engine and the compiled kernel and check that
+    every simulator message agrees (the same steps, values within ``atol``); the kernel's batch."""
+    from scart_bench.generator.engine.simulate import simulate
+
+    ref = simulate(list(seeds), cfg, engine="numpy")
+    ker = simulate(list(seeds), cfg, engine="kernel")
+    for topic, (steps, vals, _ok) in ref.simulator.items():
+        np.testing.assert_array_equal(ker.simulator[topic][0], steps, err_msg=topic)
+        np.testing.assert_allclose(ker.simulator[topic][1], vals, rtol=0, atol=atol, err_msg=topic)
+    return ker
