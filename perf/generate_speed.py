@@ -88,10 +88,8 @@ def _cpu() -> float:
 def csv_mode_speed(n: int, skip: int, timing: str) -> None:
     """CPU seconds per flight of csv mode on ``n`` paper configurations and a sha256 of what it returns."""
     import dataclasses
-    import hashlib
 
-    import numpy as np
-
+    from perf.layer_speed import hash_csv
     from scart_bench.generator.attacks import RowWriter, _order, csv_applicable, grid_path
     from scart_bench.generator.modes import csv_mode
     from scart_bench.generator.plan import fly_normal_batch, plan_generation
@@ -112,17 +110,9 @@ def csv_mode_speed(n: int, skip: int, timing: str) -> None:
     results = csv_mode(link, [configs[i] for i in idx], [s[2] for s in src])
     own = resource.getrusage(resource.RUSAGE_SELF)
     cpu = own.ru_utime + own.ru_stime - c0
-    h = hashlib.sha256()
-    for nav, windows, events in results:
-        for topic in sorted(nav):
-            df = nav[topic]
-            h.update(topic.encode() + repr(list(df.columns)).encode())
-            for col in df.columns:
-                arr = df[col].to_numpy()
-                h.update(repr(arr.tolist()).encode() if arr.dtype == object else np.ascontiguousarray(arr).tobytes())
-        h.update(repr(windows).encode() + repr(events).encode())
+    digest = hash_csv(results)
     print(f"csv mode, {timing} timing: {len(idx)} configurations from {skip} on {len(sources)} recordings: "
-          f"{cpu:.1f} CPU s, {cpu / len(idx):.3f} per flight; output sha256 {h.hexdigest()[:16]}")
+          f"{cpu:.1f} CPU s, {cpu / len(idx):.3f} per flight; output sha256 {digest[:16]}")
 
 
 def timing_ratio(args) -> None:

@@ -38,7 +38,8 @@ def _hash_batch(batch, layer) -> str:
     return h.hexdigest()
 
 
-def _hash_csv(results) -> str:
+def hash_csv(results) -> str:
+    """sha256 of what csv mode returns (every topic table, windows and events), to compare two versions."""
     h = hashlib.sha256()
     for nav, windows, events in results:
         for topic in sorted(nav):
@@ -94,7 +95,7 @@ def main(argv: list[str] | None = None) -> None:
         results = csv_mode(link, [configs[i] for i in link_idx],
                            [src_seeds[k % len(sources)] for k in range(len(link_idx))])
         t_csv = time.perf_counter() - t0
-        csv_hash = _hash_csv(results)
+        csv_hash = hash_csv(results)
     if args.csv_paths:
         _csv_paths(args.csv_paths.split(","), link, [configs[i] for i in link_idx],
                    [src_seeds[k % len(sources)] for k in range(len(link_idx))], args.timing or cfg.timing)
@@ -130,7 +131,7 @@ def _csv_paths(paths: list[str], link: list, configs: list, seeds: list, timing:
         t0, c0 = time.perf_counter(), time.process_time()
         results = csv_mode(link, configs, seeds)
         cpu[path], wall = time.process_time() - c0, time.perf_counter() - t0
-        hashes[path] = _hash_csv(results)
+        hashes[path] = hash_csv(results)
         print(f"csv mode, {path} replay: {len(link)} flights ({timing} timing) in {cpu[path]:.1f} CPU s "
               f"({cpu[path] / len(link):.3f} per flight), wall {wall:.1f} s", flush=True)
     os.environ.pop("SCART_BENCH_CSV_REPLAY", None)
