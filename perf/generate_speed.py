@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _cpu() -> float:
+def cpu_seconds() -> float:
     """CPU seconds of this process and its finished children (the csv-mode process, the writer)."""
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
@@ -125,10 +125,10 @@ def timing_ratio(args) -> None:
     with tempfile.TemporaryDirectory(prefix="generate_speed_") as tmp:
         for timing in ("realistic", "ideal"):
             cfg = dataclasses.replace(get_profile(args.profile), timing=timing).flight_config()
-            t0, c0 = time.perf_counter(), _cpu()
+            t0, c0 = time.perf_counter(), cpu_seconds()
             generate_dataset(args.profile, Path(tmp) / timing, seed=args.seed, fmt=args.format, n_normal=args.flights,
                              config=cfg, scenarios=args.scenarios, layout=args.layout)
-            res[timing] = (time.perf_counter() - t0, _cpu() - c0)
+            res[timing] = (time.perf_counter() - t0, cpu_seconds() - c0)
             counts = open_dataset(Path(tmp) / timing).manifest["mode"].value_counts().to_dict()
             print(f"{timing} timing: {counts}, wall {res[timing][0]:.1f} s, CPU {res[timing][1]:.1f} s", flush=True)
             shutil.rmtree(Path(tmp) / timing)

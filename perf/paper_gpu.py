@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import resource
 import shutil
 import sys
 import tempfile
@@ -32,14 +31,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from perf.generate_speed import cpu_seconds
 from scart_bench.cli.main import main as cli_main
 from scart_bench.cli.run import PROFILES
-
-
-def _cpu_s() -> float:
-    """CPU seconds (user + system) of this process and its waited-for children so far."""
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def machine_line(device: str) -> str:
@@ -57,9 +51,9 @@ def machine_line(device: str) -> str:
 def timed(label: str, argv: list[str], phases: list[tuple[str, float, float, int]]) -> int:
     """Run one scart-bench command, record its wall and CPU seconds under ``label``."""
     print(f"== {label}: scart-bench {' '.join(argv)}", flush=True)
-    w0, c0 = time.perf_counter(), _cpu_s()
+    w0, c0 = time.perf_counter(), cpu_seconds()
     rc = cli_main(argv)
-    phases.append((label, time.perf_counter() - w0, _cpu_s() - c0, rc))
+    phases.append((label, time.perf_counter() - w0, cpu_seconds() - c0, rc))
     return rc
 
 
