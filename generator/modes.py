@@ -94,6 +94,8 @@ def csv_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, s
 
 def _same_schedule(flights: list[dict[str, pd.DataFrame]]) -> bool:
     first = flights[0]
+    if all(f is first for f in flights):  # one recording replayed for several copies
+        return True
     for f in flights[1:]:
         if set(f) != set(first):
             return False
@@ -106,27 +108,29 @@ def _same_schedule(flights: list[dict[str, pd.DataFrame]]) -> bool:
     return True
 
 
-def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenario]], seeds: list[int]
-             ) -> list[tuple[dict[str, pd.DataFrame], list[tuple[int, int]], list[dict]]]:
+def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenario]], seeds: list[int],
+             leave_passed: bool = False) -> list[tuple[dict[str, pd.DataFrame], list[tuple[int, int]], list[dict]]]:
     """Replay recorded flights through the layer.
 
     ``flights[i]`` maps topic -> table (``Timestamp`` in µs, fields; an ``Is_Anomaly`` column is
     ignored). Returns per flight: the attacked (navigator-view) topic tables with labels, the
-    attack windows and the event log. Flights that share one message schedule (as the generator's
+    attack windows and the event log. ``leave_passed``: a topic never handed to the layer (passed
+    unchanged) maps to None instead of its table, :func:`passed_table` of the flight's table (an
+    attacked copy of an all-topic log need not build a hundred tables it can take from its source). Flights that share one message schedule (as the generator's
     do under ideal timing) are replayed together as one batch; otherwise the copies of one recording
     (the same tables: under realistic timing every recording has its own schedule) are, each
     recording's batch after the other (per flight the same result: a flight's draws and state are its own).
     """
     if len(flights) > 1 and not _same_schedule(flights):
         if os.environ.get("SCART_BENCH_CSV_REPLAY") == "per-message":  # as before issue 51: one by one
-            return [r for f, sc, sd in zip(flights, scenarios, seeds) for r in csv_mode([f], [sc], [sd])]
+            return [r for f, sc, sd in zip(flights, scenarios, seeds) for r in csv_mode([f], [sc], [sd], leave_passed)]
         groups: dict[tuple, list[int]] = {}
         for i, f in enumerate(flights):
             groups.setdefault(tuple((t, id(df)) for t, df in f.items()), []).append(i)
         out: list = [None] * len(flights)
         for rows in groups.values():
             for i, r in zip(rows, csv_mode([flights[i] for i in rows], [scenarios[i] for i in rows],
-                                           [seeds[i] for i in rows])):
+                                           [seeds[i] for i in rows], leave_passed)):
                 out[i] = r
         return out
     n = len(flights)
@@ -163,19 +167,33 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
     # every message in timestamp order, topics at the same time together (generator.scart.replay)
     (per_message if one_by_one else replay)(layer, times, values, out_vals, delivered)
     results = []
+    last: dict[int, int] = {}  # a table's last timestamp, read once for the copies that replay it
+
+    def last_us(df: pd.DataFrame) -> int:
+        if id(df) not in last:
+            last[id(df)] = int(df["Timestamp"].iloc[-1])
+        return last[id(df)]
+
     for i, f in enumerate(flights):
-        end_us = int(max(f[t]["Timestamp"].iloc[-1] for t in topics if len(f[t]))) + 1
+        end_us = max(last_us(f[t]) for t in topics if len(f[t])) + 1
         windows = layer.labelled_windows(i, end_us)
         nav = {}
         for t in topics:
             k = lengths[t][i]
             if t not in values:  # never handed to the layer: passed unchanged
-                nav[t] = labelled_table(times[t][:k], table_values(t, i), list(fields[t]), windows)
+                nav[t] = None if leave_passed else labelled_table(times[t][:k], table_values(t, i), list(fields[t]), windows)
                 continue
             keep = delivered[t][i, :k]
             nav[t] = labelled_table(times[t][:k][keep], out_vals[t][i, :k][keep], list(fields[t]), windows)
         results.append((nav, windows, layer.event_log(i, end_us)))
     return results
+
+
+def passed_table(table: pd.DataFrame, windows=()) -> pd.DataFrame:
+    """What :func:`csv_mode` returns for a topic it passed unchanged when it replays ``table`` alone
+    (or with copies of itself): its timestamps, the labels of ``windows`` and its fields as float64."""
+    fields = [c for c in table.columns if c != "Timestamp" and c not in LABEL_COLUMNS]
+    return labelled_table(table["Timestamp"].to_numpy(np.int64), table[fields].to_numpy(np.float64), fields, windows)
 
 
 def with_labels(topics: dict[str, pd.DataFrame], windows=()) -> dict[str, pd.DataFrame]:

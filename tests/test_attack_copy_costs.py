@@ -1,14 +1,18 @@
 """What a copy of an all-topic log costs per topic (issue 48 acceptance 5): the per-topic checks made
 cheaper must still decide as before. A topic whose label text differs from what the copy's windows
-give is not taken as untouched; the manifest's ``rows`` counts distinct timestamps whatever their order."""
+give is not taken as untouched; the manifest's ``rows`` counts distinct timestamps whatever their order;
+a topic held as its source's table is written as the table it stands for."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from scart_bench.dataset import label_columns, labelled_table
-from scart_bench.dataset.write import _most_frequent_rows
+from scart_bench.dataset import SourceTopic, compact, flight_record, label_columns, labelled_table
+from scart_bench.dataset.labels import label_patterns
+from scart_bench.dataset.write import _most_frequent_rows, built
 from scart_bench.generator.logs.copies import untouched
 
 WINDOWS = [(2_000, 5_000, "s1", "attack"), (4_000, 7_000, "s2", "noise")]
@@ -39,3 +43,47 @@ def test_rows_count_distinct_timestamps_in_any_order():
               "c": pd.DataFrame({"Timestamp": np.array([], dtype=np.int64)})}
     assert _most_frequent_rows(topics) == 4
     assert _most_frequent_rows({"b": topics["b"]}) == 3
+
+
+# A copy's topic held as its source's table (SourceTopic): the labels are made per run of rows, and
+# what the writer stores for it is what it stores for the built table, for any timestamps and windows.
+_times = st.lists(st.integers(0, 100), max_size=40)
+_windows = st.lists(st.tuples(st.integers(-10, 110), st.integers(0, 60), st.sampled_from(["s1", "s2", "", "s1+s3"]),
+                              st.sampled_from(["attack", "fault"])).map(lambda w: (w[0], w[0] + w[1], w[2], w[3])),
+                    max_size=4)
+
+
+@settings(max_examples=150, deadline=None)
+@given(_times, st.booleans(), _windows)
+def test_label_patterns_give_label_columns_row_for_row(times, ordered, windows):
+    ts = np.array(sorted(times) if ordered else times, dtype=np.int64)
+    index, labels = label_patterns(ts, windows)
+    expected = label_columns(ts, windows)
+    for column, want in expected.items():
+        got = np.array([labels[i][column][0] for i in index], dtype=want.dtype)
+        assert np.array_equal(got, want)
+
+
+@settings(max_examples=60, deadline=None)
+@given(_times, _windows)
+def test_a_source_topic_is_stored_as_its_built_table(times, windows):
+    ts = np.sort(np.array(times, dtype=np.int64))
+    table = pd.DataFrame({"Timestamp": ts, "x": np.linspace(0, 1, len(ts)), "n": np.arange(len(ts), dtype=np.int32)})
+    held = SourceTopic("t", table, windows)
+    built = held.frame()
+    assert list(built.columns) == held.columns and built.dtypes.tolist() == held.dtypes
+    for shared in ({}, {"t": ("../f/navigator", ["x", "n"])}):
+        a, meta_a = compact.stack_view({"t": built}, shared=shared)
+        b, meta_b = compact.stack_view({"t": held}, shared=shared)
+        assert a.equals(b) and meta_a == meta_b
+
+
+def test_the_paper_layout_writes_a_source_topic_as_its_table(tmp_path):
+    ts = np.arange(5, dtype=np.int64) * 1_000
+    table = pd.DataFrame({"Timestamp": ts, "x": np.arange(5.0)})
+    held = SourceTopic("a", table, [(1_000, 3_000, "s1", "attack")])
+    rec = flight_record("f1", {"a": held}, {"a": held}, {"mode": "csv"}, {}, held.windows)
+    out = built(rec)
+    assert isinstance(out.navigator["a"], pd.DataFrame) and out.simulator["a"] is out.navigator["a"]
+    assert out.navigator["a"]["Is_Anomaly"].tolist() == [0, 1, 1, 0, 0]
+    assert built(out) is out

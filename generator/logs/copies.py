@@ -14,8 +14,9 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from scart_bench.dataset import LABEL_COLUMNS, FlightRecord, flight_record, label_columns
-from scart_bench.generator.modes import csv_record
+from scart_bench.dataset import LABEL_COLUMNS, FlightRecord, SourceTopic, flight_record, label_columns
+from scart_bench.generator.logs.orientation import recorded_view
+from scart_bench.generator.modes import csv_record, passed_table
 
 #: The dtype pandas gives a label column built from text (as with_labels and labelled_table build them).
 _TEXT_DTYPE = pd.Series(np.array([""], dtype=object)).dtype
@@ -34,6 +35,22 @@ class _SourceColumns:
     def __init__(self, source: dict[str, pd.DataFrame]):
         self.source = source
         self._topics: dict[str, tuple] = {}
+        self._passes: dict[str, bool] = {}
+        self._caches: dict[str, dict] = {}
+
+    def passes_as_source(self, name: str, replayed: pd.DataFrame) -> bool:
+        """Whether the table csv mode gives topic ``name`` when it passes ``replayed`` unchanged (its
+        :func:`passed_table`, in the recording's own fields) is the source's table with the copy's labels,
+        bit for bit (:func:`untouched`). The labels are made from the same timestamps and windows on
+        both sides, so the answer does not depend on the windows: decided once for all the copies."""
+        if name not in self._passes:
+            table = recorded_view({name: passed_table(replayed)})[name]
+            self._passes[name] = name in untouched({name: table}, self.source, ())
+        return self._passes[name]
+
+    def source_topic(self, name: str, windows) -> SourceTopic:
+        """Topic ``name`` of a copy with ``windows``, held as the source's table."""
+        return SourceTopic(name, self.source[name], windows, self._caches.setdefault(name, {}))
 
     def topic(self, name: str) -> tuple | None:
         """(non-label columns, their dtypes, their bits or None where not numeric) of topic ``name``."""
@@ -90,6 +107,9 @@ def untouched(nav: dict[str, pd.DataFrame], source: dict[str, pd.DataFrame], win
     cols = _columns_of(source)
     out = set()
     for topic, a in nav.items():
+        if isinstance(a, SourceTopic):  # held as the source's table (copy_record decided it)
+            out.add(topic)
+            continue
         b = source.get(topic)
         if b is None or len(a) != len(b) or not isinstance(a.index, pd.RangeIndex) or not a.index.equals(b.index):
             continue
@@ -113,14 +133,27 @@ def untouched(nav: dict[str, pd.DataFrame], source: dict[str, pd.DataFrame], win
 
 
 def copy_record(flight_id: str, source: dict[str, pd.DataFrame], result: tuple, scenarios: list, seed: int,
-                source_name: str, config: dict) -> FlightRecord:
+                source_name: str, config: dict, replayed: dict[str, pd.DataFrame] | None = None) -> FlightRecord:
     """The record ``csv_record(flight_id, source, result, scenarios, seed, source_name, config)`` gives
     (same views, tables, manifest row), with the reference view and the attack's effect computed on
-    the changed topics only; an untouched topic's navigator table is also its simulator table."""
+    the changed topics only; an untouched topic's navigator table is also its simulator table.
+
+    ``result`` may leave the topics csv mode passed unchanged as None (csv_mode ``leave_passed``;
+    ``replayed``: the tables it replayed): each is then held as the source's table with the copy's
+    labels (:class:`SourceTopic`, not built) where that is what csv mode would have given, and
+    built as csv mode builds it otherwise."""
     nav, windows, events = result
+    if any(df is None for df in nav.values()):
+        if replayed is None:
+            raise ValueError("copy_record: a result with topics left out (None) needs the replayed tables")
+        cols = _columns_of(source)
+        nav = {t: df if df is not None else cols.source_topic(t, windows) if cols.passes_as_source(t, replayed[t])
+               else recorded_view({t: passed_table(replayed[t], windows)})[t] for t, df in nav.items()}
+    uorb = config.get("flight_config", {}).get("uorb")
     same = untouched(nav, source, windows)
-    if not same or config.get("flight_config", {}).get("uorb"):  # a uORB view is made from the whole view
-        return csv_record(flight_id, source, result, scenarios, seed, source_name, config)
+    if not same or uorb:  # a uORB view is made from the whole view
+        nav = {t: df.frame() if isinstance(df, SourceTopic) else df for t, df in nav.items()}
+        return csv_record(flight_id, source, (nav, windows, events), scenarios, seed, source_name, config)
     part = csv_record(flight_id, {t: df for t, df in source.items() if t not in same},
                       ({t: df for t, df in nav.items() if t not in same}, windows, events),
                       scenarios, seed, source_name, config)

@@ -113,19 +113,21 @@ def copy_seed(seed: int, job) -> int:
     return int.from_bytes(hashlib.sha256(f"{int(seed)}:{_config_id(job)}".encode()).digest()[:4], "little")
 
 
-def replay_on_log(listen: dict[str, pd.DataFrame], jobs: list, seed: int, clock: LoggedClock
-                  ) -> list[tuple[tuple, list[str]]]:
+def replay_on_log(listen: dict[str, pd.DataFrame], jobs: list, seed: int, clock: LoggedClock,
+                  leave_passed: bool = False) -> list[tuple[tuple, list[str]]]:
     """csv mode on a recording in logged time: each configuration's time triggers taken to the
     logged clock (generator.logs.logged_time.log_triggers: a trigger in a gap moves to the next
     logged row, one past the end of the log moves earlier), the replay on that clock (durations
     count logged seconds; each copy's seed from :func:`copy_seed`), and the results back on the log's own
     time. Returns per configuration
-    (result without the derived phase topic, notes on moved triggers)."""
+    (result without the derived phase topic, notes on moved triggers). ``leave_passed`` (csv_mode's),
+    on a log without gaps: the topics passed unchanged map to None (generator.logs.copies rebuilds them)."""
     if not jobs:
         return []
     moved = [log_triggers(job, clock, takeoff_us(listen)) for job in jobs]
     replay = clock.tables(listen)
-    results = csv_mode([replay] * len(jobs), [m[0] for m in moved], [copy_seed(seed, job) for job in jobs])
+    results = csv_mode([replay] * len(jobs), [m[0] for m in moved], [copy_seed(seed, job) for job in jobs],
+                       leave_passed=leave_passed and clock.identity)
     return [(without_phases(clock.back(r)), m[1]) for r, m in zip(results, moved)]
 
 
@@ -495,7 +497,7 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
             if not clock.identity:
                 say(f"attack: {fid}: {gap_line(clock.gaps_)}; durations count logged time")
             moved_any = []
-            for job, (result, notes) in zip(fit, replay_on_log(listen, fit, seed, clock)):
+            for job, (result, notes) in zip(fit, replay_on_log(listen, fit, seed, clock, leave_passed=not full_copies)):
                 progress.add("replayed")
                 moved_any.extend(notes)
                 cid = f"csv-{fid}-{_config_id(job)}"
@@ -506,9 +508,12 @@ def attack_dataset(dataset: str | Path, scenario_path: str | Path, sources: tupl
                     continue
                 say(f"attack: {fid} x {_config_id(job)} -> {cid}")
                 added.append(cid)
-                yield (csv_record if full_copies else copy_record)(
-                    cid, tables, result, job, copy_seed(seed, job), fid,
-                    {"input": f"{ds.path}/flights/{fid}", "source_flight": fid, "logged_time": time_record(clock, notes)})
+                config = {"input": f"{ds.path}/flights/{fid}", "source_flight": fid,
+                          "logged_time": time_record(clock, notes)}
+                if full_copies:
+                    yield csv_record(cid, tables, result, job, copy_seed(seed, job), fid, config)
+                else:
+                    yield copy_record(cid, tables, result, job, copy_seed(seed, job), fid, config, replayed=listen)
             if moved_any:
                 say(f"attack: {fid}: {len(moved_any)} trigger(s) moved on the log's time, e.g. {moved_any[0]} "
                     "(each copy's raw/config.json lists its own)")

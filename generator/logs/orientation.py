@@ -126,9 +126,13 @@ def listen_view(tables: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
 
 
 def recorded_view(nav: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
-    """Replayed tables with the recording's own fields (see the module doc)."""
+    """Replayed tables with the recording's own fields (see the module doc); a topic csv mode left
+    out (None: passed unchanged, generator.modes.csv_mode ``leave_passed``) stays None."""
     out = {}
     for topic, df in nav.items():
+        if df is None:
+            out[topic] = None
+            continue
         quat = quaternion_of(df.columns)
         if quat is None or not all(a in df.columns for a in ANGLES):
             out[topic] = df

@@ -39,6 +39,7 @@ from scart_bench.dataset.checks import (  # noqa: F401
 )
 from scart_bench.dataset.labels import (  # noqa: F401
     LABEL_COLUMNS,
+    SourceTopic,
     combine,
     insert_labels,
     label_columns,

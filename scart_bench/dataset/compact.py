@@ -34,6 +34,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from scart_bench.dataset.labels import LABEL_COLUMNS, SourceTopic
 from scart_bench.dataset.schema import TOPICS, TRUTH_FIELDS
 from scart_bench.errors import ScartBenchError
 from scart_bench.jsonfile import JsonFileError, loads_bounded
@@ -172,13 +173,16 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
     offset = 0
     for name in stored:
         df = topics[name]
-        if not isinstance(df, pd.DataFrame):
+        from_source = isinstance(df, SourceTopic)  # a copy's topic held as its source's table plus labels
+        if not from_source and not isinstance(df, pd.DataFrame):
             raise CompactError(f"topic {name!r}: expected a table, got {type(df).__name__}")
         cols = []
         elsewhere_view, elsewhere = shared.get(name, ("", []))
         elsewhere = [c for c in elsewhere if c not in SHARED_COLUMNS]
         kept_elsewhere = set(elsewhere)
-        for label, dtype in zip(df.columns, df.dtypes.tolist()):  # dtypes once per topic, not per column
+        labels = None
+        dtypes = df.dtypes if from_source else df.dtypes.tolist()  # dtypes once per topic, not per column
+        for label, dtype in zip(df.columns, dtypes):
             col = str(label)
             if col in kept_elsewhere:
                 cols.append([col, _dtype_name(dtype)])
@@ -186,7 +190,15 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
             key = _column_key(name, col)
             if owner.setdefault(key, name) != name and key not in SHARED_COLUMNS:
                 raise CompactError(f"topic {name!r} column {col!r}: the name {key!r} is taken by topic {owner[key]!r}")
-            arr = _arrow(df[label], key, float32_safe(name, col))
+            if not from_source:
+                arr = _arrow(df[label], key, float32_safe(name, col))
+            elif col in LABEL_COLUMNS:
+                labels = labels or df.label_arrays()
+                arr = labels[col]
+            else:  # the source's column: the same array for every copy of the source
+                arr = df.cache.get(("arrow", col))
+                if arr is None:
+                    arr = df.cache[("arrow", col)] = _arrow(df.table[label], key, float32_safe(name, col))
             if key in types and types[key] != arr.type:
                 try:
                     arr = arr.cast(types[key])

@@ -11,6 +11,7 @@ from collections.abc import Iterable
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from scart_bench.dataset.record import DatasetError
 
@@ -142,3 +143,83 @@ def _take(values: np.ndarray, pick: np.ndarray, valid: np.ndarray) -> np.ndarray
 def _base_topic(frames: list[tuple[str, np.ndarray]]) -> str:
     """The most frequently sampled topic (distinct timestamps; the first on a tie)."""
     return max(frames, key=lambda item: len(item[1]))[0]
+
+
+def label_patterns(timestamps: np.ndarray, windows: list[tuple]) -> tuple[np.ndarray, list[dict[str, np.ndarray]]]:
+    """The label columns of ``timestamps`` as a pattern index per row and the labels of each pattern
+    (one row's :func:`label_columns`): rows inside the same windows share their labels, so a long
+    table's text labels are a few strings taken by index (no Python string per row)."""
+    ts = np.asarray(timestamps, dtype=np.int64)
+    n = ts.shape[0]
+    if n > 1 and not (ts[1:] >= ts[:-1]).all():  # out of order: a pattern per distinct set of windows
+        codes = np.zeros(n, dtype=object if len(windows) > 62 else np.int64)
+        for k, w in enumerate(windows):
+            codes = codes + ((ts >= w[0]) & (ts < w[1])).astype(np.int64) * (1 << k)
+        _, first, index = np.unique(codes, return_index=True, return_inverse=True)
+        return index.reshape(-1), [label_columns(ts[i : i + 1], windows) for i in first]
+    # in order: each window is a run of rows, so the labels change only where a window starts or ends
+    cuts = np.searchsorted(ts, np.array([b for w in windows for b in (w[0], w[1])], dtype=np.int64), side="left")
+    bounds = np.unique(np.concatenate([[0, n], cuts]))
+    starts, lengths = bounds[:-1], np.diff(bounds)
+    starts, lengths = starts[lengths > 0], lengths[lengths > 0]
+    labels, seen, segment = [], {}, []
+    for i in starts:
+        key = tuple(bool(w[0] <= ts[i] < w[1]) for w in windows)
+        if key not in seen:
+            seen[key] = len(labels)
+            labels.append(label_columns(ts[i : i + 1], windows))
+        segment.append(seen[key])
+    return np.repeat(np.asarray(segment, dtype=np.int64), lengths), labels
+
+
+class SourceTopic:
+    """A topic of an attacked copy that is its source recording's table as loaded, with the copy's
+    labels: what ``insert_labels(table, table["Timestamp"], windows)`` gives, column for column, held
+    without building it. A copy of an all-topic log holds a hundred such topics; the dataset writer
+    stores their timestamps and labels and reads their fields from the source flight's file.
+
+    ``cache`` (a dict shared by the copies of one source) keeps the columns' Arrow arrays."""
+
+    def __init__(self, name: str, table: pd.DataFrame, windows: Iterable[tuple], cache: dict | None = None):
+        self.name = name
+        self.table = table
+        self.windows = [tuple(w) for w in windows]
+        self.cache = {} if cache is None else cache
+        keep = [c for c in table.columns if c not in LABEL_COLUMNS]
+        self.columns = [keep[0], *LABEL_COLUMNS, *keep[1:]]
+
+    def __len__(self) -> int:
+        return len(self.table)
+
+    def __getitem__(self, column: str) -> pd.Series:
+        """A column as the built table would hold it (the labels built on request)."""
+        if column in LABEL_COLUMNS:
+            return self.frame()[column]
+        key = ("series", column)  # pandas copies a table's attrs on every column it hands out
+        if key not in self.cache:
+            self.cache[key] = self.table[column]
+        return self.cache[key]
+
+    @property
+    def dtypes(self) -> list:
+        """The columns' dtypes, in the order of :attr:`columns`."""
+        if "dtypes" not in self.cache:
+            d = self.table.dtypes
+            self.cache["dtypes"] = {c: d[c] for c in self.table.columns if c not in LABEL_COLUMNS}
+            self.cache["label_dtypes"] = insert_labels(self.table.iloc[:1], self.table["Timestamp"].iloc[:1]
+                                                       .to_numpy(), []).dtypes[list(LABEL_COLUMNS)].tolist()
+        known, labels = self.cache["dtypes"], dict(zip(LABEL_COLUMNS, self.cache["label_dtypes"]))
+        return [labels[c] if c in labels else known[c] for c in self.columns]
+
+    def frame(self) -> pd.DataFrame:
+        """The table itself."""
+        return insert_labels(self.table, self.table["Timestamp"].to_numpy(), self.windows)
+
+    def label_arrays(self) -> dict[str, pa.Array]:
+        """The three label columns as Arrow arrays (``Is_Anomaly`` int8, the others text)."""
+        index, labels = label_patterns(self["Timestamp"].to_numpy(), self.windows)
+        take = pa.array(index.astype(np.int32))
+        out = {"Is_Anomaly": pa.array(np.array([p["Is_Anomaly"][0] for p in labels], dtype=np.int8)).take(take)}
+        for c in LABEL_COLUMNS[1:]:
+            out[c] = pa.array([str(p[c][0]) for p in labels], type=pa.string()).take(take)
+        return out

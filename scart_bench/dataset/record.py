@@ -59,6 +59,8 @@ class FlightRecord:
     fields). ``windows`` are the attack windows ``[start_us, end_us)`` in which an action was
     active; ``events`` is the attack event log (one dict per event). ``uorb``: the flight's uORB
     view (generator.telemetry.uorb; topic -> table like the other views), written as a third view when given.
+    An attacked copy's table may be a :class:`scart_bench.dataset.labels.SourceTopic` (its source
+    recording's table with the copy's labels, not built; the writers take it as that table).
     """
 
     flight_id: str

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import json
 import os
@@ -15,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.dataset import compact
-from scart_bench.dataset.labels import combine
+from scart_bench.dataset.labels import SourceTopic, combine
 from scart_bench.dataset.locks import dataset_lock, exit_with_parent, recover
 from scart_bench.dataset.read import open_dataset
 from scart_bench.dataset.record import (
@@ -329,6 +330,22 @@ def _same_array(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.array_equal(np.ascontiguousarray(a).view(width), np.ascontiguousarray(b).view(width)))
 
 
+def built(record: FlightRecord) -> FlightRecord:
+    """``record`` with every :class:`SourceTopic` (a copy's topic held as its source's table) built
+    as a table, for the writers that take pandas tables (the paper's layout)."""
+    views = [v for _, v in _views(record)]
+    if not any(isinstance(df, SourceTopic) for v in views for df in v.values()):
+        return record
+    made: dict[int, pd.DataFrame] = {}  # a topic both views hold stays one table
+
+    def frames(view):
+        return None if view is None else {t: made.setdefault(id(df), df.frame()) if isinstance(df, SourceTopic)
+                                          else df for t, df in view.items()}
+
+    return dataclasses.replace(record, navigator=frames(record.navigator), simulator=frames(record.simulator),
+                               uorb=frames(record.uorb))
+
+
 def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper",
                  source: SourceView | None = None) -> dict:
     """Write one flight (raw folder plus its views, in ``layout``); returns its manifest row.
@@ -348,7 +365,7 @@ def write_flight(out: Path, fmt: str, record: FlightRecord, layout: str = "paper
     if layout == "compact":
         _write_compact(root, record, source)
     else:
-        _write_paper(root, fmt, record)
+        _write_paper(root, fmt, built(record))
     row = {k: record.manifest.get(k) for k in MANIFEST_COLUMNS}
     for k in ("mode", "split"):  # a record built without flight_record: the reader refuses an empty one
         if row[k] is None:
@@ -426,6 +443,9 @@ def _write_compact(root: Path, record: FlightRecord, source: SourceView | None =
                     _share_with_navigator(name, df, record, reuse, shared)
         elif view == "simulator":
             for name, df in topics.items():
+                if record.navigator.get(name) is df:
+                    reuse[name] = "navigator"  # the very table (what comparing it would find)
+                    continue
                 _share_with_navigator(name, df, record, reuse, shared)
         tmp = root / f".{view}.parquet.tmp"
         with writing(root / f"{view}.parquet"):
