@@ -158,3 +158,37 @@ def test_a_view_reference_outside_the_dataset_is_refused(tmp_path):
         compact.view_file(tmp_path / "flights" / "x" / "navigator.parquet", "../../../etc/navigator")
     assert compact.view_file(tmp_path / "f" / "a" / "simulator.parquet", "../b/navigator") == \
         tmp_path / "f" / "b" / "navigator.parquet"
+
+
+FLEET_GAPPED = ROOT.parent / "shared/data/dataflash/fleet/arducopter_7-9-2014_6.bin"  # gaps at 43.6-47.1, 104.2-119.6 s
+GAP_GRID = GRID.replace('target = ["position", "attitude"]', 'target = ["attitude"]').replace(
+    'duration_s = [4.0]', 'duration_s = [15.0]').replace(
+    'trigger = ["time"]', 'trigger = ["early", "late"]').replace(
+    '[triggers.time]\nstart = [{ condition = "time_window", start_s = 3.0 }]',
+    '[triggers.early]\nstart = [{ condition = "time_window", start_s = 40.0 }]\n'
+    '[triggers.late]\nstart = [{ condition = "time_window", start_s = 100.0 }]')
+
+
+@pytest.mark.skipif(not FLEET_GAPPED.exists(), reason=f"shared log {FLEET_GAPPED} not found")
+def test_a_shared_copy_of_a_gapped_log_reads_back_as_the_full_copy(tmp_path):
+    """On a log with logging gaps csv mode replays on the logged clock: the topics it passes unchanged
+    are still held as the source's tables, and read back as the full copy's, labels included."""
+    assert "late" in GAP_GRID and "duration_s = [15.0]" in GAP_GRID
+    import_logs([FLEET_GAPPED], tmp_path / "base", split="test")
+    (tmp_path / "grid.toml").write_text(GAP_GRID)
+    ids = {}
+    for name, full in (("full", True), ("shared", False)):
+        shutil.copytree(tmp_path / "base", tmp_path / name)
+        ids[name] = attack_dataset(tmp_path / name, tmp_path / "grid.toml", sources=("test",), full_copies=full)
+    assert ids["full"] == ids["shared"] and len(ids["full"]) == 2
+    a, b = open_dataset(tmp_path / "full"), open_dataset(tmp_path / "shared")
+    for fid in ids["full"]:
+        start, end = (int(v) for v in a.manifest.set_index("flight_id").loc[fid, ["attack_start_us", "attack_end_us"]])
+        assert end - start > 16e6  # 15 s of logged flight across a gap: longer on the log's clock
+        ta, tb = read_view(a.flight_dir(fid), "navigator"), read_view(b.flight_dir(fid), "navigator")
+        assert list(ta) == list(tb) and len(ta) > 10
+        for topic in ta:
+            pd.testing.assert_frame_equal(ta[topic], tb[topic], check_exact=True)
+        meta = compact.read_meta(b.flight_dir(fid) / "navigator.parquet")
+        shared = [s for s in meta["stored"] if s.get("shared")]
+        assert len(shared) > 10  # the untouched topics' fields are read from the source flight

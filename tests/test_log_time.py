@@ -278,3 +278,30 @@ def test_a_killed_attack_leaves_nothing_the_next_attack_or_a_read_trips_over(tmp
         assert len(d.flight(fid))
     assert json.loads((ds / "flights" / ids[0] / "raw" / "config.json").read_text())["logged_time"]["logging_gaps"][
         "count"] == 0
+
+
+def test_back_keeps_a_left_out_topic_only_where_its_labels_read_the_same_on_the_logs_time():
+    """csv mode leaves a topic it passed unchanged out (None); mapping a copy back to the log's time
+    keeps it out where every window holds the same rows on both clocks, and builds it as csv mode
+    builds it (labels counted on the logged clock) where it cannot tell (rows out of order)."""
+    from scart_bench.generator.modes import passed_table
+
+    ts = np.r_[np.arange(0, 10_000_000, 100_000), np.arange(30_000_000, 40_000_000, 100_000)]  # a 20 s gap
+    clock = LoggedClock().fit({"a": pd.DataFrame({"Timestamp": ts, "x": 0.0})})
+    assert len(clock.gaps_) == 1
+    shuffled = np.r_[ts[1::2], ts[::2]]
+    log = {"sorted": pd.DataFrame({"Timestamp": ts, "x": np.arange(len(ts), dtype=float)}),
+           "shuffled": pd.DataFrame({"Timestamp": shuffled, "x": np.arange(len(ts), dtype=float)})}
+    replayed = clock.tables(log)
+    windows = [(8_000_000, 12_000_000, "s1", "attack")]  # 4 s of logged time across the gap
+    nav, wins, _ = clock.back(({"sorted": None, "shuffled": None}, windows, []), replayed)
+    assert nav["sorted"] is None
+    assert wins[0][1] - wins[0][0] > 20e6  # the window spans the gap on the log's time
+    flag = passed_table(log["sorted"], wins)["Is_Anomaly"].to_numpy()
+    want = passed_table(replayed["sorted"], windows)["Is_Anomaly"].to_numpy()
+    assert np.array_equal(flag, want) and flag.sum() == 40  # 2 s before the gap and 2 s after it
+    built = nav["shuffled"]
+    assert np.array_equal(built["Timestamp"].to_numpy(), shuffled)
+    assert np.array_equal(built["Is_Anomaly"].to_numpy(), passed_table(replayed["shuffled"], windows)["Is_Anomaly"])
+    with pytest.raises(ValueError, match="replayed tables"):
+        clock.back(({"sorted": None}, windows, []))

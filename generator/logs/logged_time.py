@@ -79,6 +79,7 @@ class LoggedClock:
         b = np.array([g[1] for g in self.gaps_], dtype=np.int64)
         self._before, self._after = a, b  # last row before and first row after each gap
         self._shift = np.cumsum(b - a - self.step_us_)  # time removed up to and including each gap
+        self._times_of: dict[int, tuple] = {}  # replayed tables' times on both clocks (back)
         return self
 
     @property
@@ -133,22 +134,57 @@ class LoggedClock:
             out[topic] = new
         return out
 
-    def back(self, result: tuple) -> tuple:
-        """A csv-mode result (tables, windows, events) replayed on this clock, on the log's own time."""
+    def back(self, result: tuple, replayed: dict[str, pd.DataFrame] | None = None) -> tuple:
+        """A csv-mode result (tables, windows, events) replayed on this clock, on the log's own time.
+
+        A topic csv mode left out (None: passed unchanged, ``leave_passed``; ``replayed``: the tables
+        it replayed, on this clock) stays None where its labels come out the same counted on the log's
+        time, that is the source table with the copy's windows (generator.logs.copies); otherwise it
+        is built here as csv mode builds it (labels on this clock), with the log's timestamps."""
         if self.identity:
             return result
         nav, windows, events = result
-        tables = {}
-        for topic, df in nav.items():
-            new = df.copy(deep=False)
-            new["Timestamp"] = self.to_log(df["Timestamp"].to_numpy(np.int64))
-            tables[topic] = new
         wins = []
         for w in windows:
             s, e = (int(v) for v in self.to_log([w[0], w[1]]))
             wins.append((s, e, *w[2:]))
+        tables = {}
+        for topic, df in nav.items():
+            if df is None:
+                if replayed is None:
+                    raise ValueError("LoggedClock.back: a result with topics left out (None) needs the replayed tables")
+                times = self._times(replayed[topic])
+                if self._same_rows(times, windows, wins):
+                    tables[topic] = None
+                    continue
+                from scart_bench.generator.modes import passed_table  # modes imports what imports this module
+
+                df = passed_table(replayed[topic], windows)
+            new = df.copy(deep=False)
+            new["Timestamp"] = self.to_log(df["Timestamp"].to_numpy(np.int64))
+            tables[topic] = new
         evs = [{**ev, "timestamp_us": int(self.to_log([ev["timestamp_us"]])[0])} for ev in events]
         return tables, wins, evs
+
+    def _times(self, table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+        """A replayed table's timestamps on this clock and on the log's, kept for the next copy."""
+        cache = self._times_of
+        if cache.get(id(table), (None,))[0] is not table:
+            logged = table["Timestamp"].to_numpy(np.int64)
+            cache[id(table)] = (table, logged, self.to_log(logged))
+        return cache[id(table)][1:]
+
+    @staticmethod
+    def _same_rows(times: tuple[np.ndarray, np.ndarray], logged_windows, log_windows) -> bool:
+        """Whether each window holds the same rows counted on this clock and on the log's time (so
+        every row's labels agree): both clocks' times in order, each window the same run of rows."""
+        logged, log = times
+        if len(logged) > 1 and not ((logged[1:] >= logged[:-1]).all() and (log[1:] >= log[:-1]).all()):
+            return False
+        for a, b in zip(logged_windows, log_windows):
+            if (np.searchsorted(logged, [a[0], a[1]]) != np.searchsorted(log, [b[0], b[1]])).any():
+                return False
+        return True
 
 
 def _s(us: float) -> str:

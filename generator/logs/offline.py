@@ -120,15 +120,16 @@ def replay_on_log(listen: dict[str, pd.DataFrame], jobs: list, seed: int, clock:
     logged row, one past the end of the log moves earlier), the replay on that clock (durations
     count logged seconds; each copy's seed from :func:`copy_seed`), and the results back on the log's own
     time. Returns per configuration
-    (result without the derived phase topic, notes on moved triggers). ``leave_passed`` (csv_mode's),
-    on a log without gaps: the topics passed unchanged map to None (generator.logs.copies rebuilds them)."""
+    (result without the derived phase topic, notes on moved triggers). ``leave_passed`` (csv_mode's): the
+    topics passed unchanged map to None (generator.logs.copies holds them as the source's tables) where
+    their labels read the same on the log's time (LoggedClock.back)."""
     if not jobs:
         return []
     moved = [log_triggers(job, clock, takeoff_us(listen)) for job in jobs]
     replay = clock.tables(listen)
     results = csv_mode([replay] * len(jobs), [m[0] for m in moved], [copy_seed(seed, job) for job in jobs],
-                       leave_passed=leave_passed and clock.identity)
-    return [(without_phases(clock.back(r)), m[1]) for r, m in zip(results, moved)]
+                       leave_passed=leave_passed)
+    return [(without_phases(clock.back(r, replay)), m[1]) for r, m in zip(results, moved)]
 
 
 def time_record(clock: LoggedClock, notes: list[str]) -> dict:
