@@ -114,12 +114,14 @@ def csv_mode(flights: list[dict[str, pd.DataFrame]], scenarios: list[list[Scenar
 
     ``flights[i]`` maps topic -> table (``Timestamp`` in µs, fields; an ``Is_Anomaly`` column is
     ignored). Returns per flight: the attacked (navigator-view) topic tables with labels, the
-    attack windows and the event log. ``leave_passed``: a topic never handed to the layer (passed
-    unchanged) maps to None instead of its table, :func:`passed_table` of the flight's table (an
-    attacked copy of an all-topic log need not build a hundred tables it can take from its source). Flights that share one message schedule (as the generator's
+    attack windows and the event log. Flights that share one message schedule (as the generator's
     do under ideal timing) are replayed together as one batch; otherwise the copies of one recording
     (the same tables: under realistic timing every recording has its own schedule) are, each
     recording's batch after the other (per flight the same result: a flight's draws and state are its own).
+
+    ``leave_passed``: a topic never handed to the layer (passed unchanged) maps to None instead of
+    its table, :func:`passed_table` of the flight's table (an attacked copy of an all-topic log need
+    not build a hundred tables it can take from its source, generator.logs.copies).
     """
     if len(flights) > 1 and not _same_schedule(flights):
         if os.environ.get("SCART_BENCH_CSV_REPLAY") == "per-message":  # as before issue 51: one by one
