@@ -338,9 +338,15 @@ def built(record: FlightRecord) -> FlightRecord:
         return record
     made: dict[int, pd.DataFrame] = {}  # a topic both views hold stays one table
 
+    def frame(df):
+        if not isinstance(df, SourceTopic):
+            return df
+        if id(df) not in made:
+            made[id(df)] = df.frame()
+        return made[id(df)]
+
     def frames(view):
-        return None if view is None else {t: made.setdefault(id(df), df.frame()) if isinstance(df, SourceTopic)
-                                          else df for t, df in view.items()}
+        return None if view is None else {t: frame(df) for t, df in view.items()}
 
     return dataclasses.replace(record, navigator=frames(record.navigator), simulator=frames(record.simulator),
                                uorb=frames(record.uorb))
