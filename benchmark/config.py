@@ -58,9 +58,11 @@ from scart_bench.generator.profiles import PROFILES
 from scart_bench.storage import is_url
 
 #: The keys a run file may hold.
+#: values of ``--calibrate-on`` (run file: ``calibrate_on``)
+CALIBRATE_ON = ("train_dataset", "dataset")
 #: values of ``--device``
 DEVICES = ("auto", "cpu", "cuda")
-RUN_KEYS = ("detectors", "profile", "dataset", "train_dataset", "out", "seed", "jobs", "timeout", "executor", "scheduler",
+RUN_KEYS = ("detectors", "profile", "dataset", "train_dataset", "calibrate_on", "out", "seed", "jobs", "timeout", "executor", "scheduler",
             "plugins", "params", "protocol", "resume", "features", "exclude", "device", "score_shards", "columns")
 
 
@@ -74,6 +76,9 @@ class RunConfig:
     dataset: Path | str | None = None
     #: train and calibrate on this dataset, test on ``dataset`` (a transfer run: benchmark.transfer)
     train_dataset: Path | None = None
+    #: a transfer run's calibration flights: the train dataset's validation flights ("train_dataset"), or the
+    #: test dataset's normal flights of split validation ("dataset": a few of your own flights, never tested)
+    calibrate_on: str = "train_dataset"
     out: Path | str | None = None
     resume: bool = False
     executor: str = "local"
@@ -129,6 +134,11 @@ class RunConfig:
             raise RunError(f"--columns {self.columns!r}: expected one of {', '.join(COLUMN_MODES)}")
         if self.train_dataset is not None and self.columns == "logged":
             raise RunError("--columns logged: a transfer run (--train-dataset) always reads its flights by meaning")
+        if self.calibrate_on not in CALIBRATE_ON:
+            raise RunError(f"--calibrate-on {self.calibrate_on!r}: expected one of "
+                           f"{', '.join(c.replace('_', '-') for c in CALIBRATE_ON)}")
+        if self.calibrate_on != "train_dataset" and self.train_dataset is None:
+            raise RunError("--calibrate-on dataset: a transfer run's option (it needs --train-dataset)")
         if self.train_dataset is not None and self.dataset is None:
             raise RunError(f"--train-dataset {self.train_dataset}: a transfer run tests on --dataset DIR; none given")
 
@@ -151,6 +161,8 @@ class RunConfig:
             out["dataset"] = str(self.dataset)
         if self.train_dataset is not None:
             out["train_dataset"] = str(self.train_dataset)
+        if self.calibrate_on != "train_dataset":
+            out["calibrate_on"] = self.calibrate_on
         if self.scheduler:
             out["scheduler"] = self.scheduler
         if self.features:
@@ -209,7 +221,8 @@ def _checked(p: Path, data: dict) -> dict:
             out["detectors"] = list(d)
         else:
             raise bad("detectors", '"all" or a list of detector names')
-    for key in ("profile", "executor", "scheduler", "dataset", "train_dataset", "out", "device", "columns"):
+    for key in ("profile", "executor", "scheduler", "dataset", "train_dataset", "calibrate_on", "out", "device",
+                "columns"):
         if key in data and not isinstance(data[key], str):
             raise bad(key, "a string")
     for key in ("dataset", "train_dataset", "out"):

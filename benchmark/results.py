@@ -333,6 +333,20 @@ def _evaluation_lines(evaluation: dict | None) -> list[str]:
             "The run's own tables are in the run folder.", ""]
 
 
+def trained_where(config: dict) -> str:
+    """Where a transfer run's detectors were fitted and its thresholds calibrated, in words ("" for a
+    run on one dataset): the train dataset for both, or its train flights and the tested dataset's
+    normal flights of split validation (``--calibrate-on dataset``)."""
+    train = (config.get("train_dataset") or {}).get("path")
+    if not train:
+        return ""
+    transfer = config.get("transfer") or {}
+    if transfer.get("calibrate_on", "train_dataset") == "dataset":
+        return (f"Trained on `{train}`, calibrated on {transfer.get('calibration_flights', 0)} normal flights of "
+                f"`{(config.get('dataset') or {}).get('path')}` (split validation, not tested)")
+    return f"Trained and calibrated on `{train}`"
+
+
 def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | None = None) -> str:
     """metrics.md: the paper's table, the extra metrics, failures and the protocol used
     (``evaluation``: the record of an evaluation made after the run, said under the title)."""
@@ -340,8 +354,8 @@ def metrics_markdown(config: dict, metrics: pd.DataFrame, evaluation: dict | Non
     proto = config.get("protocol", {})
     train = config.get("train_dataset") or {}
     lines = [f"# Run {config.get('name', '')}", "", *_evaluation_lines(evaluation),
-             *([f"Trained and calibrated on `{train.get('path')}` (fingerprint {str(train.get('fingerprint'))[:12]}); "
-                "tested on:", ""] if train else []),
+             *([f"{trained_where(config)} (fingerprint {str(train.get('fingerprint'))[:12]}); tested on:", ""]
+               if train else []),
              f"Dataset `{ds.get('path')}` (fingerprint {str(ds.get('fingerprint', ''))[:12]}), "
              f"flights per role: {json.dumps(ds.get('flights', {}))}; seed {config.get('seed')}.", "",
              "## The paper's table", "", markdown_table(metrics, PAPER_COLUMNS), "",
@@ -398,15 +412,20 @@ def transfer_summary(config: dict, metrics: pd.DataFrame) -> list[str]:
     flights = test.get("flights", {}) or {}
     shared = (config.get("transfer") or {}).get("columns", [])
     g, r = train.get("path", ""), test.get("path", "")
-    lines = ["## Train here, test there", "",
-             f"- trained and calibrated on `{g}`: {train.get('flights', {}).get('train', 0)} train flights fit the "
-             f"detectors, {train.get('flights', {}).get('validation', 0)} validation flights set the thresholds;",
+    here = (config.get("transfer") or {}).get("calibrate_on", "train_dataset") == "dataset"
+    calibration = (f"- trained on `{g}`: {train.get('flights', {}).get('train', 0)} train flights fit the detectors; "
+                   f"{(config.get('transfer') or {}).get('calibration_flights', 0)} normal flights of `{r}` (split "
+                   "validation) set the thresholds and are not tested;" if here else
+                   f"- trained and calibrated on `{g}`: {train.get('flights', {}).get('train', 0)} train flights fit "
+                   f"the detectors, {train.get('flights', {}).get('validation', 0)} validation flights set the "
+                   "thresholds;")
+    lines = ["## Train here, test there", "", calibration,
              f"- tested on `{r}`: TN and false alarms on its {flights.get('test_normal', 0)} normal flights, TP on "
              f"its {flights.get('test_attacked', 0)} attacked flights;",
              f"- {len(shared)} quantities matched by meaning: {', '.join(shared)} (columns.csv: what was dropped).", ""]
     ok = metrics[metrics["status"] == "OK"] if "status" in metrics else metrics.iloc[:0]
     modes = [m for m in ("csv", "simulation") if len(ok) and (pd.to_numeric(ok[f"n_{m}"], errors="coerce") > 0).any()]
-    cols = [(f"Threshold from ({Path(g).name})", "flight_threshold", "f3"),
+    cols = [(f"Threshold from ({Path(r if here else g).name})", "flight_threshold", "f3"),
             (f"False alarms, normal flights ({Path(r).name})", "far_no_attack", "pct_ci"),
             *((f"TP {m} (in window, {Path(r).name})", f"tp_{m}", "pct_ci") for m in modes)]
     lines += [markdown_table(metrics, cols), ""]

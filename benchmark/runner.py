@@ -230,8 +230,10 @@ def _run_config(cfg: RunConfig, old: dict | None, store: RunStore, ds, splits: S
     extra = {} if transfer is None else {
         "train_dataset": {"path": str(transfer.train.path.resolve()), "info": transfer.train.info,
                           "fingerprint": identity["train_dataset_fingerprint"],
-                          "flights": {"train": len(splits.train), "validation": len(splits.validation)}},
-        "transfer": {**transfer.plan.to_dict(), "dropped": {
+                          "flights": {"train": len(splits.train), "validation": len(splits.validation)
+                                      if transfer.calibrate_on == "train_dataset" else 0}},
+        "transfer": {**transfer.plan.to_dict(), "calibrate_on": transfer.calibrate_on,
+                     "calibration_flights": len(splits.validation), "dropped": {
             side: {c: why for c, why in cols.items() if why != "no meaning"}
             for side, cols in transfer.plan.dropped.items()},
             "no_meaning": {side: sum(why == "no meaning" for why in cols.values())
@@ -295,7 +297,8 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
     transfer = None
     if cfg.train_dataset is not None:  # train here, test there: flights read by meaning (benchmark.transfer)
         train_dataset = fetch_dataset(cfg.train_dataset) if is_url(cfg.train_dataset) else cfg.train_dataset
-        transfer = open_transfer(train_dataset, ds, note=lambda m: print(m, file=sys.stderr))
+        transfer = open_transfer(train_dataset, ds, note=lambda m: print(m, file=sys.stderr),
+                                 calibrate_on=cfg.calibrate_on)
         splits = transfer.splits
     else:
         splits = Splits.from_manifest(ds.manifest)
@@ -311,6 +314,8 @@ def run_benchmark(cfg: RunConfig, on_job_done: Callable[[str], None] | None = No
     if transfer is not None:  # absent otherwise: runs on one dataset keep their identity
         identity["train_dataset_fingerprint"] = dataset_fingerprint(transfer.train.manifest, transfer.train.path)
         identity["transfer"] = {"columns": list(transfer.plan.columns), "interval_us": transfer.plan.interval_us}
+        if transfer.calibrate_on != "train_dataset":  # absent otherwise: earlier transfer runs keep their identity
+            identity["transfer"]["calibrate_on"] = transfer.calibrate_on
     if meaning is not None:  # absent otherwise: runs on flights read as logged keep their identity
         identity["columns"] = {"by": "meaning", "columns": list(meaning.plan.columns)}
     if cfg.features or cfg.exclude:  # absent otherwise: runs made before these options stay comparable

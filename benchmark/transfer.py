@@ -389,10 +389,12 @@ class TransferRun:
     #: the run's id -> the train dataset's id, for train-dataset flights renamed (TRAIN_PREFIX) because
     #: the test dataset has a different flight of the same id; empty when no id is shared
     renamed: dict[str, str] = field(default_factory=dict)
+    #: where the thresholds are calibrated: "train_dataset" (its validation flights) or "dataset"
+    calibrate_on: str = "train_dataset"
 
     def job_args(self) -> dict:
         """What a job needs to read the flights by meaning (JobSpec.transfer; plain data)."""
-        ids = [*self.splits.train, *self.splits.validation]
+        ids = [*self.splits.train, *(self.splits.validation if self.calibrate_on == "train_dataset" else ())]
         return {"train_dataset": str(self.train.path.resolve()),
                 "train_ids": {f: self.renamed.get(f, f) for f in ids} if self.renamed else ids,
                 "columns": list(self.plan.columns), "interval_us": int(self.plan.interval_us)}
@@ -404,65 +406,81 @@ class TransferRun:
         return pd.DataFrame(rows, columns=["dataset", "column", "why"])
 
 
-def transfer_roles(manifest: pd.DataFrame) -> pd.Series:
+def transfer_roles(manifest: pd.DataFrame, calibrate_here: bool = False) -> pd.Series:
     """Roles of the test dataset's flights in a transfer run: every normal flight is a held-out normal
     flight (``test_normal``, whatever its split: nothing is fitted or calibrated on it), attacked
-    flights are ``test_attacked`` (or ``no_effect``)."""
+    flights are ``test_attacked`` (or ``no_effect``). ``calibrate_here`` (``--calibrate-on dataset``):
+    its normal flights of split validation calibrate (``validation``) and are not tested."""
     from scart_bench.benchmark.protocol import NORMAL_MODE, assign_roles
 
     normal = manifest["mode"].astype(str) == NORMAL_MODE
-    return assign_roles(manifest.assign(split=manifest["split"].where(~normal, "test")))
+    keep = ~normal | (manifest["split"].astype(str) == "validation") if calibrate_here else ~normal
+    return assign_roles(manifest.assign(split=manifest["split"].where(keep, "test")))
 
 
-def open_transfer(train_path, test_ds, note=print) -> TransferRun:
+def open_transfer(train_path, test_ds, note=print, calibrate_on: str = "train_dataset") -> TransferRun:
     """The transfer run of ``test_ds`` trained on the dataset at ``train_path``: splits, shared columns
     (every flight of both is read once) and the flight reader. Raises RunError (one line, naming the
     dataset) when the train dataset is missing or lacks train/validation flights, the test dataset has
-    no test flights, a flight is in both, or no quantity is shared."""
+    no test flights, a flight is in both, or no quantity is shared.
+
+    ``calibrate_on="dataset"``: the thresholds are calibrated on ``test_ds``'s normal flights of split
+    validation (read by meaning and resampled as its test flights are), which are then not tested;
+    the detectors are still fitted on the train dataset's train flights only."""
     from scart_bench.benchmark.protocol import ProtocolError, Splits, assign_roles
     from scart_bench.dataset import DatasetError, is_dataset, open_dataset
 
     if not is_dataset(train_path):
         raise RunError(f"--train-dataset {train_path}: not a dataset (no manifest there)")
+    here = calibrate_on == "dataset"
     try:
         train = open_dataset(train_path)
         train_roles = assign_roles(train.manifest)
-        test_roles = transfer_roles(test_ds.manifest)
+        test_roles = transfer_roles(test_ds.manifest, calibrate_here=here)
     except (DatasetError, ProtocolError) as exc:
         raise RunError(f"--train-dataset {train_path} / --dataset {test_ds.path}: {exc}") from None
     ids = train.manifest["flight_id"].astype(str)
     test_ids = test_ds.manifest["flight_id"].astype(str)
-    part = {r: tuple(ids[train_roles == r]) for r in ("train", "validation")}
+    part = {r: tuple(ids[train_roles == r]) for r in (("train",) if here else ("train", "validation"))}
     for role, got in part.items():
         if not got:
             raise RunError(f"--train-dataset {train_path}: no normal flights with split {role!r}; a transfer run "
                            "trains and calibrates on the train dataset's train and validation flights")
+    calibration = tuple(test_ids[test_roles == "validation"]) if here else ()
+    if here and not calibration:
+        raise RunError(f"--calibrate-on dataset: --dataset {test_ds.path} has no normal flight of split validation "
+                       "to calibrate on (import some of your flights with --split validation, or --split auto)")
     tested = {r: tuple(test_ids[test_roles == r]) for r in ("test_normal", "test_attacked", "no_effect")}
     if not tested["test_normal"] and not tested["test_attacked"]:
         raise RunError(f"--dataset {test_ds.path}: no flights to test (normal or attacked)")
-    renamed = _run_ids(train, test_ds, part["train"] + part["validation"], set(test_ids), train_path)
+    fitted = part["train"] + part.get("validation", ())  # the train dataset's flights the run reads
+    renamed = _run_ids(train, test_ds, fitted, set(test_ids), train_path)
     run_id = {v: k for k, v in renamed.items()}
-    splits = Splits(*(tuple(run_id.get(f, f) for f in part[r]) for r in ("train", "validation")),
+    splits = Splits(tuple(run_id.get(f, f) for f in part["train"]),
+                    calibration if here else tuple(run_id.get(f, f) for f in part["validation"]),
                     tested["test_normal"], tested["test_attacked"], tested["no_effect"], ())
-    used_test = tested["test_normal"] + tested["test_attacked"]
-    train.check_flights(dict.fromkeys(part["train"] + part["validation"]))
+    used_test = calibration + tested["test_normal"] + tested["test_attacked"]
+    train.check_flights(dict.fromkeys(fitted))
     test_ds.check_flights(dict.fromkeys(used_test))
-    plan = plan_transfer(((f, train.flight(f)) for f in part["train"] + part["validation"]),
+    plan = plan_transfer(((f, train.flight(f)) for f in fitted),
                          ((f, test_ds.flight(f)) for f in used_test), str(train_path), str(test_ds.path))
-    note(f"transfer: trained and calibrated on {train.path} ({len(part['train'])} train, "
-         f"{len(part['validation'])} validation flights), tested on {test_ds.path} ({len(tested['test_normal'])} "
+    where = (f"trained on {train.path} ({len(part['train'])} train flights), calibrated on {test_ds.path} "
+             f"({len(calibration)} normal flights of split validation, not tested)" if here else
+             f"trained and calibrated on {train.path} ({len(part['train'])} train, "
+             f"{len(part['validation'])} validation flights)")
+    note(f"transfer: {where}, tested on {test_ds.path} ({len(tested['test_normal'])} "
          f"normal, {len(tested['test_attacked'])} attacked flights); {plan.describe()}")
     sources = {**source_flights(train.manifest), **source_flights(test_ds.manifest)}
     roles = {**{f: f"{r}, {train_path}" for r, ids in part.items() for f in ids},
+             **{f: f"validation, {test_ds.path}" for f in calibration},
              **{f: f"{'test' if r == 'test_normal' else 'attacked'}, {test_ds.path}"
                 for r, ids in tested.items() for f in ids}}
     for line in lacking_lines(plan.lacking, sources, roles):
         note(f"transfer: dropped for every flight, since some lack it: {line}")
     reader = TransferFlights(str(train.path.resolve()), str(test_ds.path.resolve()),
-                             {f: renamed.get(f, f) for f in splits.train + splits.validation}, plan.columns,
-                             plan.interval_us)
+                             {run_id.get(f, f): f for f in fitted}, plan.columns, plan.interval_us)
     tm = train.manifest.assign(role=train_roles, dataset=str(train.path))
-    tm = tm[tm["role"].isin(("train", "validation"))]
+    tm = tm[tm["role"].isin(tuple(part))]
     if renamed:  # the run's ids, and the train dataset's own beside them
         original = tm["flight_id"].astype(str)
         tm = tm.assign(flight_id=original.map(lambda f: run_id.get(f, f)), dataset_flight_id=original)
@@ -470,7 +488,7 @@ def open_transfer(train_path, test_ds, note=print) -> TransferRun:
     flights = pd.concat([tm, rm], ignore_index=True)
     flights = flights[["flight_id", "role", "dataset", *(c for c in flights.columns
                                                          if c not in ("flight_id", "role", "dataset"))]]
-    return TransferRun(train, test_ds, splits, plan, reader, flights, renamed)
+    return TransferRun(train, test_ds, splits, plan, reader, flights, renamed, calibrate_on)
 
 
 #: Prefix of a train-dataset flight's id in a transfer run whose test dataset has another flight of that id.

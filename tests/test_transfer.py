@@ -197,3 +197,60 @@ def test_the_same_dataset_in_both_roles_is_still_refused(small_dataset, tmp_path
                  "--plugin", ZS, "--out", str(tmp_path / "run")]) == 2
     line = _one_line(capsys.readouterr().err)
     assert "the same flight in both" in line and "normal-000" in line
+
+
+@needs_ulogs
+def test_calibrating_on_a_few_of_your_own_flights_sets_the_thresholds_and_leaves_them_untested(datasets, tmp_path,
+                                                                                              capsys):
+    """``--calibrate-on dataset``: fitted on the generated flights, thresholds from the real dataset's normal
+    flights of split validation, which are then not among the tested normal flights."""
+    gen, real = datasets
+    # the fixture attacked a validation flight too: a calibration flight's copy would be tested on rows the
+    # thresholds saw, which the protocol refuses in one line (as on one dataset)
+    capsys.readouterr()
+    assert main(["run", "--train-dataset", str(gen), "--dataset", str(real), "--detectors", "statistical",
+                 "--calibrate-on", "dataset", "--out", str(tmp_path / "refused")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "a validation flight" in err and not (tmp_path / "refused").exists()
+    own = tmp_path / "own_logs"  # the real logs without that copy
+    shutil.copytree(real, own)
+    m = pd.read_parquet(own / "manifest.parquet")
+    for fid in m.loc[m["mode"] != "normal", "flight_id"]:
+        shutil.rmtree(own / "flights" / fid)
+    m[m["mode"] == "normal"].to_parquet(own / "manifest.parquet", index=False)
+    runs = {}
+    for name, extra in (("gen", []), ("own", ["--calibrate-on", "dataset"])):
+        capsys.readouterr()
+        assert main(["run", "--train-dataset", str(gen), "--dataset", str(own), "--detectors", "statistical",
+                     "--out", str(tmp_path / name), *extra]) == 0
+        runs[name] = (capsys.readouterr(), pd.read_csv(tmp_path / name / "flights.csv"),
+                      pd.read_csv(tmp_path / name / "metrics.csv").set_index("detector"))
+    printed, flights, metrics = runs["own"]
+    own_val = set(m.loc[(m["mode"] == "normal") & (m["split"] == "validation"), "flight_id"])
+    assert len(own_val) == 2
+    roles = flights.groupby("role")["flight_id"].agg(set).to_dict()
+    assert roles["validation"] == own_val and set(flights.loc[flights["role"] == "train", "dataset"]) == {str(gen)}
+    assert not own_val & roles["test_normal"] and len(roles["test_normal"]) == 2
+    assert metrics.loc["statistical", "n_no_attack"] == 2 and runs["gen"][2].loc["statistical", "n_no_attack"] == 4
+    assert "calibrated on 2 normal flights of" in printed.out
+    assert f"Threshold from ({own.name})" in (tmp_path / "own" / "metrics.md").read_text()
+    # the real flights set it: not the generated flights' threshold
+    assert metrics.loc["statistical", "flight_threshold"] != runs["gen"][2].loc["statistical", "flight_threshold"]
+    config = json.loads((tmp_path / "own" / "config.json").read_text())
+    assert config["identity"]["transfer"]["calibrate_on"] == "dataset" and config["run"]["calibrate_on"] == "dataset"
+    # another calibration is another run: refused on the first run's folder, nothing written
+    before = (tmp_path / "gen" / "config.json").read_text()
+    assert main(["run", "--train-dataset", str(gen), "--dataset", str(own), "--detectors", "statistical",
+                 "--out", str(tmp_path / "gen"), "--calibrate-on", "dataset"]) == 2
+    assert (tmp_path / "gen" / "config.json").read_text() == before
+    # refused in one line: without a transfer run, and on a dataset with no normal flight of split validation
+    m.loc[m["split"] == "validation", "split"] = "test"
+    m.to_parquet(own / "manifest.parquet", index=False)
+    for args, needle in ((["--dataset", str(own)], "needs --train-dataset"),
+                         (["--train-dataset", str(gen), "--dataset", str(own)], "no normal flight of split validation")):
+        capsys.readouterr()
+        assert main(["run", *args, "--calibrate-on", "dataset", "--detectors", "statistical",
+                     "--out", str(tmp_path / "bad")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err, err
+        assert not (tmp_path / "bad").exists()

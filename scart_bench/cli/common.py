@@ -173,14 +173,14 @@ def print_tables(path: Path, metrics, shown: str | None = None, label: str = "ru
                  wide: bool = False) -> None:
     """The terminal table (``wide``: every column) and the operating-point lines of a run (stdout); failed
     jobs and the folder (stderr, ``shown`` as ``label``: an evaluation made after the run names its own folder)."""
-    from scart_bench.benchmark.results import transfer_summary
+    from scart_bench.benchmark.results import trained_where, transfer_summary
     from scart_bench.benchmark.store import RunStore
     from scart_bench.benchmark.tables import rate_summary
 
     config = RunStore(path).read_config()
     train = (config.get("train_dataset") or {}).get("path")
     if train:  # a transfer run: where each number comes from, above the table
-        print(f"Trained and calibrated on {train} (thresholds); TP and TN on {config['dataset'].get('path')}")
+        print(f"{trained_where(config).replace('`', '')} (thresholds); TP and TN on {config['dataset'].get('path')}")
     print(terminal_table(metrics, wide))
     no_effect = (config.get("dataset") or {}).get("no_effect") or []
     print("\n".join(line for line in rate_summary(metrics, no_effect) if line.startswith("- ")))

@@ -28,7 +28,7 @@ def _patterns(values: list[str] | None) -> list[str] | None:
 
 #: run option -> the RunConfig field it sets (the run file uses the field names)
 _OPTIONS = {"detectors": "detectors", "profile": "profile", "dataset": "dataset", "train_dataset": "train_dataset",
-            "out": "out",
+            "calibrate_on": "calibrate_on", "out": "out",
             "resume": "resume", "executor": "executor", "scheduler": "scheduler", "jobs": "jobs",
             "score_shards": "score_shards",
             "timeout": "timeout", "seed": "seed", "features": "features",
@@ -61,6 +61,8 @@ def run_config(args: argparse.Namespace):
             from scart_bench.storage import is_url, local_path
 
             value = value if is_url(value) else local_path(value)
+        if option == "calibrate_on":
+            value = value.replace("-", "_")
         given[key] = [value] if option == "detectors" else value
     given["params"] = merge_params(cfg.params, parse_params(args.param or []))
     given["protocol"] = protocol_options(cfg.protocol, args)
@@ -247,6 +249,10 @@ def register(sub) -> None:
                    help="train and calibrate on this dataset's train and validation flights, test on --dataset "
                         "(every normal flight of it and its attacked flights), the columns matched by meaning "
                         "(docs/own_logs.md, 'Train on simulation, test on your flights')")
+    r.add_argument("--calibrate-on", choices=("train-dataset", "dataset"), dest="calibrate_on",
+                   help="a transfer run's calibration flights: train-dataset (default: its validation flights) or "
+                        "dataset (--dataset's normal flights of split validation: a few of your own flights set the "
+                        "thresholds and are not tested; docs/sim_to_real.md)")
     r.add_argument("--out", metavar="DIR|URL", help="run folder (default runs/<profile>-seed<N>), or an fsspec URL "
                    "(worked on in a local copy; each finished job is uploaded as it finishes, the rest at the end, "
                    "also after a failure, so --resume works even after a kill)")
