@@ -115,6 +115,13 @@ class SensorParams:
     #: at the centre (the default). Half the ArduCopter fleet's logs show it: their 0.5-5 Hz acc_y follows the
     #: roll acceleration with 2-12 cm; ``generate --like`` fits it (docs/like.md "The IMU's lever arm")
     imu_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: the vehicles' vibration per flight: accelerometer x/y/z and gyro x/y/z multiples of ``accel_vibration`` /
+    #: ``gyro_vibration`` (above 2, the rest is high-frequency: physics.sensors.Sensors.imu); the flight with seed s
+    #: shakes as ``vibration_levels[s mod len]`` (the same rule as ``MissionParams.missions``: ``generate --like``
+    #: writes one per recovered mission, in the missions' order, so that each flight shakes as the vehicle whose log
+    #: its mission came from). (): 1 for every flight (the default). The ArduCopter fleet's vehicles differ by
+    #: 10-1000x in IMU vibration power (docs/like.md "Each vehicle's vibration")
+    vibration_levels: tuple[tuple[float, float, float, float, float, float], ...] = ()
     mag_rate_hz: float = 100.0
     mag_noise: float = 0.0015  # gauss, 1 sigma per sample: the shared SITL logs 0.0009-0.0023 (Gazebo: 0.004)
     # Earth field at the PX4 SITL home (Zurich), NED, gauss

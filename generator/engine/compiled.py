@@ -114,6 +114,7 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     st["landed_at"] = -1.0
     if init.pilot is not None:
         st["pilot_rng"], st["pilot_gain"] = init.pilot[:, 0], init.pilot[:, 1]
+    st["vib_level"] = ss.vibration_level if ss.vibration_level is not None else 1.0
     return st
 
 

@@ -27,7 +27,7 @@ from scart_bench.generator.params import (
     VehicleParams,
 )
 from scart_bench.generator.physics.disturbances import Disturbances
-from scart_bench.generator.physics.sensors import Sensors
+from scart_bench.generator.physics.sensors import Sensors, flight_vibration_levels
 from scart_bench.generator.physics.vehicle import VehicleState, Wind
 from scart_bench.generator.telemetry.batch import BatchResult
 
@@ -146,6 +146,7 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     ss = sensors.init_state(n, rngs)
     start = startup_times(seeds, m.ground_phase, m.arm_delay_s)
     ss.fix_at = start[:, 0].copy()
+    ss.vibration_level = flight_vibration_levels(cfg.sensors.vibration_levels, seeds)
     battery = _battery_init(battery_start(seeds))
     return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(max_s * SIM_RATE_HZ),
                    start, battery, table, last, pilot_start(seeds, m))

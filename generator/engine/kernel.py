@@ -48,7 +48,14 @@ from scart_bench.generator.physics.noise import (
     NZ_MAG,
     NZ_WIND,
 )
-from scart_bench.generator.physics.sensors import EPH_SETTLE, EPH_SETTLE_TAU_S, SATS_RAMP, VIBRATION_FULL_FROM
+from scart_bench.generator.physics.sensors import (
+    EPH_SETTLE,
+    EPH_SETTLE_TAU_S,
+    HF_NORM,
+    SATS_RAMP,
+    VIB_AS_FLEET,
+    VIBRATION_FULL_FROM,
+)
 
 _I = L.PARAM_INDEX
 K_DT, K_MASS, K_JX, K_JY, K_JZ = _I["dt"], _I["mass"], _I["Jx"], _I["Jy"], _I["Jz"]
@@ -379,19 +386,31 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     for a in range(3):
         s[L.ACC_BIAS + a] = p[K_A_AB] * s[L.ACC_BIAS + a] + p[K_C_AB] * w[k, NZ_ACC_BIAS + a]
         s[L.GYRO_BIAS + a] = p[K_A_GB] * s[L.GYRO_BIAS + a] + p[K_C_GB] * w[k, NZ_GYRO_BIAS + a]
-        va = vib * p[K_ACC_VIB + a]
+        # each vehicle's level (SensorParams.vibration_levels; 1 without): up to VIB_AS_FLEET as the fleet's, a rougher one's rest
+        # at high frequency, the difference of this sample's draws and the last's (physics.sensors.Sensors.imu)
+        la = s[L.VIB_LEVEL + a]
         wa = w[k, NZ_ACC + a]
+        va = vib * min(la, VIB_AS_FLEET) * p[K_ACC_VIB + a]
         if p[K_ACC_LP + 5] != 0.0:  # coloured vibration, white sensor noise (SensorParams.accel_noise_cutoff_hz)
             na = p[K_C_AN + a] * wa + va * _lowpass(s, L.IMU_LOWPASS + 2 * a, p, K_ACC_LP, wa)
         else:
             na = math.sqrt(p[K_C_AN + a] * p[K_C_AN + a] + va * va) * wa
+        if la > VIB_AS_FLEET:  # in the logged IMU only (_compose, _record_uorb)
+            s[L.IMU_HF + a] = vib * math.sqrt(la * la - VIB_AS_FLEET * VIB_AS_FLEET) * p[K_ACC_VIB + a] * (
+                (wa - s[L.PREV_DRAW + a]) * HF_NORM)
+        s[L.PREV_DRAW + a] = wa
         s[L.ACC + a] = fs[a] + s[L.ACC_BIAS + a] + na
-        vg = vib * p[K_GYRO_VIB + a]
+        lg = s[L.VIB_LEVEL + 3 + a]
         wg = w[k, NZ_GYRO + a]
+        vg = vib * min(lg, VIB_AS_FLEET) * p[K_GYRO_VIB + a]
         if p[K_GYRO_LP + 5] != 0.0:
             ng = p[K_C_GN] * wg + vg * _lowpass(s, L.IMU_LOWPASS + 6 + 2 * a, p, K_GYRO_LP, wg)
         else:
             ng = math.sqrt(p[K_C_GN] * p[K_C_GN] + vg * vg) * wg
+        if lg > VIB_AS_FLEET:
+            s[L.IMU_HF + 3 + a] = vib * math.sqrt(lg * lg - VIB_AS_FLEET * VIB_AS_FLEET) * p[K_GYRO_VIB + a] * (
+                (wg - s[L.PREV_DRAW + 3 + a]) * HF_NORM)
+        s[L.PREV_DRAW + 3 + a] = wg
         s[L.GYRO + a] = s[L.OMEGA + a] + s[L.GYRO_BIAS + a] + ng
     if due[L.D_MAG, step]:
         m0, m1, m2 = p[K_MAG_FIELD], p[K_MAG_FIELD + 1], p[K_MAG_FIELD + 2]
@@ -700,9 +719,9 @@ def _compose(s, p, topic, out, m):
         for a in range(3):
             out[m, 3 + a] = s[L.EST_RATES + a]
     elif topic == L.D_IMU:
-        for a in range(3):
-            out[m, a] = s[L.ACC + a]
-            out[m, 3 + a] = s[L.GYRO + a]
+        for a in range(3):  # the logged IMU: a rough vehicle's high-frequency vibration on top (0 without)
+            out[m, a] = s[L.ACC + a] + s[L.IMU_HF + a]
+            out[m, 3 + a] = s[L.GYRO + a] + s[L.IMU_HF + 3 + a]
             out[m, 6 + a] = s[L.MAG + a]
         out[m, 9] = s[L.PRESSURE] / 100.0
         out[m, 10] = _altitude_at(s[L.PRESSURE])
@@ -1065,8 +1084,8 @@ def _record_uorb(s, p, step, due, mi, u0, u1, u2, u3):
     if due[L.D_U_IMU, step]:
         m = mi[L.D_U_IMU, step]
         for a in range(3):
-            u0[m, a] = s[L.ACC + a]
-            u0[m, 3 + a] = s[L.GYRO + a]
+            u0[m, a] = s[L.ACC + a] + s[L.IMU_HF + a]
+            u0[m, 3 + a] = s[L.GYRO + a] + s[L.IMU_HF + 3 + a]
     if due[L.D_U_ATT, step]:
         m = mi[L.D_U_ATT, step]
         for c in range(4):

@@ -212,3 +212,10 @@ FIELDS.update({"pilot_hp": (PILOT_HP, 4)})
 PARAMS += ("pilot_hp",)
 PARAM_INDEX["pilot_hp"] = N_PARAMS
 N_PARAMS += 4
+
+# -- each vehicle's vibration (SensorParams.vibration_levels; physics.sensors.flight_vibration_levels) ----------------
+VIB_LEVEL = WIDTH  # 6: this flight's accelerometer x/y/z, gyro x/y/z multiples of the vibration (1 without levels)
+PREV_DRAW = WIDTH + 6  # 6: the IMU's noise draws of the last sample (accelerometer x/y/z, gyro x/y/z)
+IMU_HF = WIDTH + 12  # 6: a rough vehicle's high-frequency vibration of the last sample, in the logged IMU only
+WIDTH = IMU_HF + 6
+FIELDS.update({"vib_level": (VIB_LEVEL, 6), "prev_draw": (PREV_DRAW, 6), "imu_hf": (IMU_HF, 6)})

@@ -50,7 +50,7 @@ from scart_bench.generator.params import (  # noqa: F401 (re-exported)
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NOISE_DIM, NOISE_FIELDS, NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat
-from scart_bench.generator.physics.sensors import thrust_scale, vibration_scale
+from scart_bench.generator.physics.sensors import logged_imu, thrust_scale, vibration_scale
 from scart_bench.generator.physics.vehicle import Vehicle
 from scart_bench.generator.telemetry.schedule import (
     SENSOR_TOPICS,
@@ -299,15 +299,16 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             est.fuse_gps(es, step, gps["pos"], gps["vel"], None if usable.all() else usable)
         est.end_fusion(es, before_fusion)
         out_pos, out_vel = est.output(es)
+        log_acc, log_gyro = logged_imu(ss, accel, gyro)  # a rough vehicle's vibration (SensorParams.vibration_levels)
         for topic in (tp for tp, due_u in due_uorb.items() if due_u[step]):
-            uorb_rec.add(topic, step, _uorb_stream(topic, accel, gyro, es.quat, out_pos, out_vel, motor_cmd,
+            uorb_rec.add(topic, step, _uorb_stream(topic, log_acc, log_gyro, es.quat, out_pos, out_vel, motor_cmd,
                                                    cs, cfg.vehicle))
 
         # telemetry: flight controller -> link -> navigator
         due_now = [tp for tp in TELEMETRY_TOPICS if due[tp][step]]
         if due_now:
             snap = FCSnapshot(
-                quat=es.quat, rates=es.rates, pos=out_pos, vel=out_vel, accel=accel, gyro=gyro,
+                quat=es.quat, rates=es.rates, pos=out_pos, vel=out_vel, accel=log_acc, gyro=log_gyro,
                 mag=mag, pressure=pressure, baro_temp=baro_temp, gps=gps if gps is not None else _no_gps(n),
                 battery=battery, baro_home_alt=es.baro_offset,
             )

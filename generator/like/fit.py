@@ -678,6 +678,9 @@ class Fit:
     missions: list[tuple[str, str]]  # (file name, comment)
     lines: list[str]
     logs: list[LogMeasure]
+    #: log name -> its vehicle's accelerometer x/y/z, gyro x/y/z vibration over the fleet's (:func:`vibration_levels`); empty:
+    #: every vehicle alike (no calibration, or a sensor model without per-flight levels)
+    vibration_levels: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
 
 def next_level(history: list[tuple[float, float]], target: float) -> float:
@@ -980,6 +983,42 @@ def fit_imu_offset(logs: list[LogMeasure], sensors, lines: list[str]) -> dict[st
                                 f"{min(m.imu_offset[2] for m in fits):+.3f} to {max(m.imu_offset[2] for m in fits):+.3f})")}
 
 
+#: a vehicle's vibration level is kept within this factor of the fleet's (either way)
+VIBRATION_LEVEL_MAX = 30.0
+#: fit the gyro's vibration levels too (False: 1, see :func:`vibration_levels`)
+GYRO_LEVELS = False
+
+
+def vibration_levels(logs: list[LogMeasure], figs: dict[str, Figure], coloured: tuple[str, ...] = ()
+                     ) -> dict[str, tuple[float, ...]]:
+    """Per log, its vehicle's accelerometer x/y/z and gyro x/y/z vibration as multiples of the fleet's: the log's
+    sample-to-sample noise in the air (its still hover, or every airborne row of a log without one: :func:`_noise`)
+    over the fleet's (``white_hover_*``, what ``accel_vibration`` / ``gyro_vibration`` are calibrated to), within
+    :data:`VIBRATION_LEVEL_MAX` either way; 1 where a log has no such figure. The fleet's vehicles differ by 3-50x in
+    amplitude: the logs without a still hover are the roughest.
+
+    The gyro's levels are left at 1 (:data:`GYRO_LEVELS`): the rough vehicles' gyro differences stay coloured
+    (lag-1 -0.2 to 0.7 in cruise, 0.3-0.8 at still hover), their extra is rocking, not vibration. As high-frequency
+    vibration (above 1, physics.sensors.Sensors.imu) it whitened the generated cruise gyro (lag-1 of the differences
+    -0.41 against the fleet's 0.73, the most separating feature; 20 flights), and as low-passed noise in the
+    flight controller's loop it is flown (timeouts). A level multiplies the vibration's per-sample sigma, which is
+    its sample-to-sample noise only when it is white: a sensor in ``coloured`` ("acc", "gyro": its fitted vibration
+    low-passed) keeps 1 too."""
+    out = {}
+    for m in logs:
+        levels = []
+        for k in (f"{sensor}_{a}" for sensor in ("acc", "gyro") for a in AXES):
+            fleet = figs.get(f"white_hover_{k}")
+            if (k.startswith("gyro") and not GYRO_LEVELS) or k.split("_")[0] in coloured:
+                levels.append(1.0)
+                continue
+            r = m.hover_white.get(k, math.nan) / fleet.value if fleet is not None and fleet.value > 0 else math.nan
+            r = r if math.isfinite(r) and r > 0 else 1.0
+            levels.append(round(float(np.clip(r, 1.0 / VIBRATION_LEVEL_MAX, VIBRATION_LEVEL_MAX)), 3))
+        out[m.name] = tuple(levels)
+    return out
+
+
 def _fmt(v: float) -> str:
     return f"{v:.3g}" if math.isfinite(v) else "n/a"
 
@@ -1072,7 +1111,12 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     for key, f in figs.items():
         if key.startswith(("hover_", "white_hover_")):
             measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
-    return Fit(values, measured, [], lines, logs)
+    levels = {}
+    if calibrate and hasattr(config.sensors, "vibration_levels"):  # each vehicle's, over the calibrated vibration
+        cut = {k: values["sensors"].get(f"{k}_noise_cutoff_hz", (getattr(config.sensors, f"{k}_noise_cutoff_hz"), ""))[0]
+               for k in ("accel", "gyro")}
+        levels = vibration_levels(logs, figs, tuple(k[:3] if k == "accel" else k for k, c in cut.items() if c))
+    return Fit(values, measured, [], lines, logs, levels)
 
 
 def log_line(m: LogMeasure) -> str:

@@ -106,7 +106,11 @@ def _check_value(path, key: str, value, default):
 
 
 #: fields with a range of their own beyond their default's type: key -> (least, most, what it is)
-RANGES = {"sensors.imu_offset_m": (-1.0, 1.0, "m from the centre of gravity, body frame")}
+RANGES = {"sensors.imu_offset_m": (-1.0, 1.0, "m from the centre of gravity, body frame"),
+          "sensors.vibration_levels": (0.0, 1000.0, "multiples of the vibration")}
+#: fields whose value is a list of any length of same-length number lists (their default, (), says no element type):
+#: key -> the element's prototype
+PAIRS = {"sensors.vibration_levels": (1.0,) * 6}
 
 
 def _check_range(path, key: str, value) -> None:
@@ -115,8 +119,16 @@ def _check_range(path, key: str, value) -> None:
         return
     lo, hi, what = RANGES[key]
     for i, v in enumerate(value if isinstance(value, tuple) else (value,)):
-        if not lo <= v <= hi:
-            raise _fail(path, f"{key}[{i}]" if isinstance(value, tuple) else key, f"a number in [{lo:g}, {hi:g}] ({what})", v)
+        if isinstance(v, tuple):  # a list of lists (sensors.vibration_levels)
+            for j, x in enumerate(v):
+                _fail_if(path, f"{key}[{i}][{j}]", lo, hi, what, x)
+        else:
+            _fail_if(path, f"{key}[{i}]" if isinstance(value, tuple) else key, lo, hi, what, v)
+
+
+def _fail_if(path, key: str, lo: float, hi: float, what: str, v) -> None:
+    if not lo <= v <= hi:
+        raise _fail(path, key, f"a number in [{lo:g}, {hi:g}] ({what})", v)
 
 
 def _tuples(value):
@@ -178,7 +190,14 @@ def read_profile(path: str | Path) -> ProfileFile:
                 continue
             if key not in names:
                 raise _fail(path, f"{section}.{key}", f"a field of {cls.__name__} ({', '.join(sorted(names))})", key)
-            edits[key] = _check_value(path, f"{section}.{key}", value, getattr(current, key))
+            if f"{section}.{key}" in PAIRS:  # a list of number lists (an empty default says no element type)
+                if not isinstance(value, list):
+                    raise _fail(path, f"{section}.{key}", f"a list of lists of {len(PAIRS[f'{section}.{key}'])} numbers",
+                                value)
+                edits[key] = tuple(_check_value(path, f"{section}.{key}[{i}]", v, PAIRS[f"{section}.{key}"])
+                                   for i, v in enumerate(value))
+            else:
+                edits[key] = _check_value(path, f"{section}.{key}", value, getattr(current, key))
             _check_range(path, f"{section}.{key}", edits[key])
         config = dataclasses.replace(config, **{CONFIG_ATTR[section]: dataclasses.replace(current, **edits)})
     if missions:

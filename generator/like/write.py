@@ -62,6 +62,7 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
     folder.mkdir(parents=True, exist_ok=True)
     (folder / MISSION_DIR).mkdir(exist_ok=True)
     missions = []
+    levels = []  # each written mission's vehicle vibration (SensorParams.vibration_levels), in the missions' order
     names = set()
     for m in logs:
         name = _unique(Path(m.name).stem, names)
@@ -69,6 +70,7 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
         written = _write_mission(m, target, config.mission.cruise_speed)
         if written:
             missions.append(f"{MISSION_DIR}/{target.name}")
+            levels.append(list(fitted.vibration_levels.get(m.name, (1.0,) * 6)))
         elif m.mission_source:
             say(f"  {m.name}: its mission could not be written ({written is None and 'no waypoints' or 'refused'})")
     sections = {"profile": {"base": (base, "flight counts, splits and attack grid of this built-in profile")}}
@@ -82,6 +84,12 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
     sections["sensors"] = fitted.values["sensors"]
     sections["estimator"] = fitted.values["estimator"]
     sections["mission"] = dict(fitted.values["mission"])
+    if missions and fitted.vibration_levels and any(v != [1.0] * 6 for v in levels):
+        sections["sensors"]["vibration_levels"] = (levels, "each mission's vehicle: accelerometer x/y/z, gyro x/y/z "
+                                                   "sample-to-sample noise in the air over the fleet's (its still "
+                                                   "hover, or every airborne row), in the missions' order: "
+                                                   + "; ".join(f"{Path(p).stem} " + "/".join(f"{x:g}" for x in v)
+                                                               for p, v in zip(missions, levels)))
     if missions:
         sections["mission"]["missions"] = (missions, f"recovered from {len(missions)} of {len(logs)} logs; the flight "
                                                      "with seed s flies file s mod N")

@@ -59,6 +59,15 @@ class SensorState:
     baro_lowpass: np.ndarray | None = None  # (2, N) the baro noise's
     #: (N, 3) rad/s, the body rates of the IMU's last sample: its angular acceleration (SensorParams.imu_offset_m)
     prev_omega: np.ndarray | None = None
+    #: (N, 6) how hard each flight's vehicle shakes its IMU: accelerometer x/y/z, gyro x/y/z multiples of the
+    #: vibration (SensorParams.vibration_levels, :func:`flight_vibration_levels`); None: 1
+    vibration_level: np.ndarray | None = None
+    #: (N, 6) the IMU's noise draws of the last sample (accelerometer x/y/z, gyro x/y/z): a rough vehicle's
+    #: high-frequency vibration is their difference (SensorParams.vibration_levels)
+    prev_draw: np.ndarray | None = None
+    #: (N, 6) a rough vehicle's high-frequency vibration of the last sample, accelerometer x/y/z and gyro x/y/z: in
+    #: the logged IMU only (:func:`logged_imu`), the flight controller's filters take it out
+    imu_hf: np.ndarray | None = None
 
 
 def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.ndarray]:
@@ -115,6 +124,12 @@ def lowpass_lag1(cutoff_hz: float, rate_hz: float, every: int = 1) -> tuple[floa
     return r[0], (2 * r[0] - 1 - r[1]) / (2 * (1 - r[0]))
 
 
+#: a vehicle's vibration level (SensorParams.vibration_levels) up to which its vibration is the fleet's kind (white or
+#: low-passed, as calibrated); the rest is high-frequency. At 2.5 x the fitted gyro vibration low-passed at 3 Hz the
+#: ArduCopter fleet's fastest mission's roll std grows 0.15 -> 0.20 rad; at 5 x, 3 of 4 flights time out
+VIB_AS_FLEET = 1.0
+#: 1 / sqrt 2: the difference of two unit draws has unit variance (a rough vehicle's high-frequency vibration)
+HF_NORM = 0.7071067811865476
 #: rotor speed, as a fraction of the hover speed, from which the motors shake the IMU fully
 VIBRATION_FULL_FROM = 0.3
 
@@ -133,6 +148,23 @@ def thrust_scale(rotor_speed: np.ndarray, hover_rotor_speed: float) -> np.ndarra
     """(N,) the rotors' thrust over the hover thrust (mean of the squared speeds over the hover speed's square):
     how hard the downwash stirs the baro (SensorParams.baro_downwash_pa); about 0.15 at idle, 0 stopped."""
     return np.mean(np.asarray(rotor_speed) ** 2, axis=1) * (1.0 / (hover_rotor_speed * hover_rotor_speed))
+
+
+def flight_vibration_levels(levels, seeds) -> np.ndarray | None:
+    """(N, 6) the accelerometer x/y/z and gyro x/y/z vibration multiples of the flights with ``seeds``: flight with
+    seed s takes ``levels[s mod len(levels)]`` (SensorParams.vibration_levels); None for no levels (every flight 1)."""
+    if not levels:
+        return None
+    table = np.asarray(levels, dtype=float).reshape(len(levels), 6)
+    return table[[int(s) % len(levels) for s in seeds]]
+
+
+def logged_imu(st: SensorState, accel: np.ndarray, gyro: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The IMU sample as the flight's log and telemetry carry it: ``accel`` / ``gyro`` (what the flight controller
+    uses) plus a rough vehicle's high-frequency vibration (``st.imu_hf``; SensorParams.vibration_levels)."""
+    if st.imu_hf is None:
+        return accel, gyro
+    return accel + st.imu_hf[:, 0:3], gyro + st.imu_hf[:, 3:6]
 
 
 def lever_arm(omega: np.ndarray, alpha: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -188,6 +220,15 @@ class Sensors:
         numbers) and the sensor's own noise stays white: a frame's shaking and rocking is coloured, the
         firmware-filtered sensor noise at a log's 50 Hz is not (the ArduCopter fleet's gyro on the ground).
 
+        With ``vibration_levels`` (``st.vibration_level``), each flight's vehicle shakes its accelerometer and gyro
+        that many times as hard, per axis (a level below 1 scales the vibration down): up to :data:`VIB_AS_FLEET`
+        times the vibration as above, a rougher vehicle's rest (in squares) at high frequency, the difference of this sample's draws and the last's
+        / sqrt 2 (unit variance, no power at 0 Hz; white at a log's 50 Hz), kept in ``st.imu_hf`` for the logged IMU
+        (:func:`logged_imu`) and not returned: a propeller's shaking is at tens to hundreds of Hz, which the flight
+        controller's gyro and accelerometer filters take out (ArduCopter's INS_GYRO_FILTER 20 Hz) while its log's
+        IMU samples carry it. Fed to the controller, noise of that size saturates the mixer and is integrated into
+        tilts the vehicle flies (a 2 m/s mission flown at 20 m/s, timing out).
+
         With ``imu_offset_m`` the accelerometer sits that far from the centre of gravity and reads the rocking's
         :func:`lever_arm` too, the angular acceleration being the change of ``omega`` since the last call."""
         p, dt = self.params, self.dt
@@ -206,8 +247,19 @@ class Sensors:
         w_acc, w_gyro = noise[:, 0:3], noise[:, 3:6]
         acc_noise, gyro_noise = acc_sigma * w_acc, gyro_sigma * w_gyro
         if vibration is not None:
-            vib = np.asarray(vibration)[:, None] * np.array(p.accel_vibration)
-            vib_g = np.asarray(vibration)[:, None] * np.array(p.gyro_vibration)
+            vib_a = vib_g = np.asarray(vibration)[:, None]
+            hf = None
+            if st.vibration_level is not None:  # each vehicle's own (SensorParams.vibration_levels)
+                la, lg, c2 = st.vibration_level[:, 0:3], st.vibration_level[:, 3:6], VIB_AS_FLEET * VIB_AS_FLEET
+                extra_a = vib_a * np.sqrt(np.maximum(la * la - c2, 0.0)) * np.array(p.accel_vibration)
+                extra_g = vib_g * np.sqrt(np.maximum(lg * lg - c2, 0.0)) * np.array(p.gyro_vibration)
+                vib_a, vib_g = vib_a * np.minimum(la, VIB_AS_FLEET), vib_g * np.minimum(lg, VIB_AS_FLEET)
+                if st.prev_draw is None:
+                    st.prev_draw = np.zeros_like(noise[:, 0:6])
+                hf = (noise[:, 0:6] - st.prev_draw) * HF_NORM  # the draws' differences: unit variance, none at 0 Hz
+                st.prev_draw = np.array(noise[:, 0:6], dtype=float)
+            vib = vib_a * np.array(p.accel_vibration)
+            vib_g = vib_g * np.array(p.gyro_vibration)
             if (self.accel_lowpass is not None or self.gyro_lowpass is not None) and st.imu_lowpass is None:
                 st.imu_lowpass = np.zeros((2, len(fs), 6))
             if self.accel_lowpass is None:  # white: one draw of the combined sigma
@@ -218,6 +270,8 @@ class Sensors:
                 gyro_noise = np.sqrt(gyro_sigma * gyro_sigma + vib_g * vib_g) * w_gyro
             else:
                 gyro_noise = gyro_noise + vib_g * lowpass_step(self.gyro_lowpass, st.imu_lowpass[:, :, 3:6], w_gyro)
+            if hf is not None:  # a rougher vehicle's rest: high-frequency shaking, in the logged IMU (logged_imu)
+                st.imu_hf = np.concatenate([extra_a * hf[:, 0:3], extra_g * hf[:, 3:6]], axis=1)
         acc = fs + st.accel_bias + acc_noise
         gyro = omega + st.gyro_bias + gyro_noise
         return acc, gyro

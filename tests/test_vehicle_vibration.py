@@ -1,0 +1,118 @@
+"""Each vehicle's vibration (SensorParams.vibration_levels), issue 47 acceptance 3: a flight shakes its logged IMU as
+the vehicle whose log its mission came from (the ArduCopter fleet's vehicles differ by 10-1000x in IMU vibration
+power); the rough vehicles' extra is high-frequency, in the logged IMU and not in the flight controller's loop; the
+same in both engines; off by default; `--like` fits a level per log; a profile TOML's bad levels are refused naming
+the key."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import kernel_matches_numpy
+
+from scart_bench.cli.main import main
+from scart_bench.generator.engine.simulate import FlightConfig, simulate
+from scart_bench.generator.params import DT, MissionParams, SensorParams
+from scart_bench.generator.physics.sensors import Sensors, flight_vibration_levels, logged_imu
+
+ROUGH = (10.0, 10.0, 10.0, 4.0, 4.0, 4.0)
+
+
+def test_a_rough_vehicle_s_logged_imu_shakes_that_many_times_as_hard_and_its_controller_does_not_see_it():
+    """Hovering motors, white vibration, a level of 10 on the accelerometer and 4 on the gyro: the logged samples'
+    sample-to-sample noise is about 10x / 4x the fleet's, what the flight controller gets is the fleet's (level 1)."""
+    params = SensorParams(accel_vibration=(0.05, 0.05, 0.1), gyro_vibration=(0.02, 0.02, 0.02),
+                          vibration_levels=((1.0,) * 6, ROUGH))
+    sensors = Sensors(params, DT)
+    st = sensors.init_state(2, [np.random.default_rng(i) for i in range(2)])
+    st.vibration_level = flight_vibration_levels(params.vibration_levels, [4, 7])  # seed 4: level 1, seed 7: ROUGH
+    rng = np.random.default_rng(5)
+    fc, log = [], []
+    for _ in range(5000):
+        acc, gyro = sensors.imu(st, np.zeros((2, 3)), np.zeros((2, 3)), np.broadcast_to(np.eye(3), (2, 3, 3)),
+                                rng.standard_normal((2, 12)), np.ones(2))
+        fc.append(np.hstack([acc, gyro]))
+        log.append(np.hstack(logged_imu(st, acc, gyro)))
+    fc, log = np.array(fc)[::5], np.array(log)[::5]  # a log's 50 Hz
+    noise = lambda x: np.diff(x, axis=0).std(axis=0) / np.sqrt(2)  # noqa: E731
+    np.testing.assert_allclose(noise(log[:, 0]), noise(fc[:, 0]), rtol=1e-12)  # level 1: the logged IMU is the loop's
+    ratio = noise(log[:, 1]) / noise(log[:, 0])
+    assert np.all((ratio[:3] > 8.0) & (ratio[:3] < 12.0)), ratio
+    assert np.all((ratio[3:] > 3.0) & (ratio[3:] < 5.0)), ratio
+    assert np.all(noise(fc[:, 1]) / noise(fc[:, 0]) < 1.2)  # the controller's samples are the fleet's
+
+
+def test_the_kernel_shakes_as_the_numpy_reference_and_the_flight_flies_the_same_path():
+    """Same seeds, same draws: every recorded message of the kernel within 1e-9 of the reference's with levels set;
+    the rough flight's logged IMU differs from the same flight without levels, its flown path (truth) does not, and
+    the flight at level 1 is the flight without levels."""
+    sensors = SensorParams(gyro_vibration=(0.05, 0.05, 0.02), gyro_noise_cutoff_hz=3.0,
+                           vibration_levels=((1.0,) * 6, ROUGH))
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=4.0), sensors=sensors)
+    ker = kernel_matches_numpy(cfg, seeds=(4, 7))
+    plain = simulate([4, 7], dataclasses.replace(cfg, sensors=dataclasses.replace(sensors, vibration_levels=())),
+                     engine="kernel")
+    imu, imu0 = ker.simulator["highres_imu"][1], plain.simulator["highres_imu"][1]
+    np.testing.assert_array_equal(imu[0], imu0[0])
+    assert not np.allclose(imu[1], imu0[1])
+    np.testing.assert_array_equal(ker.simulator["truth"][1], plain.simulator["truth"][1])
+
+
+def test_off_by_default():
+    """No levels: every flight 1, and a built-in profile's recorded config has no vibration_levels key (so its
+    datasets keep their bytes)."""
+    from scart_bench.generator.plan import plan_generation
+
+    assert SensorParams().vibration_levels == ()
+    assert flight_vibration_levels((), [1, 2]) is None
+    plan = plan_generation("quick", seed=3, n_normal=2)
+    assert "vibration_levels" not in plan.config_dict["flight_config"]["sensors"]
+
+
+def test_like_fits_a_level_per_log_from_its_noise_in_the_air():
+    """A log whose accelerometer's sample-to-sample noise in the air is 10x the fleet's gets level 10 on it (within
+    the cap), 1 on the gyro (not fitted: the rough vehicles' gyro excess is rocking); a log without figures 1."""
+    from scart_bench.generator.like.fit import VIBRATION_LEVEL_MAX, Figure, LogMeasure, vibration_levels
+
+    figs = {f"white_hover_{s}_{a}": Figure(v, 8, "") for s, v in (("acc", 0.1), ("gyro", 0.02)) for a in "xyz"}
+    rough, quiet, blank = LogMeasure("rough.bin", ""), LogMeasure("quiet.bin", ""), LogMeasure("blank.bin", "")
+    rough.hover_white = {"acc_x": 1.0, "acc_y": 0.5, "acc_z": 100.0, "gyro_x": 0.2, "gyro_y": 0.2, "gyro_z": 0.2}
+    quiet.hover_white = {"acc_x": 0.05, "acc_y": 0.1, "acc_z": 0.1, "gyro_x": 0.01, "gyro_y": 0.02, "gyro_z": 0.02}
+    got = vibration_levels([rough, quiet, blank], figs)
+    assert got["rough.bin"] == (10.0, 5.0, VIBRATION_LEVEL_MAX, 1.0, 1.0, 1.0)
+    assert got["quiet.bin"] == (0.5, 1.0, 1.0, 1.0, 1.0, 1.0)
+    assert got["blank.bin"] == (1.0,) * 6
+    assert vibration_levels([rough], figs, ("acc",))["rough.bin"] == (1.0,) * 6  # a low-passed vibration: not fitted
+
+
+@pytest.mark.parametrize("value, expected", [
+    ("[[1.0, 2.0]]", "sensors.vibration_levels[0]: expected a list of 6 values"),
+    ("[[1.0, 1.0, 1.0, 1.0, 1.0, -2.0]]", "sensors.vibration_levels[0][5]: expected a number in [0, 1000]"),
+    ("3.0", "sensors.vibration_levels: expected a list of lists of 6 numbers"),
+])
+def test_bad_vibration_levels_in_a_profile_exit_2_naming_the_key(tmp_path, capsys, value, expected):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(f'[profile]\nbase = "quick"\n\n[sensors]\nvibration_levels = {value}\n')
+    out = tmp_path / "out"
+    code = main(["generate", "--profile", str(bad), "--flights", "1", "--normal-only", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert str(bad) in err and expected in err, err
+    assert not out.exists()
+
+
+def test_a_profile_with_levels_reads_back():
+    """A TOML's levels (lists of 6) become the config's tuple of 6-tuples."""
+    import tempfile
+    from pathlib import Path
+
+    from scart_bench.generator.like.profile_file import read_profile
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "p.toml"
+        path.write_text('[profile]\nbase = "quick"\n\n[sensors]\nvibration_levels = [[1, 2, 3, 1, 1, 1], '
+                        '[0.5, 0.5, 0.5, 1, 1, 1]]\n')
+        levels = read_profile(path).config.sensors.vibration_levels
+    assert levels == ((1.0, 2.0, 3.0, 1.0, 1.0, 1.0), (0.5, 0.5, 0.5, 1.0, 1.0, 1.0))
