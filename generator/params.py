@@ -253,6 +253,12 @@ class MissionParams:
     pilot_hover_factor: float = 0.5
     #: share of the flights flown with the pilot (drawn per flight from its seed)
     pilot_share: float = 1.0
+    #: each vehicle's rocking: the standard deviation (rad/s^2 per 250 Hz step, roll/pitch/yaw) of a white angular
+    #: acceleration on the airborne body (a loose frame, turbulence; physics.vehicle.Rocking), per flight: the flight
+    #: with seed s rocks as ``rocking_levels[s mod len]`` (``generate --like``: one per recovered mission, in the
+    #: missions' order, fitted to its log's gyro). (): none (the default). The ArduCopter fleet's rough vehicles'
+    #: gyro differences in cruise are 2.5x the generated ones (docs/like.md "Each vehicle's rocking")
+    rocking_levels: tuple[tuple[float, float, float], ...] = ()
 
 
 #: GPS accuracy levels, a profile's ``gps_accuracy``: the receiver's position errors (SensorParams)

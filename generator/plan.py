@@ -133,6 +133,8 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
         del flight_config["sensors"]["imu_offset_m"], flight_config["sensors"]["baro_downwash_pa"]
     if not cfg.sensors.vibration_levels:  # every vehicle alike: as before the vibration levels
         del flight_config["sensors"]["vibration_levels"]
+    if not cfg.mission.rocking_levels:  # no vehicle rocks: as before the rocking
+        del flight_config["mission"]["rocking_levels"]
     if not max(cfg.mission.pilot_stick_deg, cfg.mission.pilot_yaw_deg, cfg.mission.pilot_throttle):
         for key in [k for k in flight_config["mission"] if k.startswith("pilot_")]:  # no pilot: as before it
             del flight_config["mission"][key]

@@ -1,8 +1,10 @@
-"""Each vehicle's vibration (SensorParams.vibration_levels), issue 47 acceptance 3: a flight shakes its logged IMU as
+"""Each vehicle's vibration (SensorParams.vibration_levels) and rocking (MissionParams.rocking_levels), issue 47
+acceptance 3. The vibration: a flight shakes its logged IMU as
 the vehicle whose log its mission came from (the ArduCopter fleet's vehicles differ by 10-1000x in IMU vibration
 power); the rough vehicles' extra is high-frequency, in the logged IMU and not in the flight controller's loop; the
 same in both engines; off by default; `--like` fits a level per log; a profile TOML's bad levels are refused naming
-the key."""
+the key. The rocking: a white angular acceleration on the airborne body from the flight's own stream, the same in both
+engines, moving the true attitude and the gyro with it; off by default; fitted per log to its gyro's noise."""
 
 from __future__ import annotations
 
@@ -116,3 +118,63 @@ def test_a_profile_with_levels_reads_back():
                         '[0.5, 0.5, 0.5, 1, 1, 1]]\n')
         levels = read_profile(path).config.sensors.vibration_levels
     assert levels == ((1.0, 2.0, 3.0, 1.0, 1.0, 1.0), (0.5, 0.5, 0.5, 1.0, 1.0, 1.0))
+
+
+# -- each vehicle's rocking (MissionParams.rocking_levels) ---------------------------------------------------------------
+
+
+def test_a_rocking_vehicle_moves_in_both_engines_alike_and_the_gyro_reads_the_motion():
+    """A white angular acceleration of 30 rad/s^2 per step on roll and pitch: the kernel records every message within
+    1e-9 of the numpy reference; the rocking flight's true attitude moves (truth differs) and its gyro's differences
+    grow (over 3x), the flight at level 0 is the flight without levels (its own stream: no other draw moves)."""
+    m = MissionParams(ground_phase=False, max_duration_s=6.0, rocking_levels=((0.0, 0.0, 0.0), (30.0, 30.0, 0.0)))
+    cfg = FlightConfig(mission=m)
+    ker = kernel_matches_numpy(cfg, seeds=(4, 7))
+    plain = simulate([4, 7], dataclasses.replace(cfg, mission=dataclasses.replace(m, rocking_levels=())), engine="kernel")
+    for topic in ("highres_imu", "truth", "attitude"):
+        np.testing.assert_array_equal(ker.simulator[topic][1][0], plain.simulator[topic][1][0])
+    assert not np.allclose(ker.simulator["truth"][1][1], plain.simulator["truth"][1][1])
+    gyro, gyro0 = ker.simulator["highres_imu"][1][1][:, 3:5], plain.simulator["highres_imu"][1][1][:, 3:5]
+    ratio = np.diff(gyro, axis=0).std(axis=0) / np.diff(gyro0, axis=0).std(axis=0)
+    assert np.all(ratio > 3.0), ratio
+
+
+def test_rocking_is_off_by_default():
+    from scart_bench.generator.physics.vehicle import rocking_start
+    from scart_bench.generator.plan import plan_generation
+
+    assert MissionParams().rocking_levels == ()
+    assert rocking_start([1, 2], ()) is None
+    assert "rocking_levels" not in plan_generation("quick", seed=3, n_normal=2).config_dict["flight_config"]["mission"]
+
+
+def test_like_fits_the_rocking_that_adds_the_log_s_gyro_noise_in_squares(monkeypatch):
+    """Calibration flights with 0.03 rad/s of gyro noise without rocking and 0.05 at the reference level: a log at
+    0.05 gets the reference level on x and y, one at the generated figure or below 0, the yaw 0 (not fitted)."""
+    from scart_bench.generator.like import fit
+
+    figs = iter([{f"white_gyro_{a}": 0.03 for a in "xyz"}, {f"white_gyro_{a}": 0.05 for a in "xyz"}])
+    monkeypatch.setattr(fit, "calibration_figures", lambda config: next(figs))
+    rough, quiet = fit.LogMeasure("rough.bin", ""), fit.LogMeasure("quiet.bin", "")
+    rough.hover_white = {"gyro_x": 0.05, "gyro_y": 0.05, "gyro_z": 0.05}
+    quiet.hover_white = {"gyro_x": 0.02, "gyro_y": 0.03, "gyro_z": 0.05}
+    lines: list[str] = []
+    got = fit.fit_rocking([rough, quiet], FlightConfig(), lines)
+    assert got["rough.bin"] == (fit.ROCKING_REF[0], fit.ROCKING_REF[1], 0.0)
+    assert got["quiet.bin"] == (0.0, 0.0, 0.0)
+    assert len(lines) == 1 and "1 of 2 logs rock more" in lines[0]
+
+
+@pytest.mark.parametrize("value, expected", [
+    ("[[1.0, 2.0]]", "mission.rocking_levels[0]: expected a list of 3 values"),
+    ("[[1.0, -1.0, 0.0]]", "mission.rocking_levels[0][1]: expected a number in [0, 1000]"),
+])
+def test_bad_rocking_levels_in_a_profile_exit_2_naming_the_key(tmp_path, capsys, value, expected):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(f'[profile]\nbase = "quick"\n\n[mission]\nrocking_levels = {value}\n')
+    out = tmp_path / "out"
+    code = main(["generate", "--profile", str(bad), "--flights", "1", "--normal-only", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert str(bad) in err and expected in err, err
+    assert not out.exists()

@@ -115,6 +115,8 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     if init.pilot is not None:
         st["pilot_rng"], st["pilot_gain"] = init.pilot[:, 0], init.pilot[:, 1]
     st["vib_level"] = ss.vibration_level if ss.vibration_level is not None else 1.0
+    if init.rocking is not None:
+        st["rock_rng"], st["rock_level"] = init.rocking[:, 0], init.rocking[:, 1:4]
     return st
 
 

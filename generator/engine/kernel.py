@@ -243,6 +243,21 @@ def _motor(s, p, r, cmd, dt):
 
 
 @njit(**_HOT)
+def _rock(s, axis):
+    """One axis of a vehicle's rocking, rad/s^2 (physics.vehicle.Rocking.step, the same lines): four xorshift32
+    uniforms of its own stream to a normal, times its level."""
+    xr = int(s[L.ROCK_RNG])
+    total = 0.0
+    for _ in range(4):
+        xr ^= (xr << 13) & 0xFFFFFFFF
+        xr ^= xr >> 17
+        xr ^= (xr << 5) & 0xFFFFFFFF
+        total = total + xr / 4294967296.0
+    s[L.ROCK_RNG] = xr
+    return s[L.ROCK_LEVEL + axis] * ((total - 2.0) * 1.7320508075688772)
+
+
+@njit(**_HOT)
 def _vehicle(s, p, cmd, wx, wy, wz, x, env):
     """Advance the rigid body one step; returns the rotation matrix used (of the old attitude).
 
@@ -302,6 +317,10 @@ def _vehicle(s, p, cmd, wx, wy, wz, x, env):
     n0 = w0 + (wr[1] - g0) / J0 * dt
     n1 = w1 + (wr[2] - g1) / J1 * dt
     n2 = w2 + (wr[3] - g2) / J2 * dt
+    if s[L.ROCK_RNG] != 0.0:  # each vehicle's rocking (MissionParams.rocking_levels; physics.vehicle.Rocking)
+        n0 = n0 + _rock(s, 0) * dt
+        n1 = n1 + _rock(s, 1) * dt
+        n2 = n2 + _rock(s, 2) * dt
     if touching:
         n0 = n1 = n2 = 0.0
     s[L.OMEGA], s[L.OMEGA + 1], s[L.OMEGA + 2] = n0, n1, n2

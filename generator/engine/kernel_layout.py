@@ -219,3 +219,10 @@ PREV_DRAW = WIDTH + 6  # 6: the IMU's noise draws of the last sample (accelerome
 IMU_HF = WIDTH + 12  # 6: a rough vehicle's high-frequency vibration of the last sample, in the logged IMU only
 WIDTH = IMU_HF + 6
 FIELDS.update({"vib_level": (VIB_LEVEL, 6), "prev_draw": (PREV_DRAW, 6), "imu_hf": (IMU_HF, 6)})
+
+# -- each vehicle's rocking (MissionParams.rocking_levels; physics.vehicle.Rocking) ------------------------------------
+ROCK_RNG = WIDTH  # the rocking's xorshift32 state (an integer below 2^32)
+ROCK_LEVEL = WIDTH + 1  # 3: rad/s^2 per step, roll/pitch/yaw (0: no rocking)
+WIDTH = ROCK_LEVEL + 3
+FIELDS.update({"rock_rng": (ROCK_RNG, 1), "rock_level": (ROCK_LEVEL, 3)})
+

@@ -681,6 +681,8 @@ class Fit:
     #: log name -> its vehicle's accelerometer x/y/z, gyro x/y/z vibration over the fleet's (:func:`vibration_levels`); empty:
     #: every vehicle alike (no calibration, or a sensor model without per-flight levels)
     vibration_levels: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    #: log name -> its vehicle's rocking (rad/s^2 per step, roll/pitch/yaw; :func:`fit_rocking`); empty: none fitted
+    rocking_levels: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
 
 def next_level(history: list[tuple[float, float]], target: float) -> float:
@@ -1019,6 +1021,45 @@ def vibration_levels(logs: list[LogMeasure], figs: dict[str, Figure], coloured: 
     return out
 
 
+#: the rocking level (rad/s^2 per step; roll, pitch, yaw) the calibration flights measure the gyro's response at
+ROCKING_REF = (20.0, 20.0, 5.0)
+#: a vehicle's rocking level is kept at or below this (rad/s^2 per step)
+ROCKING_MAX = 100.0
+#: the axes fitted (the others 0): a yaw rocking of the rough logs' gyro z (12-18 rad/s^2) made the heading wander
+#: (cruise yaw std x5.2 and its power below 0.5 Hz x18 the fleet's, 20 flights): the yaw loop is too weak to hold it
+ROCKING_AXES = "xy"
+
+
+def fit_rocking(logs: list[LogMeasure], config, lines: list[str]) -> dict[str, tuple[float, float, float]]:
+    """Per log, its vehicle's rocking (MissionParams.rocking_levels): the white angular acceleration whose gyro
+    sample-to-sample noise in the air, added in squares to the generated flights' without rocking, gives the log's
+    (its still hover, or every airborne row). Two rounds of calibration flights (:func:`calibration_figures`): none,
+    and :data:`ROCKING_REF` on every flight; the response is linear in the level. A log at or below the generated
+    figure gets 0; one without a gyro figure 0."""
+    base = calibration_figures(config)
+    ref_cfg = dataclasses.replace(config, mission=dataclasses.replace(config.mission, rocking_levels=(ROCKING_REF,)))
+    ref = calibration_figures(ref_cfg)
+    gain2, g0 = [], []
+    for i, a in enumerate(AXES):
+        b, r = base.get(f"white_gyro_{a}", math.nan), ref.get(f"white_gyro_{a}", math.nan)
+        g0.append(b)
+        gain2.append((r * r - b * b) / (ROCKING_REF[i] ** 2) if math.isfinite(b) and math.isfinite(r) else math.nan)
+    out = {}
+    for m in logs:
+        lv = []
+        for i, a in enumerate(AXES):
+            t = m.hover_white.get(f"gyro_{a}", math.nan)
+            ok = a in ROCKING_AXES and math.isfinite(t) and math.isfinite(gain2[i]) and gain2[i] > 0
+            lv.append(round(float(min(math.sqrt(max(t * t - g0[i] * g0[i], 0.0) / gain2[i]), ROCKING_MAX)), 2)
+                      if ok else 0.0)
+        out[m.name] = tuple(lv)
+    at_ref = ", ".join(f"{ref.get('white_gyro_' + a, math.nan):.3g}" for a in AXES)
+    lines.append(f"rocking: the gyro's sample-to-sample noise of calibration flights {', '.join(f'{x:.3g}' for x in g0)} "
+                 f"rad/s (x, y, z), {at_ref} at "
+                 f"{ROCKING_REF} rad/s^2 per step; {sum(any(v) for v in out.values())} of {len(logs)} logs rock more")
+    return out
+
+
 def _fmt(v: float) -> str:
     return f"{v:.3g}" if math.isfinite(v) else "n/a"
 
@@ -1116,7 +1157,13 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         cut = {k: values["sensors"].get(f"{k}_noise_cutoff_hz", (getattr(config.sensors, f"{k}_noise_cutoff_hz"), ""))[0]
                for k in ("accel", "gyro")}
         levels = vibration_levels(logs, figs, tuple(k[:3] if k == "accel" else k for k, c in cut.items() if c))
-    return Fit(values, measured, [], lines, logs, levels)
+    rocking = {}
+    if calibrate and hasattr(config.mission, "rocking_levels"):  # each vehicle's rocking, on the fitted noise
+        noise = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in values["sensors"].items()
+                 if hasattr(config.sensors, k)}
+        rocking = fit_rocking(logs, dataclasses.replace(config, sensors=dataclasses.replace(config.sensors, **noise)),
+                              lines)
+    return Fit(values, measured, [], lines, logs, levels, rocking)
 
 
 def log_line(m: LogMeasure) -> str:

@@ -107,10 +107,11 @@ def _check_value(path, key: str, value, default):
 
 #: fields with a range of their own beyond their default's type: key -> (least, most, what it is)
 RANGES = {"sensors.imu_offset_m": (-1.0, 1.0, "m from the centre of gravity, body frame"),
-          "sensors.vibration_levels": (0.0, 1000.0, "multiples of the vibration")}
+          "sensors.vibration_levels": (0.0, 1000.0, "multiples of the vibration"),
+          "mission.rocking_levels": (0.0, 1000.0, "rad/s^2 per step")}
 #: fields whose value is a list of any length of same-length number lists (their default, (), says no element type):
 #: key -> the element's prototype
-PAIRS = {"sensors.vibration_levels": (1.0,) * 6}
+PAIRS = {"sensors.vibration_levels": (1.0,) * 6, "mission.rocking_levels": (0.0,) * 3}
 
 
 def _check_range(path, key: str, value) -> None:

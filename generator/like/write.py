@@ -63,6 +63,7 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
     (folder / MISSION_DIR).mkdir(exist_ok=True)
     missions = []
     levels = []  # each written mission's vehicle vibration (SensorParams.vibration_levels), in the missions' order
+    rocking = []  # ... and its rocking (MissionParams.rocking_levels)
     names = set()
     for m in logs:
         name = _unique(Path(m.name).stem, names)
@@ -71,6 +72,7 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
         if written:
             missions.append(f"{MISSION_DIR}/{target.name}")
             levels.append(list(fitted.vibration_levels.get(m.name, (1.0,) * 6)))
+            rocking.append(list(fitted.rocking_levels.get(m.name, (0.0,) * 3)))
         elif m.mission_source:
             say(f"  {m.name}: its mission could not be written ({written is None and 'no waypoints' or 'refused'})")
     sections = {"profile": {"base": (base, "flight counts, splits and attack grid of this built-in profile")}}
@@ -90,6 +92,12 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
                                                    "hover, or every airborne row), in the missions' order: "
                                                    + "; ".join(f"{Path(p).stem} " + "/".join(f"{x:g}" for x in v)
                                                                for p, v in zip(missions, levels)))
+    if missions and fitted.rocking_levels and any(any(v) for v in rocking):
+        sections["mission"]["rocking_levels"] = (rocking, "each mission's vehicle: white angular acceleration (rad/s^2 per "
+                                                "step, roll/pitch/yaw) that gives its log's gyro sample-to-sample noise "
+                                                "in the air, in the missions' order: "
+                                                + "; ".join(f"{Path(p).stem} " + "/".join(f"{x:g}" for x in v)
+                                                            for p, v in zip(missions, rocking)))
     if missions:
         sections["mission"]["missions"] = (missions, f"recovered from {len(missions)} of {len(logs)} logs; the flight "
                                                      "with seed s flies file s mod N")

@@ -67,8 +67,9 @@ class Vehicle:
         self.alloc_inv = np.linalg.inv(self.alloc)
 
     def step(self, s: VehicleState, rotor_cmd: np.ndarray, wind: np.ndarray, dt: float,
-             efficiency: np.ndarray | None = None) -> np.ndarray:
-        """Advance one step. ``rotor_cmd`` (N, 4) rad/s; returns the rotation matrices used."""
+             efficiency: np.ndarray | None = None, rocking: np.ndarray | None = None) -> np.ndarray:
+        """Advance one step. ``rotor_cmd`` (N, 4) rad/s; returns the rotation matrices used. ``rocking`` (N, 3):
+        an angular acceleration (rad/s^2, body) on top of the rotors' (:class:`Rocking`), none on the ground."""
         p = self.params
         up = rotor_cmd > s.rotor_speed
         tau = np.where(up, p.time_constant_up, p.time_constant_down)
@@ -102,6 +103,8 @@ class Vehicle:
         w = s.omega
         gyro = cross(w, w * J)
         s.omega = w + (torque - gyro) / J * dt
+        if rocking is not None:
+            s.omega = s.omega + rocking * dt
         s.omega[touching] = 0.0
         s.quat = quat_integrate(s.quat, s.omega, dt)
         if touching.any():
@@ -111,3 +114,48 @@ class Vehicle:
             s.quat[touching] = np.column_stack([np.cos(yaw / 2), np.zeros_like(yaw), np.zeros_like(yaw),
                                                 np.sin(yaw / 2)])
         return R
+
+
+#: a flight's rocking stream of its seed (SeedSequence([seed, ROCKING_STREAM]))
+ROCKING_STREAM = 0x70CC
+_M32 = 0xFFFFFFFF
+_SQRT3 = 1.7320508075688772
+
+
+class Rocking:
+    """Each vehicle's rocking (MissionParams.rocking_levels): per step a white angular acceleration of the flight's
+    level, from a 32-bit xorshift of its own per flight (four uniforms summed, as the pilot's sticks), so that the
+    flights' other draws stay as they are. The compiled kernel has the same lines (kernel._vehicle)."""
+
+    def __init__(self, start: np.ndarray):
+        self.state = start[:, 0].astype(np.int64)  # (N,) xorshift32 states, non-zero
+        self.level = np.array(start[:, 1:4], dtype=float)  # (N, 3) rad/s^2 per step
+
+    def step(self) -> np.ndarray:
+        """(N, 3) this step's angular acceleration, rad/s^2."""
+        x = self.state
+        out = np.zeros(self.level.shape)
+        for a in range(3):
+            total = np.zeros(len(x))
+            for _ in range(4):
+                x = x ^ ((x << 13) & _M32)
+                x = x ^ (x >> 17)
+                x = x ^ ((x << 5) & _M32)
+                total = total + x / 4294967296.0
+            out[:, a] = self.level[:, a] * ((total - 2.0) * _SQRT3)
+        self.state = x
+        return out
+
+
+def rocking_start(seeds, levels) -> np.ndarray | None:
+    """(N, 4) per flight: its rocking stream's xorshift32 state and its (roll, pitch, yaw) level, the flight with seed
+    s taking ``levels[s mod len(levels)]`` (MissionParams.rocking_levels); None for no levels."""
+    if not levels:
+        return None
+    out = np.zeros((len(seeds), 4))
+    for i, s in enumerate(seeds):
+        g = np.random.default_rng(np.random.SeedSequence([int(s), ROCKING_STREAM]))
+        out[i, 0] = int(g.integers(1, 1 << 32))
+        out[i, 1:4] = levels[int(s) % len(levels)]
+    return out
+
