@@ -75,7 +75,8 @@ def test_off_by_default():
 
 def test_like_fits_a_level_per_log_from_its_noise_in_the_air():
     """A log whose accelerometer's sample-to-sample noise in the air is 10x the fleet's gets level 10 on it (within
-    the cap), 1 on the gyro (not fitted: the rough vehicles' gyro excess is rocking); a log without figures 1."""
+    the cap), 1 on the gyro (at most 1: the rough vehicles' gyro excess is rocking), a quieter gyro its level below 1;
+    a log without figures 1."""
     from scart_bench.generator.like.fit import VIBRATION_LEVEL_MAX, Figure, LogMeasure, vibration_levels
 
     figs = {f"white_hover_{s}_{a}": Figure(v, 8, "") for s, v in (("acc", 0.1), ("gyro", 0.02)) for a in "xyz"}
@@ -84,9 +85,10 @@ def test_like_fits_a_level_per_log_from_its_noise_in_the_air():
     quiet.hover_white = {"acc_x": 0.05, "acc_y": 0.1, "acc_z": 0.1, "gyro_x": 0.01, "gyro_y": 0.02, "gyro_z": 0.02}
     got = vibration_levels([rough, quiet, blank], figs)
     assert got["rough.bin"] == (10.0, 5.0, VIBRATION_LEVEL_MAX, 1.0, 1.0, 1.0)
-    assert got["quiet.bin"] == (0.5, 1.0, 1.0, 1.0, 1.0, 1.0)
+    assert got["quiet.bin"] == (0.5, 1.0, 1.0, 0.5, 1.0, 1.0)
     assert got["blank.bin"] == (1.0,) * 6
-    assert vibration_levels([rough], figs, ("acc",))["rough.bin"] == (1.0,) * 6  # a low-passed vibration: not fitted
+    assert vibration_levels([rough], figs, ("acc",))["rough.bin"] == (1.0,) * 6  # a low-passed vibration: at most 1
+    assert vibration_levels([quiet], figs, ("acc",))["quiet.bin"] == (0.5, 1.0, 1.0, 0.5, 1.0, 1.0)
 
 
 @pytest.mark.parametrize("value, expected", [

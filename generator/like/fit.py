@@ -987,7 +987,7 @@ def fit_imu_offset(logs: list[LogMeasure], sensors, lines: list[str]) -> dict[st
 
 #: a vehicle's vibration level is kept within this factor of the fleet's (either way)
 VIBRATION_LEVEL_MAX = 30.0
-#: fit the gyro's vibration levels too (False: 1, see :func:`vibration_levels`)
+#: fit the gyro's vibration levels above 1 too (False: at most 1, see :func:`vibration_levels`)
 GYRO_LEVELS = False
 
 
@@ -999,24 +999,24 @@ def vibration_levels(logs: list[LogMeasure], figs: dict[str, Figure], coloured: 
     :data:`VIBRATION_LEVEL_MAX` either way; 1 where a log has no such figure. The fleet's vehicles differ by 3-50x in
     amplitude: the logs without a still hover are the roughest.
 
-    The gyro's levels are left at 1 (:data:`GYRO_LEVELS`): the rough vehicles' gyro differences stay coloured
+    The gyro's levels are at most 1 (:data:`GYRO_LEVELS`; a quieter vehicle's below): the rough vehicles' gyro
+    differences stay coloured
     (lag-1 -0.2 to 0.7 in cruise, 0.3-0.8 at still hover), their extra is rocking, not vibration. As high-frequency
     vibration (above 1, physics.sensors.Sensors.imu) it whitened the generated cruise gyro (lag-1 of the differences
     -0.41 against the fleet's 0.73, the most separating feature; 20 flights), and as low-passed noise in the
-    flight controller's loop it is flown (timeouts). A level multiplies the vibration's per-sample sigma, which is
-    its sample-to-sample noise only when it is white: a sensor in ``coloured`` ("acc", "gyro": its fitted vibration
-    low-passed) keeps 1 too."""
+    flight controller's loop it is flown (timeouts); their rocking is :func:`fit_rocking`'s. Up to 1 a level scales
+    the fleet's vibration as it is (white or low-passed), so the sample-to-sample noise with it; above 1 the rest is
+    high-frequency, which is the log's sample-to-sample figure only for a white vibration: a sensor in ``coloured``
+    ("acc", "gyro": its fitted vibration low-passed) is kept at most 1 too."""
     out = {}
     for m in logs:
         levels = []
         for k in (f"{sensor}_{a}" for sensor in ("acc", "gyro") for a in AXES):
             fleet = figs.get(f"white_hover_{k}")
-            if (k.startswith("gyro") and not GYRO_LEVELS) or k.split("_")[0] in coloured:
-                levels.append(1.0)
-                continue
+            top = 1.0 if (k.startswith("gyro") and not GYRO_LEVELS) or k.split("_")[0] in coloured else VIBRATION_LEVEL_MAX
             r = m.hover_white.get(k, math.nan) / fleet.value if fleet is not None and fleet.value > 0 else math.nan
             r = r if math.isfinite(r) and r > 0 else 1.0
-            levels.append(round(float(np.clip(r, 1.0 / VIBRATION_LEVEL_MAX, VIBRATION_LEVEL_MAX)), 3))
+            levels.append(round(float(np.clip(r, 1.0 / VIBRATION_LEVEL_MAX, top)), 3))
         out[m.name] = tuple(levels)
     return out
 
