@@ -98,6 +98,21 @@ def distance_to_path(points_ne: np.ndarray, waypoints_ne: np.ndarray) -> np.ndar
     return best
 
 
+def bad_sensor_key_is_refused(tmp_path: Path, capsys, key: str, value: str, expected: str) -> None:
+    """A profile TOML whose ``[sensors]`` ``key`` is ``value`` (TOML text): ``generate`` exits 2 with one
+    line naming the file and ``expected``, and writes nothing."""
+    from scart_bench.cli.main import main
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text(f'[profile]\nbase = "quick"\n\n[sensors]\n{key} = {value}\n')
+    out = tmp_path / "out"
+    code = main(["generate", "--profile", str(bad), "--flights", "1", "--normal-only", "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert str(bad) in err and expected in err, err
+    assert not out.exists()
+
+
 def kernel_matches_numpy(cfg, seeds=(3, 4), atol: float = 1e-9):
     """Fly ``seeds`` under ``cfg`` in the numpy reference engine and the compiled kernel and check that
     every simulator message agrees (the same steps, values within ``atol``); the kernel's batch."""

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import kernel_matches_numpy
+from conftest import bad_sensor_key_is_refused, kernel_matches_numpy
 
 from scart_bench.cli.main import main
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
@@ -107,14 +107,7 @@ def test_like_writes_a_fitted_imu_offset_that_reads_back(fitted):
     ("[0.0, 0.0, -2.5]", "sensors.imu_offset_m[2]: expected a number in [-1, 1]"),
 ])
 def test_a_bad_imu_offset_in_a_profile_exits_2_naming_the_key(tmp_path, capsys, value, expected):
-    bad = tmp_path / "bad.toml"
-    bad.write_text(f'[profile]\nbase = "quick"\n\n[sensors]\nimu_offset_m = {value}\n')
-    out = tmp_path / "out"
-    code = main(["generate", "--profile", str(bad), "--flights", "1", "--normal-only", "--out", str(out)])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and len(err.splitlines()) == 1, err
-    assert str(bad) in err and expected in err, err
-    assert not out.exists()
+    bad_sensor_key_is_refused(tmp_path, capsys, "imu_offset_m", value, expected)
 
 
 

@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import kernel_matches_numpy
+from conftest import bad_sensor_key_is_refused, kernel_matches_numpy
 
 from scart_bench.cli.main import main
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
@@ -97,14 +97,7 @@ def test_like_fits_a_level_per_log_from_its_noise_in_the_air():
     ("3.0", "sensors.vibration_levels: expected a list of lists of 6 numbers"),
 ])
 def test_bad_vibration_levels_in_a_profile_exit_2_naming_the_key(tmp_path, capsys, value, expected):
-    bad = tmp_path / "bad.toml"
-    bad.write_text(f'[profile]\nbase = "quick"\n\n[sensors]\nvibration_levels = {value}\n')
-    out = tmp_path / "out"
-    code = main(["generate", "--profile", str(bad), "--flights", "1", "--normal-only", "--out", str(out)])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and len(err.splitlines()) == 1, err
-    assert str(bad) in err and expected in err, err
-    assert not out.exists()
+    bad_sensor_key_is_refused(tmp_path, capsys, "vibration_levels", value, expected)
 
 
 def test_a_profile_with_levels_reads_back():
