@@ -87,3 +87,12 @@ def test_the_paper_layout_writes_a_source_topic_as_its_table(tmp_path):
     assert isinstance(out.navigator["a"], pd.DataFrame) and out.simulator["a"] is out.navigator["a"]
     assert out.navigator["a"]["Is_Anomaly"].tolist() == [0, 1, 1, 0, 0]
     assert built(out) is out
+
+
+def test_label_patterns_hold_more_windows_than_a_bit_mask():
+    rng = np.random.default_rng(1)
+    windows = [(int(a), int(a) + 50, f"s{k}", "attack") for k, a in enumerate(rng.integers(0, 950, 70))]
+    for ts in (rng.integers(0, 1000, 300), np.sort(rng.integers(0, 1000, 300))):
+        index, labels = label_patterns(ts, windows)
+        for column, want in label_columns(ts, windows).items():
+            assert np.array_equal(np.array([labels[i][column][0] for i in index], dtype=want.dtype), want)

@@ -154,7 +154,7 @@ def label_patterns(timestamps: np.ndarray, windows: list[tuple]) -> tuple[np.nda
     if n > 1 and not (ts[1:] >= ts[:-1]).all():  # out of order: a pattern per distinct set of windows
         codes = np.zeros(n, dtype=object if len(windows) > 62 else np.int64)
         for k, w in enumerate(windows):
-            codes = codes + ((ts >= w[0]) & (ts < w[1])).astype(np.int64) * (1 << k)
+            codes = codes + ((ts >= w[0]) & (ts < w[1])).astype(codes.dtype) * (1 << k)
         _, first, index = np.unique(codes, return_index=True, return_inverse=True)
         return index.reshape(-1), [label_columns(ts[i : i + 1], windows) for i in first]
     # in order: each window is a run of rows, so the labels change only where a window starts or ends
