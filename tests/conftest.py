@@ -98,13 +98,13 @@ def distance_to_path(points_ne: np.ndarray, waypoints_ne: np.ndarray) -> np.ndar
     return best
 
 
-def bad_sensor_key_is_refused(tmp_path: Path, capsys, key: str, value: str, expected: str) -> None:
-    """A profile TOML whose ``[sensors]`` ``key`` is ``value`` (TOML text): ``generate`` exits 2 with one
+def bad_profile_key_is_refused(tmp_path: Path, capsys, section: str, key: str, value: str, expected: str) -> None:
+    """A profile TOML whose ``[section]`` ``key`` is ``value`` (TOML text): ``generate`` exits 2 with one
     line naming the file and ``expected``, and writes nothing."""
     from scart_bench.cli.main import main
 
     bad = tmp_path / "bad.toml"
-    bad.write_text(f'[profile]\nbase = "quick"\n\n[sensors]\n{key} = {value}\n')
+    bad.write_text(f'[profile]\nbase = "quick"\n\n[{section}]\n{key} = {value}\n')
     out = tmp_path / "out"
     code = main(["generate", "--profile", str(bad), "--flights", "1", "--normal-only", "--out", str(out)])
     err = capsys.readouterr().err.strip()

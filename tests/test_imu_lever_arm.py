@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import bad_sensor_key_is_refused, kernel_matches_numpy
+from conftest import bad_profile_key_is_refused, kernel_matches_numpy
 
 from scart_bench.cli.main import main
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
@@ -107,7 +107,7 @@ def test_like_writes_a_fitted_imu_offset_that_reads_back(fitted):
     ("[0.0, 0.0, -2.5]", "sensors.imu_offset_m[2]: expected a number in [-1, 1]"),
 ])
 def test_a_bad_imu_offset_in_a_profile_exits_2_naming_the_key(tmp_path, capsys, value, expected):
-    bad_sensor_key_is_refused(tmp_path, capsys, "imu_offset_m", value, expected)
+    bad_profile_key_is_refused(tmp_path, capsys, "sensors", "imu_offset_m", value, expected)
 
 
 
