@@ -45,7 +45,10 @@ What it does:
    flight's phases, ``generator.logs.phases.flight_phases``, say landed for >= 80 % of it),
    ``hover`` (airborne, median horizontal speed < 1 m/s and :func:`vertical_speed` < 0.5 m/s), ``cruise``
    (airborne and moving), ``air`` (airborne, a log without velocity: not moving vertically but
-   its horizontal speed unknown), ``mixed`` (take-off or landing inside the window).
+   its horizontal speed unknown), ``mixed`` (take-off or landing inside the window). Both sides
+   use the same signals: a generated flight whose mission was recovered from a log of the
+   comparison without GPS velocity takes its phases without its own velocity too
+   (:func:`pair_phase_speed`; its still windows are ``air``, as its log's are).
 4. **Features** per window per signal (:data:`FEATURES`): std, std of first differences,
    log10 power in 0-0.5 / 0.5-2 / 2-5 / 5-25 Hz (bands above the signal's Nyquist frequency are
    left out), lag-1 autocorrelation of the detrended window and of its first differences, and
@@ -140,6 +143,11 @@ class FlightSignals:
     ground: tuple[np.ndarray, np.ndarray] | None = None  # (t_s, True on the ground)
     altitude: tuple[np.ndarray, np.ndarray] | None = None  # (t_s, m above the ground) of the phases
     notes: list[str] = field(default_factory=list)  # what was left out and why
+    #: the log a generated flight's mission was recovered from (its ``mission_file``'s stem; None for a log)
+    mission: str | None = None
+    #: whether the horizontal speed (GPS velocity) decides hover / cruise (see :func:`window_phase`);
+    #: :func:`compare` sets it False on a generated flight whose mission comes from a log without it
+    phase_speed: bool = True
 
 
 # --- reading --------------------------------------------------------------------------------------------
@@ -272,8 +280,39 @@ def read_dataset(path: str | Path, view: str = "simulator", n: int | None = None
     out = []
     for fid in ids:
         tables = {t: ds.topic(fid, t, view) for t in ds.topics(fid, view)}
-        out.append(signals_from_tables(fid, tables, "generated"))
+        f = signals_from_tables(fid, tables, "generated")
+        f.mission = _mission_log(ds, fid)
+        out.append(f)
     return out
+
+
+def _mission_log(ds, fid: str) -> str | None:
+    """The log a generated flight's mission came from: the stem of its ``mission_file`` (``generate
+    --like`` names each recovered mission after its log), None without one."""
+    try:
+        name = ds.config(fid).get("mission_file")
+    except Exception:  # a dataset without raw/config.json: no mission to pair
+        return None
+    return Path(str(name)).stem if name else None
+
+
+def log_stem(name: str) -> str:
+    """A log's name without its folder and suffix (``real/arducopter_181.bin`` -> ``arducopter_181``)."""
+    return Path(name.rsplit("/", 1)[-1]).stem
+
+
+def pair_phase_speed(generated: list[FlightSignals], real: list[FlightSignals]) -> list[str]:
+    """The same phase signals on both sides: a generated flight whose mission was recovered from a log
+    of ``real`` that has no horizontal speed (no GPS fix) takes its phases without its own speed too
+    (``phase_speed`` False: its non-climbing airborne windows are ``air``, as its log's are). Returns the
+    logs so paired."""
+    speedless = {log_stem(f.name) for f in real if not ("vel_n" in f.signals and "vel_e" in f.signals)}
+    paired = set()
+    for f in generated:
+        if f.mission is not None and f.mission in speedless:
+            f.phase_speed = False
+            paired.add(f.mission)
+    return sorted(paired)
 
 
 # --- resampling and features ----------------------------------------------------------------------------
@@ -388,7 +427,7 @@ def window_phase(f: FlightSignals, a: float, b: float) -> str:
     if share > 1 - PHASE_SHARE:
         return "mixed"
     climb = vertical_speed(f.altitude, a, b)
-    if "vel_n" in f.signals and "vel_e" in f.signals:
+    if f.phase_speed and "vel_n" in f.signals and "vel_e" in f.signals:
         (tn, vn), (te, ve) = f.signals["vel_n"], f.signals["vel_e"]
         s = (tn >= a) & (tn < b)
         if s.any():
@@ -668,14 +707,20 @@ def compare(generated: list[FlightSignals], real: list[FlightSignals], phases=PH
     if not generated or not real:
         raise ValueError(f"the window check needs flights on both sides (generated {len(generated)}, "
                          f"{log_set} {len(real)})")
-    gen = [FlightSignals(f.name, "generated", f.signals, f.sources, f.ground, f.altitude, f.notes) for f in generated]
+    gen = [FlightSignals(f.name, "generated", f.signals, f.sources, f.ground, f.altitude, f.notes,
+                         getattr(f, "mission", None)) for f in generated]
     rl = [FlightSignals(f"{log_set}/{f.name}", "real", f.signals, f.sources, f.ground, f.altitude, f.notes)
           for f in real]
+    paired = pair_phase_speed(gen, rl)
     used, left = usable_signals(gen, rl, signals or list(SIGNALS))
     rates = common_rates(gen + rl, used, max_hz)
     used = [s for s in used if s in rates]
     rates = {s: rates[s] for s in used}
     notes = [f"{f.name}: {n}" for f in rl for n in f.notes]
+    if paired:
+        n = sum(not f.phase_speed for f in gen)
+        notes.append(f"phases without the horizontal speed (as their logs'): {n} generated flight(s) of the "
+                     f"missions of {', '.join(paired)}")
     if not used:
         raise ValueError(f"no signal is common to every generated flight and every log of {log_set}: "
                          + "; ".join(f"{s} {why}" for s, why in left.items()))
