@@ -243,18 +243,25 @@ def _motor(s, p, r, cmd, dt):
 
 
 @njit(**_HOT)
-def _rock(s, axis):
-    """One axis of a vehicle's rocking, rad/s^2 (physics.vehicle.Rocking.step, the same lines): four xorshift32
-    uniforms of its own stream to a normal, times its level."""
-    xr = int(s[L.ROCK_RNG])
+def _xorshift_normal(x):
+    """Four xorshift32 uniforms from state ``x`` summed to a unit normal (the pilot's sticks and the rocking,
+    as their numpy references draw it): the new state and the draw."""
     total = 0.0
     for _ in range(4):
-        xr ^= (xr << 13) & 0xFFFFFFFF
-        xr ^= xr >> 17
-        xr ^= (xr << 5) & 0xFFFFFFFF
-        total = total + xr / 4294967296.0
+        x ^= (x << 13) & 0xFFFFFFFF
+        x ^= x >> 17
+        x ^= (x << 5) & 0xFFFFFFFF
+        total = total + x / 4294967296.0
+    return x, (total - 2.0) * 1.7320508075688772
+
+
+@njit(**_HOT)
+def _rock(s, axis):
+    """One axis of a vehicle's rocking, rad/s^2 (physics.vehicle.Rocking.step, the same lines): a normal
+    of its own stream, times its level."""
+    xr, n = _xorshift_normal(int(s[L.ROCK_RNG]))
     s[L.ROCK_RNG] = xr
-    return s[L.ROCK_LEVEL + axis] * ((total - 2.0) * 1.7320508075688772)
+    return s[L.ROCK_LEVEL + axis] * n
 
 
 @njit(**_HOT)
@@ -895,15 +902,8 @@ def _vel_axis(s, p, a, dv, armed, dt):
 def _pilot_stick(s, p, lag_axis, level):
     """One stick of the pilot in attitude mode (generator.flight_software.pilot.Pilot.step, the same lines):
     four xorshift32 uniforms to a normal, through the two lags, scaled."""
-    x = int(s[L.PILOT_RNG])
-    total = 0.0
-    for _ in range(4):
-        x ^= (x << 13) & 0xFFFFFFFF
-        x ^= x >> 17
-        x ^= (x << 5) & 0xFFFFFFFF
-        total = total + x / 4294967296.0
+    x, n = _xorshift_normal(int(s[L.PILOT_RNG]))
     s[L.PILOT_RNG] = x
-    n = (total - 2.0) * 1.7320508075688772
     z = L.PILOT_LAG + 2 * lag_axis
     s[z] = p[K_PILOT + 4] * s[z] + p[K_PILOT + 5] * n
     s[z + 1] = p[K_PILOT + 4] * s[z + 1] + p[K_PILOT + 5] * s[z]
