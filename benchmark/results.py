@@ -333,6 +333,11 @@ def _evaluation_lines(evaluation: dict | None) -> list[str]:
             "The run's own tables are in the run folder.", ""]
 
 
+def calibrated_on_test(config: dict) -> bool:
+    """Whether a transfer run took its thresholds from the tested dataset (``--calibrate-on dataset``)."""
+    return (config.get("transfer") or {}).get("calibrate_on", "train_dataset") == "dataset"
+
+
 def trained_where(config: dict) -> str:
     """Where a transfer run's detectors were fitted and its thresholds calibrated, in words ("" for a
     run on one dataset): the train dataset for both, or its train flights and the tested dataset's
@@ -340,9 +345,8 @@ def trained_where(config: dict) -> str:
     train = (config.get("train_dataset") or {}).get("path")
     if not train:
         return ""
-    transfer = config.get("transfer") or {}
-    if transfer.get("calibrate_on", "train_dataset") == "dataset":
-        return (f"Trained on `{train}`, calibrated on {transfer.get('calibration_flights', 0)} normal flights of "
+    if calibrated_on_test(config):
+        return (f"Trained on `{train}`, calibrated on {config['transfer'].get('calibration_flights', 0)} normal flights of "
                 f"`{(config.get('dataset') or {}).get('path')}` (split validation, not tested)")
     return f"Trained and calibrated on `{train}`"
 
@@ -412,7 +416,7 @@ def transfer_summary(config: dict, metrics: pd.DataFrame) -> list[str]:
     flights = test.get("flights", {}) or {}
     shared = (config.get("transfer") or {}).get("columns", [])
     g, r = train.get("path", ""), test.get("path", "")
-    here = (config.get("transfer") or {}).get("calibrate_on", "train_dataset") == "dataset"
+    here = calibrated_on_test(config)
     calibration = (f"- trained on `{g}`: {train.get('flights', {}).get('train', 0)} train flights fit the detectors; "
                    f"{(config.get('transfer') or {}).get('calibration_flights', 0)} normal flights of `{r}` (split "
                    "validation) set the thresholds and are not tested;" if here else
