@@ -136,6 +136,12 @@ class SensorParams:
     #: 0: off (the default). The ArduCopter fleet's baro on the ground is quieter and whiter than at hover
     #: (sample-to-sample x0.5, 0.5-5 Hz power x0.25); ``generate --like`` fits it (docs/like.md)
     baro_downwash_pa: float = 0.0
+    #: the baro's slow error, Pa (stationary sigma): a first-order Gauss-Markov wander of time constant
+    #: ``baro_wander_tau_s`` on top of its noise, driven by the same draws (physics.sensors.baro_wander_coefficients).
+    #: 0: off (the default). The ArduCopter fleet's baro at still hover wanders 2-4x more than the estimator's
+    #: altitude (detrended 10 s windows: 0.19 m against 0.06 m); ``generate --like`` fits it (docs/like.md)
+    baro_wander_pa: float = 0.0
+    baro_wander_tau_s: float = 2.0
     baro_drift_pa: float = 0.6  # Pa, 1 sigma of the slowly varying offset
     gps_rate_hz: float = 10.0
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)

@@ -39,7 +39,11 @@ from scart_bench.generator.geo import latlon_to_ned, ned_to_latlon
 from scart_bench.generator.params import DT, GRAVITY, NAV_RATE_HZ
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block
-from scart_bench.generator.physics.sensors import gps_error_coefficients, lowpass_coefficients
+from scart_bench.generator.physics.sensors import (
+    baro_wander_coefficients,
+    gps_error_coefficients,
+    lowpass_coefficients,
+)
 from scart_bench.generator.telemetry.schedule import due_steps
 
 if TYPE_CHECKING:
@@ -170,6 +174,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "baro_lowpass": _lowpass(sp.baro_noise_cutoff_hz, sp.baro_rate_hz),
         "imu_offset": np.r_[np.asarray(sp.imu_offset_m, dtype=float), float(any(sp.imu_offset_m))],
         "baro_downwash": sp.baro_downwash_pa,
+        "baro_wander": np.r_[baro_wander_coefficients(sp), float(sp.baro_wander_pa > 0.0)],
     }
     return K.param_vector(values)
 

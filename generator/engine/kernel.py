@@ -69,6 +69,7 @@ K_TAKEOFF_AFTER_ARM, K_GYRO_VIB = _I["takeoff_after_arm"], _I["gyro_vibration"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
 K_ACC_LP, K_GYRO_LP, K_BARO_LP = _I["accel_lowpass"], _I["gyro_lowpass"], _I["baro_lowpass"]
 K_IMU_OFFSET, K_BARO_DOWNWASH = _I["imu_offset"], _I["baro_downwash"]
+K_BARO_WANDER = _I["baro_wander"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
 K_ATT_MAG_GAIN, K_DECL, K_F, K_Q, K_GATE2 = _I["att_mag_gain"], _I["decl"], _I["kf_F"], _I["kf_Q"], _I["gate2"]
@@ -448,6 +449,11 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
     if due[L.D_BARO, step]:
         alt = p[K_HOME_ALT] - s[L.POS + 2]
         wb = w[k, NZ_BARO]
+        wander = 0.0
+        if p[K_BARO_WANDER + 2] != 0.0:  # the slow error, on the same draw (physics.sensors.baro_wander_coefficients)
+            s[L.BARO_WANDER] = p[K_BARO_WANDER] * s[L.BARO_WANDER] + p[K_BARO_WANDER + 1] * wb
+            s[L.BARO_WANDER + 1] = p[K_BARO_WANDER] * s[L.BARO_WANDER + 1] + (1.0 - p[K_BARO_WANDER]) * s[L.BARO_WANDER]
+            wander = s[L.BARO_WANDER + 1]
         if p[K_BARO_DOWNWASH] > 0.0:  # white sensor noise and the rotors' downwash (physics.sensors.Sensors.baro)
             ih = p[K_INV_HOVER_ROT]
             r0, r1, r2, r3 = s[L.ROTOR], s[L.ROTOR + 1], s[L.ROTOR + 2], s[L.ROTOR + 3]
@@ -457,12 +463,12 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
                 nb = own * wb + amp * _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
             else:
                 nb = math.sqrt(own * own + amp * amp) * wb
-            s[L.PRESSURE] = SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET] + nb
+            s[L.PRESSURE] = SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET] + nb + wander
         else:
             if p[K_BARO_LP + 5] != 0.0:
                 wb = _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
             s[L.PRESSURE] = (SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET]
-                             + p[K_BARO_NOISE] * wb)
+                             + p[K_BARO_NOISE] * wb + wander)
         s[L.BARO_TEMP] = s[L.SENSOR_TEMP] - 0.0065 * (-s[L.POS + 2]) + 0.05 * w[k, NZ_BARO + 1]
     if due[L.D_GPS, step]:
         old = (step + 1) % delay if step + 1 >= delay else 0

@@ -226,3 +226,12 @@ ROCK_LEVEL = WIDTH + 1  # 3: rad/s^2 per step, roll/pitch/yaw (0: no rocking)
 WIDTH = ROCK_LEVEL + 3
 FIELDS.update({"rock_rng": (ROCK_RNG, 1), "rock_level": (ROCK_LEVEL, 3)})
 
+
+# -- the baro's slow error (SensorParams.baro_wander_pa; physics.sensors.baro_wander_coefficients) ---------------------
+BARO_WANDER = WIDTH  # 2, Pa: the wander's drive and the wander
+WIDTH = BARO_WANDER + 2
+FIELDS.update({"baro_wander": (BARO_WANDER, 2)})
+#: a (the decay per baro sample), c (the drive's gain, Pa), on
+PARAMS += ("baro_wander",)
+PARAM_INDEX["baro_wander"] = N_PARAMS
+N_PARAMS += 3

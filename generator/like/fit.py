@@ -92,6 +92,10 @@ class LogMeasure:
     hover_dlag1: dict[str, float] = field(default_factory=dict)
     ground_dlag1: dict[str, float] = field(default_factory=dict)
     hover_still: bool = True  # False: no still hover, the noise figures are on every airborne row
+    #: still hover, 10 s windows: the baro altitude's std below 0.5 Hz (m) and the estimated altitude's std over the
+    #: baro's (both detrended), medians over the windows (:func:`baro_slow_figures`); NaN: no 10 s of still hover
+    baro_lf: float = math.nan
+    alt_ratio: float = math.nan
     pilot: dict[str, float] = field(default_factory=dict)  # hand flight and attitude spectra (generator.like.pilot)
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
@@ -350,6 +354,39 @@ def track_error(track: tracks.Track, wps: list[tracks.Waypoint]) -> float:
     return float(best.max())
 
 
+#: the baro's slow wander: 10 s windows (every 5 s) inside a still hover, read at 10 Hz, power below 0.5 Hz
+SLOW_WINDOW_S = 10.0
+SLOW_HZ = 0.5
+
+
+def baro_slow_figures(tb: np.ndarray, xb: np.ndarray, ta: np.ndarray, xa: np.ndarray,
+                      segments: list[tuple[float, float]]) -> tuple[float, float]:
+    """(the baro altitude's std below :data:`SLOW_HZ` (m: the square root of its Hann periodogram's power there,
+    the window's mean removed, as the window classifier reads a band), the estimated altitude's std over the
+    baro's (both detrended)): medians over the 10 s windows inside ``segments``, the baro (``tb``, ``xb``) and the
+    estimate (``ta``, ``xa``, the phases' altitude) read at 10 Hz. NaN without a window. The ArduCopter fleet at
+    still hover: 0.10-0.46 m, its estimate 0.2-0.5x as wide as its baro (its filter follows the baro slowly)."""
+    from scipy.signal import periodogram
+
+    lf, ratio = [], []
+    n = int(SLOW_WINDOW_S * BARO_HZ)
+    k = np.arange(n)
+    for a, b in segments:
+        start = a + EDGE_S
+        while start + SLOW_WINDOW_S <= b - EDGE_S + 1e-9:
+            grid = start + k / BARO_HZ
+            ib, ia = np.searchsorted(tb, grid, side="right") - 1, np.searchsorted(ta, grid, side="right") - 1
+            if ib[0] >= 0 and ia[0] >= 0 and np.diff(tb[ib[0]:ib[-1] + 1]).max(initial=0.0) < 1.0:
+                vb, va = xb[ib], xa[ia]
+                f, p = periodogram(vb, fs=BARO_HZ, window="hann", detrend="constant", scaling="density")
+                lf.append(math.sqrt(float(p[f < SLOW_HZ].sum() * (f[1] - f[0]))))
+                db, da = vb - np.polyval(np.polyfit(k, vb, 1), k), va - np.polyval(np.polyfit(k, va, 1), k)
+                if np.std(db) > 0:
+                    ratio.append(float(np.std(da) / np.std(db)))
+            start += SLOW_WINDOW_S / 2
+    return (float(np.median(lf)) if lf else math.nan, float(np.median(ratio)) if ratio else math.nan)
+
+
 def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
     series = noise_series(tables)
     if not series:
@@ -376,6 +413,8 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
                              "has a still hover)")
         before = np.flatnonzero(~landed)
         ground = _segments(t, landed & (np.arange(len(t)) < (before[0] if len(before) else len(t))))
+    if "baro_alt" in series and phases is not None and hover and m.hover_still:
+        m.baro_lf, m.alt_ratio = baro_slow_figures(series["baro_alt"][0], series["baro_alt"][1], t, h, hover)
     for name, (ts, x, hz) in series.items():
         m.hover[name], m.hover_white[name], hs, m.hover_dlag1[name] = _noise_figures(ts, x, hz, hover)
         m.ground[name], m.ground_white[name], gs, m.ground_dlag1[name] = _noise_figures(ts, x, hz, ground)
@@ -610,6 +649,8 @@ def fleet_figures(logs: list[LogMeasure]) -> dict[str, Figure]:
         "descent_rate": "median descent rate, last minute before landing",
         "cruise_speed": "median horizontal speed above 1 m/s", "altitude": "median height above take-off",
         "wind_speed": "median wind speed in the air", "eph": "median GPS eph (3-D fix)", "epv": "median GPS epv (3-D fix)",
+        "baro_lf": "still hover, 10 s windows: baro altitude std below 0.5 Hz (m)",
+        "alt_ratio": "still hover, 10 s windows: the estimated altitude's std over the baro's (detrended)",
     }
     for key, what in simple.items():
         v, n = _median([getattr(m, key) for m in logs])
@@ -663,10 +704,11 @@ def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, floa
         from scart_bench.generator.logs.phases import flight_phases
 
         _noise(m, tables, flight_phases(tables))
-        per.append({**m.hover, **{f"white_{k}": v for k, v in m.hover_white.items()},
+        per.append({**m.hover, "baro_lf": m.baro_lf, "alt_ratio": m.alt_ratio,
+                    **{f"white_{k}": v for k, v in m.hover_white.items()},
                     **{f"dlag1_{k}": v for k, v in m.hover_dlag1.items()}})
     keys = {k for p in per for k in p}
-    return {**{k: float(np.nanmedian([p.get(k, math.nan) for p in per])) for k in keys}, "landed": landed}
+    return {**{k: _median([p.get(k, math.nan) for p in per])[0] for k in keys}, "landed": landed}
 
 
 @dataclass
@@ -1060,6 +1102,70 @@ def fit_rocking(logs: list[LogMeasure], config, lines: list[str]) -> dict[str, t
     return out
 
 
+#: the baro wander's time constant (s; SensorParams.baro_wander_tau_s): not fitted. Its lag-of-a-Gauss-Markov shape
+#: puts its power below ~0.1 Hz at 2 s, under the window classifier's 0.5 Hz band edge, off the sample-to-sample noise
+BARO_WANDER_TAU_S = 2.0
+#: the wander (Pa) the calibration flights measure the baro's response at, and the most fitted
+BARO_WANDER_REF = 3.0
+BARO_WANDER_MAX = 30.0
+#: the estimator's baro noise (m, EstimatorParams.baro_noise) candidates: the one whose calibration flights' estimated
+#: altitude moves, over their baro, nearest the logs' (log scale) is kept
+BARO_TRUST = (0.3, 1.0, 3.0)
+
+
+def fit_baro_wander(figs: dict[str, Figure], config, lines: list[str]) -> dict[str, tuple[object, str]]:
+    """``baro_wander_pa`` (and ``baro_wander_tau_s``) and ``[estimator] baro_noise``: the baro's slow error and how much
+    the estimator trusts the baro, from the logs' still hover (:func:`baro_slow_figures`).
+
+    A real flight controller's altitude filter follows its baro slowly (ArduCopter's inertial navigation: its
+    altitude at still hover moves 0.2-0.5x as much as its baro in 10 s windows), so the baro's slow error shows in the
+    baro and not in the vehicle's height. First the estimator's trust: of :data:`BARO_TRUST`, the one whose calibration
+    flights (the wander at :data:`BARO_WANDER_REF`) give the estimated altitude's std over the baro's nearest the
+    logs' (``alt_ratio``). Then the wander: calibration flights without it and at the reference, the baro's std below
+    0.5 Hz adding in squares (linear in the wander), the rest to the logs' ``baro_lf``. Nothing (a line said) without
+    a still hover's 10 s window in any log."""
+    target, ratio = figs.get("baro_lf"), figs.get("alt_ratio")
+    if target is None or not target.n or not math.isfinite(target.value):
+        lines.append("baro wander: no log has 10 s of still hover with a baro: none fitted")
+        return {}
+    est = config.estimator
+    ref = dataclasses.replace(config.sensors, baro_wander_pa=BARO_WANDER_REF, baro_wander_tau_s=BARO_WANDER_TAU_S)
+    trial: dict[float, dict[str, float]] = {}
+    for bn in BARO_TRUST if ratio is not None and ratio.n and ratio.value > 0 else (est.baro_noise,):
+        trial[bn] = calibration_figures(dataclasses.replace(config, sensors=ref,
+                                                            estimator=dataclasses.replace(est, baro_noise=bn)))
+    ok = {bn: g for bn, g in trial.items() if g.get("landed", 1.0) == 1.0 and g.get("alt_ratio", 0.0) > 0}
+    if not ok:
+        lines.append("baro wander: the calibration flights did not all land or measure: none fitted")
+        return {}
+    if ratio is not None and ratio.n and ratio.value > 0:
+        bn = min(ok, key=lambda b: abs(math.log(ok[b]["alt_ratio"] / ratio.value)))
+    else:
+        bn = est.baro_noise
+    at_ref = ok[bn]["baro_lf"]
+    base = calibration_figures(dataclasses.replace(config, estimator=dataclasses.replace(est, baro_noise=bn)))
+    lf0 = base.get("baro_lf", math.nan)
+    gain2 = (at_ref * at_ref - lf0 * lf0) / (BARO_WANDER_REF * BARO_WANDER_REF)
+    if not (math.isfinite(gain2) and gain2 > 0):
+        lines.append(f"baro wander: the calibration flights' baro below 0.5 Hz does not grow with it ({lf0:.3g} m "
+                     f"without, {at_ref:.3g} m at {BARO_WANDER_REF:g} Pa): none fitted")
+        return {}
+    pa = round(float(min(math.sqrt(max(target.value ** 2 - lf0 ** 2, 0.0) / gain2), BARO_WANDER_MAX)), 4)
+    ratios = ", ".join(f"{g.get('alt_ratio', math.nan):.2f} at {b:g} m" for b, g in trial.items())
+    out: dict[str, tuple[object, str]] = {}
+    if pa > 0:
+        out["baro_wander_pa"] = (pa, f"the baro's slow wander (Pa, sigma): still hover, 10 s windows, baro altitude std below "
+                                     f"0.5 Hz {target.value:.3g} m (median over {target.n} logs), calibration flights "
+                                     f"{lf0:.3g} m without it, {at_ref:.3g} m at {BARO_WANDER_REF:g} Pa")
+        out["baro_wander_tau_s"] = (BARO_WANDER_TAU_S, "the wander's time constant (s; not fitted)")
+    if len(trial) > 1:
+        out["baro_noise"] = (bn, f"EKF2_BARO_NOISE (m): the estimated altitude's std over the baro's at still hover, "
+                                 f"10 s windows, {ratio.value:.2f} in the logs (median over {ratio.n}); calibration "
+                                 f"flights with the wander {ratios}")
+    lines.append(f"baro wander: {pa:g} Pa, the estimator's baro noise {bn:g} m")
+    return out
+
+
 def _fmt(v: float) -> str:
     return f"{v:.3g}" if math.isfinite(v) else "n/a"
 
@@ -1102,6 +1208,12 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         noise, said = calibrate_noise(config, figs)
         values["sensors"].update(noise)
         lines.extend(said)
+        if hasattr(config.sensors, "baro_wander_pa"):  # the baro's slow wander, on the fitted noise
+            fitted = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in noise.items() if hasattr(config.sensors, k)}
+            wander = fit_baro_wander(figs, dataclasses.replace(config, sensors=dataclasses.replace(config.sensors, **fitted)),
+                                     lines)
+            for k, v in wander.items():
+                values["sensors" if k.startswith("baro_wander") else "estimator"][k] = v
     fields = {f.name for f in dataclasses.fields(config.sensors)}
     fm = [m.mag_field_ned for m in logs if m.mag_field_ned is not None]
     if fm and "mag_field_ned" in fields:
@@ -1147,7 +1259,7 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     measured: dict[str, tuple[float, str]] = {}
     for key, f in figs.items():
         if key.startswith(("ground_", "white_ground_", "dlag1_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
-                                                                       "altitude"):
+                                                                       "altitude", "baro_lf", "alt_ratio"):
             measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
     for key, f in figs.items():
         if key.startswith(("hover_", "white_hover_")):

@@ -68,6 +68,8 @@ class SensorState:
     #: (N, 6) a rough vehicle's high-frequency vibration of the last sample, accelerometer x/y/z and gyro x/y/z: in
     #: the logged IMU only (:func:`logged_imu`), the flight controller's filters take it out
     imu_hf: np.ndarray | None = None
+    #: (2, N) Pa, the baro's slow error and its drive (SensorParams.baro_wander_pa; :func:`baro_wander_coefficients`)
+    baro_wander: np.ndarray | None = None
 
 
 def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.ndarray]:
@@ -82,6 +84,19 @@ def gps_error_coefficients(p: SensorParams, dt_gps: float) -> tuple[float, np.nd
     a = float(np.exp(-dt_gps / p.gps_bias_tau))
     scale = np.array([p.gps_bias_h, p.gps_bias_h, p.gps_bias_v])
     return a, np.sqrt(1 - a * a) * (1 + a) / np.sqrt(1 + a * a) * scale
+
+
+def baro_wander_coefficients(p: SensorParams) -> tuple[float, float]:
+    """(a, c) of the baro's slow error (``baro_wander_pa``, ``baro_wander_tau_s``): a first-order lag of a
+    Gauss-Markov drive, as the GPS's slow error (:func:`gps_error_coefficients`), per baro sample: drive <- a drive
+    + c w, wander <- a wander + (1 - a) drive, a = exp(-1 / (rate tau)), ``c`` making the wander's stationary sigma
+    ``baro_wander_pa``. Smooth: its power falls as f^-4 above 1 / (2 pi tau), so it moves the baro below 0.5 Hz and
+    leaves its sample-to-sample noise as it was (a plain Gauss-Markov error's steps add to it). Driven by the baro's
+    own draw ``w`` (no new random numbers): the baro's error is one coloured noise. (1, 0) when off."""
+    if not p.baro_wander_pa > 0.0:
+        return 1.0, 0.0
+    a = float(np.exp(-1.0 / (p.baro_rate_hz * max(p.baro_wander_tau_s, 1e-6))))
+    return a, float(p.baro_wander_pa * np.sqrt(1.0 - a * a) * (1.0 + a) / np.sqrt(1.0 + a * a))
 
 
 def lowpass_coefficients(cutoff_hz: float, rate_hz: float) -> np.ndarray | None:
@@ -291,6 +306,14 @@ class Sensors:
         ``baro_downwash_pa`` times ``thrust`` (N,) (:func:`thrust_scale`; None: motors stopped), low-passed (the
         same draws, as the IMU's vibration)."""
         w = noise[:, 0]
+        wander = 0.0
+        if self.params.baro_wander_pa > 0.0:  # the slow error, on the same draws (baro_wander_coefficients)
+            a, c = baro_wander_coefficients(self.params)
+            if st.baro_wander is None:
+                st.baro_wander = np.zeros((2, len(w)))  # the drive and the wander
+            st.baro_wander[0] = a * st.baro_wander[0] + c * w
+            st.baro_wander[1] = a * st.baro_wander[1] + (1.0 - a) * st.baro_wander[0]
+            wander = st.baro_wander[1]
         if self.params.baro_downwash_pa > 0.0:
             own = self.params.baro_noise_pa
             amp = 0.0 if thrust is None else self.params.baro_downwash_pa * np.asarray(thrust)
@@ -300,13 +323,13 @@ class Sensors:
                 noise_pa = own * w + amp * lowpass_step(self.baro_lowpass, st.baro_lowpass, w)
             else:  # white: one draw of the combined sigma
                 noise_pa = np.sqrt(own * own + amp * amp) * w
-            press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + noise_pa
+            press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + noise_pa + wander
             return press, st.temperature - 0.0065 * (-pos[:, 2]) + 0.05 * noise[:, 1]
         if self.baro_lowpass is not None:
             if st.baro_lowpass is None:
                 st.baro_lowpass = np.zeros((2, len(w)))
             w = lowpass_step(self.baro_lowpass, st.baro_lowpass, w)
-        press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + self.params.baro_noise_pa * w
+        press = pressure_at(HOME_ALT - pos[:, 2]) + st.baro_offset + self.params.baro_noise_pa * w + wander
         temp = st.temperature - 0.0065 * (-pos[:, 2]) + 0.05 * noise[:, 1]
         return press, temp
 
