@@ -78,8 +78,8 @@ def test_a_shared_copy_reads_back_as_the_full_copy_table_by_table(attacked):
                 pd.testing.assert_frame_equal(ta[topic], tb[topic], check_exact=True)
             fa, fb = a.flight(fid, view), b.flight(fid, view)  # the combined table a run reads
             pd.testing.assert_frame_equal(fa, fb, check_exact=True)
-            if view == "navigator":
-                assert fa.to_csv(index=False) == fb.to_csv(index=False)  # exported: the same bytes
+            if view == "navigator" and fid == ids[0]:  # exported: the same bytes (20 s per flight of this width)
+                assert fa.to_csv(index=False) == fb.to_csv(index=False)
         assert a.events(fid).equals(b.events(fid))
     # a flight folder as a log (attack --input, import of a folder) reads the same too
     la, lb = load_flight_file(a.flight_dir(ids[0])), load_flight_file(b.flight_dir(ids[0]))
