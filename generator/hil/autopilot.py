@@ -111,15 +111,19 @@ class Records:
 class HilAutopilot:
     """Estimator, cascade and navigator for one flight of an external simulator's vehicle.
 
-    ``waypoints`` (K, 3) NED and ``cruise`` (m/s): the navigator's mission. ``layer``: a SCART
-    :class:`~scart_bench.generator.scart.layer.AttackLayer` for one flight (its scenarios at the
-    ``sensor``, ``link`` and ``command`` points), or None for no layer. :meth:`step` takes one sensor sample
-    (and the GPS fix that arrived since the last one) and returns the motor commands.
+    ``waypoints`` (K, 3) NED and ``cruise`` (m/s): the navigator's mission; ``table`` (K, 6) and ``last``
+    its items' leg speeds, holds and braking and its last item (a mission file's or a family's:
+    :func:`~scart_bench.generator.flight_software.navigator.mission_table`), by default cruise on every leg.
+    ``layer``: a SCART :class:`~scart_bench.generator.scart.layer.AttackLayer` for one flight (its
+    scenarios at the ``sensor``, ``link`` and ``command`` points), or None for no layer. :meth:`step`
+    takes one sensor sample (and the GPS fix that arrived since the last one) and returns the motor
+    commands.
     """
 
     def __init__(self, waypoints: np.ndarray, cruise: float, profile: SimProfile = JMAVSIM, layer=None,
                  mission: MissionParams | None = None, estimator: EstimatorParams | None = None,
-                 controller: ControllerParams | None = None, start: StartRule | None = None):
+                 controller: ControllerParams | None = None, start: StartRule | None = None,
+                 table: np.ndarray | None = None, last: int | None = None):
         self.profile = profile
         self.layer = layer
         self.points = layer.points if layer is not None else frozenset()
@@ -138,7 +142,9 @@ class HilAutopilot:
         self.est = Estimator(self.ep, DT, delay, profile.mag_field_ned)
         self.ctrl = Controller(controller or profile.controller, profile.vehicle, DT)
         wps = np.asarray(waypoints, dtype=float)[None]
-        self.nav = Navigator(mission or MissionParams(), wps.copy(), np.array([float(cruise)]), np.array([np.inf]))
+        self.nav = Navigator(mission or MissionParams(), wps.copy(), np.array([float(cruise)]), np.array([np.inf]),
+                             table=None if table is None else np.asarray(table, dtype=float)[None],
+                             last=None if last is None else np.array([int(last)]))
         yaw0 = np.zeros(1)
         self.es = self.est.init_state(1, yaw0)
         self.cs = self.ctrl.init_state(1)

@@ -62,7 +62,7 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
                      configs: list[list[Scenario]] | None = None, fmt: str = "parquet", overwrite: bool = False,
                      log: Callable[[str], None] | None = None, physics: str = "jmavsim",
                      csv_configs: list[list[Scenario]] | None = None, sim: str | None = None,
-                     lockstep: bool = True) -> Path:
+                     lockstep: bool = True, mission: MissionParams | None = None) -> Path:
     """Fly ``n_normal`` normal flights and one simulation-mode flight per entry of ``configs`` in
     jMAVSim and write them as a dataset at ``out``; returns it.
 
@@ -76,20 +76,22 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
     ``tcp:HOST:PORT``, ...: :func:`scart_bench.generator.hil.link.open_link`) instead of starting
     jMAVSim; it must put its vehicle back on the ground at home between flights (jMAVSim does after
     3 s without a heartbeat). ``lockstep`` False: the started jMAVSim runs in real time.
+    ``mission``: what each flight flies (default the jittered square; with ``mission.missions``, the
+    mission files, flight seed ``s`` flying file ``s mod N`` as the built-in engine does).
     """
     if physics == "jmavsim" and sim is not None:
         from scart_bench.generator.hil.link import parse_sim_address
 
         parse_sim_address(sim)  # a bad address is said before anything is flown or written
-        fly = _external_flyer(sim)
+        fly = _external_flyer(sim, mission)
     elif physics == "jmavsim":
         from scart_bench.generator.hil.jmavsim import find_jar, find_java
 
         find_java()
         jar = find_jar(jar)  # what is missing is said before anything is flown or written
-        fly = _jmavsim_flyer(jar, lockstep)
+        fly = _jmavsim_flyer(jar, lockstep, mission)
     elif physics == "builtin":
-        fly = _builtin_flyer
+        fly = _builtin_flyer(mission)
     else:
         raise ValueError(f"physics {physics!r}: expected jmavsim or builtin")
     say = log or (lambda msg: None)
@@ -111,7 +113,7 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
         for i, s in enumerate(seeds):
             say(f"{physics}: normal flight {i + 1} of {len(seeds)}")
             batch, _ = fly(s, None)
-            record = normal_record(batch, 0, f"normal-{i:04d}", split_of[i], config)
+            record = normal_record(batch, 0, f"normal-{i:04d}", split_of[i], flown(config, mission, s))
             writer.write(record)
             if split_of[i] == "csv_source":
                 sources.append((record.flight_id, strip_labels(record.navigator), s))
@@ -119,7 +121,7 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
         for i, (scs, s) in enumerate(zip(configs, attack_seeds)):
             say(f"{physics}: attacked flight {i + 1} of {len(configs)} ({'+'.join(sc.id for sc in scs)})")
             batch, layer = fly(s, scs)
-            record = simulation_record(batch, layer, 0, f"sim-{i:04d}", scs, config)
+            record = simulation_record(batch, layer, 0, f"sim-{i:04d}", scs, flown(config, mission, s))
             record.manifest.update(attack_effect(record.navigator, record.simulator, record.windows, None,
                                                  record.manifest["injection_point"]))
             writer.write(record)
@@ -129,36 +131,50 @@ def generate_jmavsim(out: str | Path, jar=None, seed: int = 0, n_normal: int = 8
             link = {t: df for t, df in topics.items() if t != "truth"}
             result = csv_mode([link], [scs], [sseed])[0]
             writer.write(csv_record(f"csv-{i:04d}", topics, result, scs, sseed, sid,
-                                    {**config, "source_flight": sid}))
+                                    {**flown(config, mission, sseed), "source_flight": sid}))
     except BaseException:
         writer.abort()
         raise
     return writer.close()
 
 
-def _jmavsim_flyer(jar, lockstep: bool = True):
+def flown(config: dict, mission: MissionParams | None, seed: int) -> dict:
+    """A flight's recorded configuration: ``config`` and, with mission files, the file it flew."""
+    if mission is None or not mission.missions:
+        return config
+    from scart_bench.generator.flight_software.mission_files import mission_for_seed
+
+    return {**config, "mission_file": mission.missions[mission_for_seed(mission.missions, seed)].name}
+
+
+def _jmavsim_flyer(jar, lockstep: bool = True, mission: MissionParams | None = None):
     def fly(seed: int, scenarios: list[Scenario] | None):
-        flight = fly_jmavsim(jar, seed=seed, scenarios=scenarios, lockstep=lockstep)
+        flight = fly_jmavsim(jar, seed=seed, scenarios=scenarios, lockstep=lockstep, mission=mission)
         return as_batch(flight, seed), flight.autopilot.layer
     return fly
 
 
-def _external_flyer(address: str):
+def _external_flyer(address: str, mission: MissionParams | None = None):
+    mp = mission or MissionParams()
+
     def fly(seed: int, scenarios: list[Scenario] | None):
-        flight = fly_at(address, autopilot_for(seed, scenarios), max_s=MissionParams().max_duration_s)
+        flight = fly_at(address, autopilot_for(seed, scenarios, mp), max_s=mp.max_duration_s)
         time.sleep(EXTERNAL_RESET_S)  # no heartbeat: jMAVSim puts its vehicle back at home
         return as_batch(flight, seed), flight.autopilot.layer
     return fly
 
 
-def _builtin_flyer(seed: int, scenarios: list[Scenario] | None):
+def _builtin_flyer(mission: MissionParams | None = None):
     from scart_bench.generator.engine.simulate import FlightConfig, simulate
     from scart_bench.generator.modes import simulation_mode
 
-    cfg = FlightConfig(timing="ideal")
-    if not scenarios:
-        return simulate([seed], cfg), None
-    return simulation_mode([seed], [list(scenarios)], cfg)
+    cfg = FlightConfig(timing="ideal") if mission is None else FlightConfig(timing="ideal", mission=mission)
+
+    def fly(seed: int, scenarios: list[Scenario] | None):
+        if not scenarios:
+            return simulate([seed], cfg), None
+        return simulation_mode([seed], [list(scenarios)], cfg)
+    return fly
 
 
 #: the attacks flown when none are given: a sensor-point GPS drift and jump (data/scenarios), and

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from scart_bench.dataset.schema import TOPICS
-from scart_bench.generator.flight_software.navigator import mission_waypoints
+from scart_bench.generator.flight_software.navigator import mission_table
 from scart_bench.generator.hil.autopilot import HilAutopilot
 from scart_bench.generator.hil.bridge import Bridge, HilFlight
 from scart_bench.generator.hil.errors import HilError
@@ -25,20 +25,26 @@ def layer_rates() -> dict[str, float]:
     return rates
 
 
-def mission_for(seed: int, mission: MissionParams | None = None) -> tuple[np.ndarray, float]:
-    """The mission items (K, 3) and cruise speed of flight ``seed`` (the built-in engine's jitter)."""
+def mission_for(seed: int, mission: MissionParams | None = None
+                ) -> tuple[np.ndarray, float, np.ndarray, int]:
+    """The mission of flight ``seed`` as the built-in engine draws it: items (K, 3) NED, cruise speed,
+    the navigator's item table (K, 6: north, east, down, leg speed, hold s, braking) and the last item.
+
+    The jittered square by default; ``mission.missions`` (mission files: flight ``seed`` flies file
+    ``seed mod N``) or ``mission.families`` (the family its seed draws) as in
+    :func:`~scart_bench.generator.flight_software.navigator.mission_table`."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5CA7]))
     rng.uniform(size=6)  # the built-in engine draws wind and heading first (engine.flight_batch)
-    wps, cruise = mission_waypoints(mission or MissionParams(), [rng])
-    return wps[0], float(cruise[0])
+    wps, cruise, table, last = mission_table(mission or MissionParams(), [int(seed)], [rng])
+    return wps[0], float(cruise[0]), table[0], int(last[0])
 
 
 def autopilot_for(seed: int, scenarios: list[Scenario] | None = None, mission: MissionParams | None = None
                   ) -> HilAutopilot:
     """The flight software of flight ``seed``: its mission, and a layer when there are scenarios."""
-    wps, cruise = mission_for(seed, mission)
+    wps, cruise, table, last = mission_for(seed, mission)
     layer = AttackLayer([list(scenarios)], [int(seed)], rates=layer_rates()) if scenarios else None
-    return HilAutopilot(wps, cruise, JMAVSIM, layer=layer, mission=mission)
+    return HilAutopilot(wps, cruise, JMAVSIM, layer=layer, mission=mission, table=table, last=last)
 
 
 #: with jMAVSim in real time: how far (s) the flight software may fall behind the simulator's clock

@@ -163,10 +163,16 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     from scart_bench.generator.hil.dataset import attack_configs, generate_jmavsim
     from scart_bench.storage import local_path
 
-    if args.executor != "local" or args.uorb or args.layout or args.missions:
-        raise UsageError("--physics jmavsim flies one jMAVSim flight at a time: --executor dask, --uorb, "
-                         "--layout and --missions are for the built-in engine")
+    if args.executor != "local" or args.uorb or args.layout:
+        raise UsageError("--physics jmavsim flies one jMAVSim flight at a time: --executor dask, --uorb "
+                         "and --layout are for the built-in engine")
     check_seed(args.seed)
+    mission = None
+    if args.missions:  # every file read and checked before anything is flown or written
+        from scart_bench.generator.engine.simulate import FlightConfig
+        from scart_bench.generator.flight_software.mission_files import read_missions, with_missions
+
+        mission = with_missions(FlightConfig(), read_missions(args.missions)).mission
     n = 8 if args.flights is None else args.flights
     if not 1 <= n <= 1000:
         raise UsageError(f"--flights {n}: expected 1 to 1000 jMAVSim flights")
@@ -176,7 +182,7 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     with removed_on_failure(out):
         generate_jmavsim(out, args.jmavsim, seed=args.seed, n_normal=n, configs=configs, fmt=args.format,
                          overwrite=args.overwrite, log=lambda msg: print(msg, flush=True), csv_configs=csv_configs,
-                         sim=args.sim, lockstep=not args.real_time)
+                         sim=args.sim, lockstep=not args.real_time, mission=mission)
     print(f"dataset written to {out}")
     return 0
 
