@@ -305,11 +305,15 @@ def test_generate_physics_jmavsim(jar, tmp_path):
     assert ds.flight("normal-0000", "navigator", "all_sensors")["Is_Anomaly"].sum() == 0
 
 
-def test_generate_physics_jmavsim_flies_a_mission_file(jar, tmp_path, capsys):
-    """`generate --physics jmavsim --missions FILE` flies a QGroundControl .plan in jMAVSim (take-off to 10 m,
-    a leg at 7 m/s held 4 s, a climb to 13 m, a 5 s loiter, return to launch at 5 m/s): within 2 m of its
-    legs outside the turns, the holds held, landed at home, the file recorded; a malformed file is one
-    line naming it, exit 2, nothing written."""
+def test_generate_against_a_running_simulator_flies_a_mission_file(jar, tmp_path, capsys):
+    """`generate --physics jmavsim --sim tcp:HOST:PORT` flies a simulator someone else started (here a
+    jMAVSim serving TCP, as Gazebo classic and AirSim do) and writes the dataset; a bad address or
+    --sim without --physics jmavsim is one line, exit 2, nothing written.
+
+    With `--missions FILE` it flies a QGroundControl .plan (take-off to 10 m, a leg at 7 m/s held 4 s, a
+    climb to 13 m, a 5 s loiter, return to launch at 5 m/s): within 2 m of its legs outside the turns,
+    the holds held, landed at home, the file recorded; a malformed file is one line naming it, exit 2,
+    nothing written."""
     import json
 
     from test_mission_files import CRUISE, PLAN, _segment_distance, check_flight
@@ -317,25 +321,35 @@ def test_generate_physics_jmavsim_flies_a_mission_file(jar, tmp_path, capsys):
     from scart_bench.cli.main import main
     from scart_bench.dataset import open_dataset
     from scart_bench.generator.flight_software.mission_files import read_mission
+    from scart_bench.generator.hil.jmavsim import JMavSim
 
-    bad, out = tmp_path / "broken.plan", tmp_path / "plan"
-    bad.write_text('{"fileType": "Plan", "mission": {')
-    assert main(["generate", "--physics", "jmavsim", "--jmavsim", str(jar), "--missions", str(bad), "--out",
-                 str(out), "--normal-only", "--flights", "1"]) == 2
-    assert "broken.plan: expected a QGroundControl .plan" in capsys.readouterr().err and not out.exists()
-    assert main(["generate", "--physics", "jmavsim", "--jmavsim", str(jar), "--missions", str(PLAN), "--out",
-                 str(out), "--normal-only", "--flights", "1", "--seed", "3"]) == 0
+    bad = tmp_path / "bad"
+    assert main(["generate", "--physics", "jmavsim", "--sim", "tcp:localhost", "--out", str(bad),
+                 "--normal-only", "--flights", "1"]) == 2
+    assert main(["generate", "--sim", "tcp:127.0.0.1:4560", "--out", str(bad), "--flights", "1"]) == 2
+    broken = tmp_path / "broken.plan"
+    broken.write_text('{"fileType": "Plan", "mission": {')
+    assert main(["generate", "--physics", "jmavsim", "--jmavsim", str(jar), "--missions", str(broken), "--out",
+                 str(bad), "--normal-only", "--flights", "1"]) == 2
+    assert "broken.plan: expected a QGroundControl .plan" in capsys.readouterr().err
+    assert not bad.exists()
+    out = tmp_path / "external"
+    with JMavSim(jar, transport="tcp") as sim:
+        assert main(["generate", "--physics", "jmavsim", "--sim", sim.link_address, "--missions", str(PLAN),
+                     "--out", str(out), "--normal-only", "--flights", "1", "--seed", "3"]) == 0
     ds = open_dataset(out)
+    assert list(ds.manifest["mode"]) == ["normal"]
     (fid,) = ds.manifest["flight_id"]
     cfg = json.loads((out / "flights" / fid / "raw" / "config.json").read_text())
     assert cfg["mission_file"] == PLAN.name and cfg["status"] == "landed"
     items = read_mission(PLAN).navigator_items(CRUISE)
     truth = ds.topic(fid, "truth", "simulator")
+    assert len(truth) > 1000
     t = truth["Timestamp"].to_numpy() * 1e-6
     track = truth[["x", "y", "z", "vx", "vy", "vz"]].to_numpy()
     # jMAVSim's vehicle is not the airframe the controller is tuned for: over the middle of a leg its
     # median ground speed is up to 0.9 m/s off the leg's (measured: 6.5-7.1 at 7 m/s, 5.9 at 5 m/s)
-    check_flight(t, track, items, "jMAVSim", speed_of=np.median, speed_tol=1.2)
+    check_flight(t, track, items, "jMAVSim", speed_of=np.median, speed_tol=1.2)  # lands at home too
     # the file's speed change is flown: its 7 m/s legs faster than the return at the cruise speed
     air = track[:, 2] < -1.0
     ne, speed = track[air, :2], np.hypot(track[air, 3], track[air, 4])
@@ -347,27 +361,3 @@ def test_generate_physics_jmavsim_flies_a_mission_file(jar, tmp_path, capsys):
     fast = [v for k, v in legs.items() if items[k, 3] > CRUISE]
     slow = [v for k, v in legs.items() if items[k, 3] == CRUISE]
     assert fast and slow and min(fast) > max(slow) + 0.2, legs
-
-
-def test_generate_against_a_running_simulator(jar, tmp_path):
-    """`generate --physics jmavsim --sim tcp:HOST:PORT` flies a simulator someone else started (here a
-    jMAVSim serving TCP, as Gazebo classic and AirSim do) and writes the dataset; a bad address or
-    --sim without --physics jmavsim is one line, exit 2, nothing written."""
-    from scart_bench.cli.main import main
-    from scart_bench.dataset import open_dataset
-    from scart_bench.generator.hil.jmavsim import JMavSim
-
-    bad = tmp_path / "bad"
-    assert main(["generate", "--physics", "jmavsim", "--sim", "tcp:localhost", "--out", str(bad),
-                 "--normal-only", "--flights", "1"]) == 2
-    assert main(["generate", "--sim", "tcp:127.0.0.1:4560", "--out", str(bad), "--flights", "1"]) == 2
-    assert not bad.exists()
-    out = tmp_path / "external"
-    with JMavSim(jar, transport="tcp") as sim:
-        assert main(["generate", "--physics", "jmavsim", "--sim", sim.link_address, "--out", str(out),
-                     "--normal-only", "--flights", "1", "--seed", "3"]) == 0
-    ds = open_dataset(out)
-    assert list(ds.manifest["mode"]) == ["normal"]
-    truth = ds.topic(ds.manifest["flight_id"].iloc[0], "truth", "simulator")
-    assert len(truth) > 1000
-    assert float(np.hypot(truth["x"].iloc[-1], truth["y"].iloc[-1])) < 2.0  # landed at home
