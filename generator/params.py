@@ -142,6 +142,13 @@ class SensorParams:
     #: altitude (detrended 10 s windows: 0.19 m against 0.06 m); ``generate --like`` fits it (docs/like.md)
     baro_wander_pa: float = 0.0
     baro_wander_tau_s: float = 2.0
+    #: the baro's noise in forward flight, Pa per sample at and above ``baro_speed_full_m_s`` of true horizontal speed,
+    #: growing with the speed from none at 1 m/s and adding in squares to the downwash's (coloured as it is: the same
+    #: draws; physics.sensors.baro_flow). 0: off (the default). The ArduCopter fleet's baro at 2-3 m/s moves 3x as much from sample to sample as
+    #: at hover and 25x in 0.5-2 Hz, the same at 16 m/s (the rotors' wake swept back over the body); ``generate
+    #: --like`` fits it (docs/like.md)
+    baro_speed_pa: float = 0.0
+    baro_speed_full_m_s: float = 2.0  # above 1 m/s, where it starts (physics.sensors.BARO_FLOW_FROM)
     baro_drift_pa: float = 0.6  # Pa, 1 sigma of the slowly varying offset
     gps_rate_hz: float = 10.0
     gps_delay_s: float = 0.112  # s, 28 simulation steps (PX4 SITL: 110-120 ms)

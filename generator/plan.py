@@ -133,6 +133,8 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
         del flight_config["sensors"]["imu_offset_m"], flight_config["sensors"]["baro_downwash_pa"]
     if not cfg.sensors.baro_wander_pa:  # as before the baro's wander
         del flight_config["sensors"]["baro_wander_pa"], flight_config["sensors"]["baro_wander_tau_s"]
+    if not cfg.sensors.baro_speed_pa:  # as before the baro's noise in forward flight
+        del flight_config["sensors"]["baro_speed_pa"], flight_config["sensors"]["baro_speed_full_m_s"]
     if not cfg.sensors.vibration_levels:  # every vehicle alike: as before the vibration levels
         del flight_config["sensors"]["vibration_levels"]
     if not cfg.mission.rocking_levels:  # no vehicle rocks: as before the rocking

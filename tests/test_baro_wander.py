@@ -111,3 +111,71 @@ def test_a_fleet_log_s_baro_wanders_more_than_its_estimated_altitude():
     m = measure_log(FLEET / "arducopter_10-11-2014_105.bin")
     assert 0.05 < m.baro_lf < 0.5, m.baro_lf
     assert 0.0 < m.alt_ratio < 0.7, m.alt_ratio
+
+
+def _flow_sigma(speed: float) -> float:
+    """The pressure noise's std (Pa) of a baro moving at ``speed`` m/s, 2 Pa of forward flight's noise on 1 Pa."""
+    sensors = SensorParams(baro_noise_pa=1.0, baro_speed_pa=2.0, baro_speed_full_m_s=2.0)
+    model = Sensors(sensors, 1.0 / 250.0)
+    st = model.init_state(1, [np.random.default_rng(0)])
+    rng = np.random.default_rng(1)
+    model.push_truth(st, 0, np.zeros((1, 3)), np.array([[0.6 * speed, 0.8 * speed, -3.0]]))
+    out = np.array([model.baro(st, np.zeros((1, 3)), rng.standard_normal((1, 2)))[0][0] for _ in range(20000)])
+    return float(np.std(out))
+
+
+def test_the_baro_is_louder_in_forward_flight_from_1_m_s_to_full_at_2():
+    """Horizontal speed 0 or 0.9 m/s (a climb does not count): the sensor's own 1 Pa; 1.5 m/s: half of the 2 Pa in
+    squares; 2 and 16 m/s: hypot(1, 2) (the fleet's baro is as loud at 16 m/s as at 2-3 m/s)."""
+    for speed, want in ((0.0, 1.0), (0.9, 1.0), (1.5, np.hypot(1.0, 1.0)), (2.0, np.hypot(1.0, 2.0)),
+                        (16.0, np.hypot(1.0, 2.0))):
+        assert abs(_flow_sigma(speed) / want - 1.0) < 0.03, (speed, _flow_sigma(speed), want)
+
+
+def test_the_kernel_s_baro_in_forward_flight_is_the_numpy_reference_s():
+    """A flight that takes off and flies the square's first leg at 5 m/s, with the forward flight's noise, the downwash,
+    the wander and coloured baro noise: every recorded message of the compiled kernel within 1e-9 of the reference's,
+    and the noise reaches the pressure."""
+    sensors = SensorParams(baro_speed_pa=3.0, baro_downwash_pa=1.5, baro_noise_pa=0.5, baro_noise_cutoff_hz=3.0,
+                           baro_wander_pa=1.0)
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=16.0, takeoff_hold_s=1.0),
+                       sensors=sensors)
+    ker = kernel_matches_numpy(cfg)
+    assert np.abs(ker.simulator["truth"][1][:, :, 3:5]).max() > 2.0  # it flies faster than the full noise's speed
+    quiet = simulate([3, 4], dataclasses.replace(cfg, sensors=dataclasses.replace(sensors, baro_speed_pa=0.0)),
+                     engine="kernel")
+    assert not np.allclose(ker.simulator["scaled_pressure"][1], quiet.simulator["scaled_pressure"][1])
+
+
+def test_the_baro_in_forward_flight_is_off_by_default():
+    from scart_bench.generator.plan import plan_generation
+
+    assert SensorParams().baro_speed_pa == 0.0
+    sensors = plan_generation("quick", seed=3, n_normal=2).config_dict["flight_config"]["sensors"]
+    assert "baro_speed_pa" not in sensors and "baro_speed_full_m_s" not in sensors
+
+
+def test_like_fits_the_forward_flight_s_baro_noise_that_adds_in_squares(monkeypatch):
+    """Calibration flights at 3 m/s with 0.1 m of baro noise without it and 0.3 m at the reference, logs at 0.2 m:
+    the reference x sqrt(0.2^2 - 0.1^2) / sqrt(0.3^2 - 0.1^2); logs at or below 0.1 m: none; no log moving: none, one
+    line."""
+    from scart_bench.generator.like import fit
+
+    monkeypatch.setattr(fit, "moving_figures", lambda config, n=3, seed=777: 0.3 if config.sensors.baro_speed_pa else 0.1)
+    got = fit.fit_baro_speed({"moving_baro": fit.Figure(0.2, 10, "")}, FlightConfig(), [])
+    want = fit.BARO_SPEED_REF * np.sqrt(0.2 ** 2 - 0.1 ** 2) / np.sqrt(0.3 ** 2 - 0.1 ** 2)
+    assert abs(got["baro_speed_pa"][0] - want) < 1e-3
+    assert got["baro_speed_full_m_s"][0] == fit.MOVING_M_S
+    assert fit.fit_baro_speed({"moving_baro": fit.Figure(0.08, 10, "")}, FlightConfig(), []) == {}
+    lines: list[str] = []
+    assert fit.fit_baro_speed({"moving_baro": fit.Figure(float("nan"), 0, "")}, FlightConfig(), lines) == {}
+    assert len(lines) == 1
+
+
+def test_a_fleet_log_s_baro_is_louder_moving_than_at_hover():
+    """`arducopter_09-10-2014_25.bin` (GPS, hand-flown at 2 m/s): its baro's sample-to-sample noise at 2 m/s or faster
+    over 1.5x its still hover's: what the fit reads."""
+    from scart_bench.generator.like.fit import measure_log
+
+    m = measure_log(FLEET / "arducopter_09-10-2014_25.bin")
+    assert m.moving_baro > 1.5 * m.hover_white["baro_alt"], (m.moving_baro, m.hover_white["baro_alt"])

@@ -40,6 +40,7 @@ from scart_bench.generator.params import DT, GRAVITY, NAV_RATE_HZ
 from scart_bench.generator.physics.disturbances import Disturbances, gps_signal_quality
 from scart_bench.generator.physics.noise import NOISE_DIM, fill_block
 from scart_bench.generator.physics.sensors import (
+    BARO_FLOW_FROM,
     baro_wander_coefficients,
     gps_error_coefficients,
     lowpass_coefficients,
@@ -175,6 +176,7 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "imu_offset": np.r_[np.asarray(sp.imu_offset_m, dtype=float), float(any(sp.imu_offset_m))],
         "baro_downwash": sp.baro_downwash_pa,
         "baro_wander": np.r_[baro_wander_coefficients(sp), float(sp.baro_wander_pa > 0.0)],
+        "baro_speed": (sp.baro_speed_pa, 1.0 / (sp.baro_speed_full_m_s - BARO_FLOW_FROM), BARO_FLOW_FROM),
     }
     return K.param_vector(values)
 

@@ -69,7 +69,7 @@ K_TAKEOFF_AFTER_ARM, K_GYRO_VIB = _I["takeoff_after_arm"], _I["gyro_vibration"]
 K_BARO_NOISE, K_HOME_ALT, K_GPS_A, K_GPS_BIAS_C = _I["baro_noise"], _I["home_alt"], _I["gps_a"], _I["gps_bias_c"]
 K_ACC_LP, K_GYRO_LP, K_BARO_LP = _I["accel_lowpass"], _I["gyro_lowpass"], _I["baro_lowpass"]
 K_IMU_OFFSET, K_BARO_DOWNWASH = _I["imu_offset"], _I["baro_downwash"]
-K_BARO_WANDER = _I["baro_wander"]
+K_BARO_WANDER, K_BARO_SPEED = _I["baro_wander"], _I["baro_speed"]
 K_GPS_WHITE, K_GPS_VEL_NOISE, K_EPH0, K_EPV0 = _I["gps_white"], _I["gps_vel_noise"], _I["eph0"], _I["epv0"]
 K_DELAY, K_ATT_ACC_GAIN, K_GYRO_BIAS_GAIN = _I["delay"], _I["att_accel_gain"], _I["gyro_bias_gain"]
 K_ATT_MAG_GAIN, K_DECL, K_F, K_Q, K_GATE2 = _I["att_mag_gain"], _I["decl"], _I["kf_F"], _I["kf_Q"], _I["gate2"]
@@ -384,6 +384,13 @@ def _lowpass(s, z, p, c, x):
 
 
 @njit(**_HOT)
+def _baro_flow(s, p):
+    """The baro's noise in forward flight, Pa per sample (physics.sensors.baro_flow, the same lines)."""
+    v = math.sqrt(s[L.VEL] * s[L.VEL] + s[L.VEL + 1] * s[L.VEL + 1])
+    return p[K_BARO_SPEED] * min(max((v - p[K_BARO_SPEED + 2]) * p[K_BARO_SPEED + 1], 0.0), 1.0)
+
+
+@njit(**_HOT)
 def _sensors(s, tbuf, p, step, w, k, due, x, env):
     """The sensor samples due at this step, of the true state after the step (attitude: R_TRUE)."""
     rt = L.R_TRUE
@@ -458,6 +465,9 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
             ih = p[K_INV_HOVER_ROT]
             r0, r1, r2, r3 = s[L.ROTOR], s[L.ROTOR + 1], s[L.ROTOR + 2], s[L.ROTOR + 3]
             amp = p[K_BARO_DOWNWASH] * ((r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3) / 4.0 * (ih * ih))
+            if p[K_BARO_SPEED] > 0.0:  # the noise in forward flight, in squares (physics.sensors.baro_flow)
+                fl = _baro_flow(s, p)
+                amp = math.sqrt(amp * amp + fl * fl)
             own = p[K_BARO_NOISE]
             if p[K_BARO_LP + 5] != 0.0:
                 nb = own * wb + amp * _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
@@ -467,8 +477,12 @@ def _sensors(s, tbuf, p, step, w, k, due, x, env):
         else:
             if p[K_BARO_LP + 5] != 0.0:
                 wb = _lowpass(s, L.BARO_LOWPASS, p, K_BARO_LP, wb)
+            sigma = p[K_BARO_NOISE]
+            if p[K_BARO_SPEED] > 0.0:
+                fl = _baro_flow(s, p)
+                sigma = math.sqrt(sigma * sigma + fl * fl)
             s[L.PRESSURE] = (SLP * (1.0 - 2.25577e-5 * alt) ** 5.25588 + s[L.BARO_OFFSET]
-                             + p[K_BARO_NOISE] * wb + wander)
+                             + sigma * wb + wander)
         s[L.BARO_TEMP] = s[L.SENSOR_TEMP] - 0.0065 * (-s[L.POS + 2]) + 0.05 * w[k, NZ_BARO + 1]
     if due[L.D_GPS, step]:
         old = (step + 1) % delay if step + 1 >= delay else 0

@@ -235,3 +235,8 @@ FIELDS.update({"baro_wander": (BARO_WANDER, 2)})
 PARAMS += ("baro_wander",)
 PARAM_INDEX["baro_wander"] = N_PARAMS
 N_PARAMS += 3
+#: baro_speed: Pa per sample at full speed (0: off), 1 / (the speed of the full noise - the speed it starts from), the
+#: speed it starts from (physics.sensors.BARO_FLOW_FROM)
+PARAMS += ("baro_speed",)
+PARAM_INDEX["baro_speed"] = N_PARAMS
+N_PARAMS += 3

@@ -96,6 +96,9 @@ class LogMeasure:
     #: baro's (both detrended), medians over the windows (:func:`baro_slow_figures`); NaN: no 10 s of still hover
     baro_lf: float = math.nan
     alt_ratio: float = math.nan
+    #: the baro altitude's sample-to-sample noise (m) on the airborne rows at :data:`MOVING_M_S` or faster (GPS or
+    #: estimated horizontal velocity); NaN: none
+    moving_baro: float = math.nan
     pilot: dict[str, float] = field(default_factory=dict)  # hand flight and attitude spectra (generator.like.pilot)
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
@@ -387,6 +390,23 @@ def baro_slow_figures(tb: np.ndarray, xb: np.ndarray, ta: np.ndarray, xa: np.nda
     return (float(np.median(lf)) if lf else math.nan, float(np.median(ratio)) if ratio else math.nan)
 
 
+#: m/s: the rows at this horizontal speed or faster are forward flight (the fleet's baro noise is as loud at 2-3 m/s as
+#: at 16 m/s; SensorParams.baro_speed_full_m_s)
+MOVING_M_S = 2.0
+
+
+def moving_baro_noise(tables, baro: tuple[np.ndarray, np.ndarray, float], phases: pd.DataFrame) -> float:
+    """The baro altitude's sample-to-sample noise (m, at 10 Hz) on the airborne rows whose horizontal speed is
+    :data:`MOVING_M_S` or more; NaN without 2 s of them (or without a velocity)."""
+    vel = _velocity(tables)
+    if vel is None:
+        return math.nan
+    t = phases["Timestamp"].to_numpy(np.int64) / 1e6
+    air = (phases["phase"].to_numpy(object) != "landed") & (phases["altitude_m"].to_numpy(float) > 1.0)
+    speed = np.hypot(np.interp(t, vel[0], vel[1][:, 0]), np.interp(t, vel[0], vel[1][:, 1]))
+    return _noise_figures(baro[0], baro[1], baro[2], _segments(t, air & (speed >= MOVING_M_S)))[1]
+
+
 def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
     series = noise_series(tables)
     if not series:
@@ -413,6 +433,8 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
                              "has a still hover)")
         before = np.flatnonzero(~landed)
         ground = _segments(t, landed & (np.arange(len(t)) < (before[0] if len(before) else len(t))))
+    if "baro_alt" in series and phases is not None:
+        m.moving_baro = moving_baro_noise(tables, series["baro_alt"], phases)
     if "baro_alt" in series and phases is not None and hover and m.hover_still:
         m.baro_lf, m.alt_ratio = baro_slow_figures(series["baro_alt"][0], series["baro_alt"][1], t, h, hover)
     for name, (ts, x, hz) in series.items():
@@ -651,6 +673,7 @@ def fleet_figures(logs: list[LogMeasure]) -> dict[str, Figure]:
         "wind_speed": "median wind speed in the air", "eph": "median GPS eph (3-D fix)", "epv": "median GPS epv (3-D fix)",
         "baro_lf": "still hover, 10 s windows: baro altitude std below 0.5 Hz (m)",
         "alt_ratio": "still hover, 10 s windows: the estimated altitude's std over the baro's (detrended)",
+        "moving_baro": f"airborne at {MOVING_M_S:g} m/s or faster: the baro altitude's sample-to-sample noise (m)",
     }
     for key, what in simple.items():
         v, n = _median([getattr(m, key) for m in logs])
@@ -1166,6 +1189,61 @@ def fit_baro_wander(figs: dict[str, Figure], config, lines: list[str]) -> dict[s
     return out
 
 
+#: the forward flight's baro noise (Pa per sample) the calibration flights measure the baro's response at, the most
+#: fitted, and the calibration flights' cruise speed (m/s: above MOVING_M_S)
+BARO_SPEED_REF = 4.0
+BARO_SPEED_MAX = 40.0
+BARO_SPEED_CAL_M_S = 3.0
+
+
+def moving_figures(config, n: int = 3, seed: int = 777) -> float:
+    """The baro's sample-to-sample noise in forward flight (:func:`moving_baro_noise`, median over ``n`` flights) of
+    generated flights of ``config`` flying the base square at :data:`BARO_SPEED_CAL_M_S`; NaN if none measures it."""
+    from scart_bench.generator.engine.simulate import simulate
+    from scart_bench.generator.logs.phases import flight_phases
+    from scart_bench.generator.plan import normal_seeds
+    from scart_bench.generator.telemetry.tables import flight_views
+
+    mission = dataclasses.replace(config.mission, missions=(), families=(), cruise_speed=BARO_SPEED_CAL_M_S)
+    batch = simulate(normal_seeds(seed, n), dataclasses.replace(config, mission=mission, airframes=()))
+    out = []
+    for i in range(n):
+        _, sim = flight_views(batch, i, ())
+        tables = {k: v for k, v in sim.items() if k not in ("truth", "setpoint")}
+        baro = noise_series(tables).get("baro_alt")
+        if baro is not None:
+            out.append(moving_baro_noise(tables, baro, flight_phases(tables)))
+    return _median(out)[0]
+
+
+def fit_baro_speed(figs: dict[str, Figure], config, lines: list[str]) -> dict[str, tuple[object, str]]:
+    """``baro_speed_pa`` (and ``baro_speed_full_m_s``): the baro's noise in forward flight, from the logs' baro on their
+    airborne rows at :data:`MOVING_M_S` or faster (``moving_baro``), by calibration flights flying a square at
+    :data:`BARO_SPEED_CAL_M_S` without it and at :data:`BARO_SPEED_REF`: the noise adds in squares. Nothing (a line
+    said) when no log moves that fast with a baro, or the logs' figure is at or below the flights' without it."""
+    target = figs.get("moving_baro")
+    if target is None or not target.n or not math.isfinite(target.value):
+        lines.append(f"baro in forward flight: no log's baro measured at {MOVING_M_S:g} m/s or faster: none fitted")
+        return {}
+    g0 = moving_figures(config)
+    ref = moving_figures(dataclasses.replace(config, sensors=dataclasses.replace(
+        config.sensors, baro_speed_pa=BARO_SPEED_REF, baro_speed_full_m_s=MOVING_M_S)))
+    gain2 = (ref * ref - g0 * g0) / (BARO_SPEED_REF * BARO_SPEED_REF)
+    if not (math.isfinite(gain2) and gain2 > 0):
+        lines.append(f"baro in forward flight: the calibration flights' baro noise does not grow with it ({g0:.3g} m "
+                     f"without, {ref:.3g} m at {BARO_SPEED_REF:g} Pa): none fitted")
+        return {}
+    pa = round(float(min(math.sqrt(max(target.value ** 2 - g0 * g0, 0.0) / gain2), BARO_SPEED_MAX)), 4)
+    lines.append(f"baro in forward flight: {pa:g} Pa")
+    if not pa > 0:
+        return {}
+    return {"baro_speed_pa": (pa, f"the baro's noise in forward flight (Pa per sample, from 1 m/s to full at "
+                                  f"{MOVING_M_S:g} m/s): airborne at {MOVING_M_S:g} m/s or faster, sample-to-sample baro "
+                                  f"altitude {target.value:.3g} m (median over {target.n} logs); calibration flights at "
+                                  f"{BARO_SPEED_CAL_M_S:g} m/s {g0:.3g} m without it, {ref:.3g} m at {BARO_SPEED_REF:g} Pa"),
+            "baro_speed_full_m_s": (MOVING_M_S, "the speed of the full noise (m/s; not fitted)")}
+
+
 def _fmt(v: float) -> str:
     return f"{v:.3g}" if math.isfinite(v) else "n/a"
 
@@ -1214,6 +1292,13 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
                                      lines)
             for k, v in wander.items():
                 values["sensors" if k.startswith("baro_wander") else "estimator"][k] = v
+        if hasattr(config.sensors, "baro_speed_pa"):  # the baro's noise in forward flight, on the fitted noise
+            fitted = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in values["sensors"].items()
+                      if hasattr(config.sensors, k)}
+            est = {k: v for k, (v, _) in values["estimator"].items() if hasattr(config.estimator, k)}
+            values["sensors"].update(fit_baro_speed(figs, dataclasses.replace(
+                config, sensors=dataclasses.replace(config.sensors, **fitted),
+                estimator=dataclasses.replace(config.estimator, **est)), lines))
     fields = {f.name for f in dataclasses.fields(config.sensors)}
     fm = [m.mag_field_ned for m in logs if m.mag_field_ned is not None]
     if fm and "mag_field_ned" in fields:
@@ -1259,7 +1344,8 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     measured: dict[str, tuple[float, str]] = {}
     for key, f in figs.items():
         if key.startswith(("ground_", "white_ground_", "dlag1_", "rate_", "jitter_")) or key in ("ground_before_s", "logged_s", "airborne_s",
-                                                                       "altitude", "baro_lf", "alt_ratio"):
+                                                                       "altitude", "baro_lf", "alt_ratio",
+                                                                       "moving_baro"):
             measured[key] = (f.value, f"{f.source}, median over {f.n} of {n_logs} logs")
     for key, f in figs.items():
         if key.startswith(("hover_", "white_hover_")):
