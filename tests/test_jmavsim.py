@@ -281,8 +281,9 @@ def test_missing_jar_and_silent_simulator(tmp_path, monkeypatch):
 
 
 def test_generate_physics_jmavsim(jar, tmp_path):
-    """`generate --physics jmavsim` writes a dataset: one normal and one attacked jMAVSim flight, the
-    attacked one labelled over its window, jMAVSim's truth in the simulator view; no jar: exit 2."""
+    """`generate --physics jmavsim` writes a dataset: one normal and one attacked jMAVSim flight (a short
+    hop from a mission file), the attacked one labelled over its window, jMAVSim's truth in the simulator
+    view, both landed at home; no jar: exit 2."""
     from scart_bench.cli.main import main
     from scart_bench.dataset import open_dataset
 
@@ -291,8 +292,13 @@ def test_generate_physics_jmavsim(jar, tmp_path):
                  str(tmp_path / "nowhere")]) == 2
     assert not out.exists()
     grid = Path(__file__).resolve().parents[1] / "data/scenarios/sensor_gps_jump.toml"
+    hop = tmp_path / "hop.waypoints"  # take-off to 6 m, 18 m north held 8 s, return: about half the square
+    hop.write_text("QGC WPL 110\n0\t1\t0\t16\t0\t0\t0\t0\t47.397742\t8.545594\t488\t1\n"
+                   "1\t0\t3\t22\t0\t0\t0\t0\t47.397742\t8.545594\t6\t1\n"
+                   "2\t0\t3\t16\t8\t0\t0\t0\t47.397904\t8.545594\t6\t1\n"
+                   "3\t0\t3\t20\t0\t0\t0\t0\t0\t0\t0\t1\n")
     assert main(["generate", "--physics", "jmavsim", "--jmavsim", str(jar), "--out", str(out), "--flights", "1",
-                 "--scenarios", str(grid), "--seed", "4"]) == 0
+                 "--scenarios", str(grid), "--seed", "4", "--missions", str(hop)]) == 0
     ds = open_dataset(out)
     m = ds.manifest.set_index("flight_id")
     assert list(m["mode"]) == ["normal", "simulation"]
@@ -303,6 +309,9 @@ def test_generate_physics_jmavsim(jar, tmp_path):
     inside = (nav["Timestamp"] >= start) & (nav["Timestamp"] < end)
     assert (nav["Is_Anomaly"] == inside.astype(int)).all()
     assert ds.flight("normal-0000", "navigator", "all_sensors")["Is_Anomaly"].sum() == 0
+    for fid in ("normal-0000", "sim-0000"):  # the GPS jump is rejected by the gate: both fly home
+        truth = ds.topic(fid, "truth", "simulator")
+        assert -truth["z"].min() > 5.0 and float(np.hypot(truth["x"].iloc[-1], truth["y"].iloc[-1])) < 2.0, fid
 
 
 def test_generate_against_a_running_simulator_flies_a_mission_file(jar, tmp_path, capsys):
