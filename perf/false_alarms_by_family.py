@@ -1,12 +1,14 @@
-"""False alarms on a run's held-out normal flights by mission family and by airframe, beside how many
-validation flights of each the thresholds were calibrated on.
+"""False alarms on a run's held-out normal flights by mission family, by airframe and by duration
+quartile, beside their mean length and how many validation flights of each the thresholds were
+calibrated on.
 
     python -m perf.false_alarms_by_family RUN DATASET
 
 A generated dataset with the mission mix draws each flight's family and airframe independently of its
 split; a family that is rare among the validation flights and scores high is under-covered by a
 per-flight threshold (docs/missions.md, "False alarms by family"). Reads ``flight_scores.csv`` of the
-run and each flight's ``raw/config.json`` (its ``flight.family`` and ``flight.airframe``).
+run, each flight's ``raw/config.json`` (its ``flight.family`` and ``flight.airframe``) and the
+manifest's ``duration_s``.
 """
 
 from __future__ import annotations
@@ -37,13 +39,23 @@ def by_group(run: Path, dataset: Path) -> dict[str, pd.DataFrame]:
                        "flight_id"].astype(str)
     info = {f: flight_info(dataset, f) for f in set(normal["flight_id"].astype(str)) | set(val)}
     paper = set(PAPER)
+    duration = manifest.set_index(manifest["flight_id"].astype(str))["duration_s"].astype(float)
+    normal["minutes"] = duration.reindex(normal["flight_id"].astype(str)).to_numpy() / 60.0
+    # held-out flights by duration quartile: a per-flight rate grows with the flight's length
+    quartiles = pd.qcut(normal.drop_duplicates("flight_id")["minutes"], 4, duplicates="drop").cat.categories
+    normal["duration"] = pd.cut(normal["minutes"], quartiles, include_lowest=True).astype(str)
     out = {}
-    for key in ("family", "airframe"):
-        normal[key] = [info[f][key] for f in normal["flight_id"].astype(str)]
-        table = normal.groupby(key).agg(held_out=("flight_id", "nunique"), flagged_all=("flagged", "mean"))
+    for key in ("family", "airframe", "duration"):
+        if key != "duration":
+            normal[key] = [info[f][key] for f in normal["flight_id"].astype(str)]
+        table = normal.groupby(key).agg(held_out=("flight_id", "nunique"), minutes=("minutes", "mean"),
+                                        flagged_all=("flagged", "mean"))
         table["flagged_paper"] = normal[normal["detector"].isin(paper)].groupby(key)["flagged"].mean()
+        if key == "duration":
+            out[key] = table.round({"minutes": 2})
+            continue
         table["validation"] = pd.Series([info[f][key] for f in val]).value_counts()
-        out[key] = table.fillna({"validation": 0}).astype({"validation": int})
+        out[key] = table.fillna({"validation": 0}).astype({"validation": int}).round({"minutes": 2})
     out["all"] = pd.DataFrame({"flagged_all": [normal["flagged"].mean()],
                                "flagged_paper": [normal.loc[normal["detector"].isin(paper), "flagged"].mean()]})
     return out
