@@ -90,6 +90,24 @@ def test_like_fits_a_level_per_log_from_its_noise_in_the_air():
     assert vibration_levels([quiet], figs, ("acc",))["quiet.bin"] == (0.5, 1.0, 1.0, 0.5, 1.0, 1.0)
 
 
+def test_like_fits_a_rough_vehicle_s_yaw_gyro_above_the_fleet_s_as_high_frequency_vibration():
+    """The gyro z (GYRO_HF_AXES) with the fleet's figure at 0.3x its low-passed vibration's per-sample sigma: a log at
+    10x the fleet's sample-to-sample noise gets sqrt(1 + 99 x 0.3^2) (its high-frequency rest adds the log's noise
+    beyond the fleet's in squares), one below the fleet's its plain level, x and y at most 1 as before; without the
+    figure z at most 1 too."""
+    from scart_bench.generator.like.fit import Figure, LogMeasure, vibration_levels
+
+    figs = {f"white_hover_{s}_{a}": Figure(v, 8, "") for s, v in (("acc", 0.1), ("gyro", 0.02)) for a in "xyz"}
+    rough, quiet = LogMeasure("rough.bin", ""), LogMeasure("quiet.bin", "")
+    rough.hover_white = {"acc_x": 0.1, "acc_y": 0.1, "acc_z": 0.1, "gyro_x": 0.2, "gyro_y": 0.2, "gyro_z": 0.2}
+    quiet.hover_white = {"acc_x": 0.1, "acc_y": 0.1, "acc_z": 0.1, "gyro_x": 0.02, "gyro_y": 0.02, "gyro_z": 0.01}
+    got = vibration_levels([rough, quiet], figs, ("gyro",), {"gyro_z": 0.3})
+    assert got["rough.bin"][:5] == (1.0,) * 5
+    assert abs(got["rough.bin"][5] - np.sqrt(1.0 + 99.0 * 0.09)) < 1e-3
+    assert got["quiet.bin"][5] == 0.5
+    assert vibration_levels([rough], figs, ("gyro",))["rough.bin"][5] == 1.0
+
+
 @pytest.mark.parametrize("value, expected", [
     ("[[1.0, 2.0]]", "sensors.vibration_levels[0]: expected a list of 6 values"),
     ("[[1.0, 1.0, 1.0, 1.0, 1.0, -2.0]]", "sensors.vibration_levels[0][5]: expected a number in [0, 1000]"),

@@ -1054,10 +1054,14 @@ def fit_imu_offset(logs: list[LogMeasure], sensors, lines: list[str]) -> dict[st
 VIBRATION_LEVEL_MAX = 30.0
 #: fit the gyro's vibration levels above 1 too (False: at most 1, see :func:`vibration_levels`)
 GYRO_LEVELS = False
+#: the gyro axes whose levels go above 1 all the same, the rest as high-frequency vibration (:func:`vibration_levels`):
+#: the fleet's rough vehicles' yaw gyro is near white where their roll and pitch gyros are coloured (lag-1 of the
+#: differences in the air -0.14 to +0.07 on `6-3-2014_7`, `8-10-2014_10`/`_11`, `181`, at 3.6-13x the fleet's noise)
+GYRO_HF_AXES = ("gyro_z",)
 
 
-def vibration_levels(logs: list[LogMeasure], figs: dict[str, Figure], coloured: tuple[str, ...] = ()
-                     ) -> dict[str, tuple[float, ...]]:
+def vibration_levels(logs: list[LogMeasure], figs: dict[str, Figure], coloured: tuple[str, ...] = (),
+                     per_sigma: dict[str, float] | None = None) -> dict[str, tuple[float, ...]]:
     """Per log, its vehicle's accelerometer x/y/z and gyro x/y/z vibration as multiples of the fleet's: the log's
     sample-to-sample noise in the air (its still hover, or every airborne row of a log without one: :func:`_noise`)
     over the fleet's (``white_hover_*``, what ``accel_vibration`` / ``gyro_vibration`` are calibrated to), within
@@ -1072,15 +1076,23 @@ def vibration_levels(logs: list[LogMeasure], figs: dict[str, Figure], coloured: 
     flight controller's loop it is flown (timeouts); their rocking is :func:`fit_rocking`'s. Up to 1 a level scales
     the fleet's vibration as it is (white or low-passed), so the sample-to-sample noise with it; above 1 the rest is
     high-frequency, which is the log's sample-to-sample figure only for a white vibration: a sensor in ``coloured``
-    ("acc", "gyro": its fitted vibration low-passed) is kept at most 1 too."""
+    ("acc", "gyro": its fitted vibration low-passed) is kept at most 1 too, except the axes of :data:`GYRO_HF_AXES`
+    with ``per_sigma`` (axis -> the fleet's sample-to-sample figure over the fitted vibration's per-sample sigma): there a
+    level r above 1 becomes sqrt(1 + (r^2 - 1) per_sigma^2), whose high-frequency rest (per-sample sigma sqrt(l^2 - 1)
+    times the vibration's, white at a log's rate) adds the log's sample-to-sample noise beyond the fleet's."""
     out = {}
+    per_sigma = per_sigma or {}
     for m in logs:
         levels = []
         for k in (f"{sensor}_{a}" for sensor in ("acc", "gyro") for a in AXES):
             fleet = figs.get(f"white_hover_{k}")
-            top = 1.0 if (k.startswith("gyro") and not GYRO_LEVELS) or k.split("_")[0] in coloured else VIBRATION_LEVEL_MAX
+            hf = k in GYRO_HF_AXES and k in per_sigma
+            top = (1.0 if not hf and ((k.startswith("gyro") and not GYRO_LEVELS) or k.split("_")[0] in coloured)
+                   else VIBRATION_LEVEL_MAX)
             r = m.hover_white.get(k, math.nan) / fleet.value if fleet is not None and fleet.value > 0 else math.nan
             r = r if math.isfinite(r) and r > 0 else 1.0
+            if hf and r > 1.0:  # the rest as high-frequency vibration, of the coloured vibration's per-sample sigma
+                r = math.sqrt(1.0 + (r * r - 1.0) * per_sigma[k] ** 2)
             levels.append(round(float(np.clip(r, 1.0 / VIBRATION_LEVEL_MAX, top)), 3))
         out[m.name] = tuple(levels)
     return out
@@ -1354,7 +1366,10 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
     if calibrate and hasattr(config.sensors, "vibration_levels"):  # each vehicle's, over the calibrated vibration
         cut = {k: values["sensors"].get(f"{k}_noise_cutoff_hz", (getattr(config.sensors, f"{k}_noise_cutoff_hz"), ""))[0]
                for k in ("accel", "gyro")}
-        levels = vibration_levels(logs, figs, tuple(k[:3] if k == "accel" else k for k, c in cut.items() if c))
+        vib = values["sensors"].get("gyro_vibration", (config.sensors.gyro_vibration, ""))[0]
+        fig = figs.get("white_hover_gyro_z")
+        per_sigma = {"gyro_z": fig.value / float(vib[2])} if fig is not None and fig.n and float(vib[2]) > 0 else {}
+        levels = vibration_levels(logs, figs, tuple(k[:3] if k == "accel" else k for k, c in cut.items() if c), per_sigma)
     rocking = {}
     if calibrate and hasattr(config.mission, "rocking_levels"):  # each vehicle's rocking, on the fitted noise
         noise = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in values["sensors"].items()
