@@ -9,6 +9,7 @@ engines, moving the true attitude and the gyro with it; off by default; fitted p
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +184,36 @@ def test_like_fits_the_rocking_that_adds_the_log_s_gyro_noise_in_squares(monkeyp
 ])
 def test_bad_rocking_levels_in_a_profile_exit_2_naming_the_key(tmp_path, capsys, value, expected):
     bad_profile_key_is_refused(tmp_path, capsys, "mission", "rocking_levels", value, expected)
+
+
+def test_the_gyro_z_floor_above_5_hz_is_told_from_a_slow_yaw_motion():
+    """The figure the gyro z's vibration is fitted on (fit.BAND_AXES): the std above 5 Hz of a 50 Hz series is a white
+    noise's share there (sqrt(20 / 25) of its sigma) whatever a 1 Hz yaw motion 20x its size does, where the
+    sample-to-sample noise grows with the motion; the fleet's figure is the still-hover logs' median, and a fleet log's
+    gyro z floor lies below its sample-to-sample noise (its differences are a yaw motion's too)."""
+    from scart_bench.generator.like.fit import (
+        BAND_AXES,
+        LogMeasure,
+        _band_std,
+        _noise_figures,
+        fleet_figures,
+        measure_log,
+    )
+
+    assert "gyro_z" in BAND_AXES
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 60, 0.02)
+    white = 0.01 * rng.standard_normal(len(t))
+    moving = white + 0.2 * np.sin(2 * np.pi * 1.0 * t)
+    seg = [(0.0, 60.0)]
+    assert abs(_band_std(t, white, 50.0, seg) / (0.01 * np.sqrt(0.8)) - 1.0) < 0.1
+    assert abs(_band_std(t, moving, 50.0, seg) / _band_std(t, white, 50.0, seg) - 1.0) < 0.05
+    assert _noise_figures(t, moving, 50.0, seg)[1] > 1.2 * _noise_figures(t, white, 50.0, seg)[1]
+    logs = []
+    for v in (0.004, 0.006, 0.02):
+        m = LogMeasure(f"{v}.bin", "")
+        m.hover, m.hover_white, m.hover_band = {"gyro_z": 0.1}, {"gyro_z": 0.01}, {"gyro_z": v}
+        logs.append(m)
+    assert fleet_figures(logs)["band_hover_gyro_z"].value == 0.006
+    m = measure_log(Path(__file__).parents[1].parent / "shared/data/dataflash/fleet/arducopter_10-11-2014_105.bin")
+    assert 0.0 < m.hover_band["gyro_z"] < m.hover_white["gyro_z"], (m.hover_band, m.hover_white)

@@ -87,6 +87,8 @@ class LogMeasure:
     hover: dict[str, float] = field(default_factory=dict)  # "acc_x" ... "baro_alt": std on the hover
     hover_s: float = 0.0
     hover_white: dict[str, float] = field(default_factory=dict)  # the same, sample-to-sample (white) noise
+    #: the same, its std above :data:`BAND_HZ` (the power a log's 5-25 Hz band holds at 50 Hz; :func:`_band_std`)
+    hover_band: dict[str, float] = field(default_factory=dict)
     ground_white: dict[str, float] = field(default_factory=dict)
     #: the noise's colour: lag-1 autocorrelation of the first differences on the hover / ground (white: -0.5)
     hover_dlag1: dict[str, float] = field(default_factory=dict)
@@ -188,6 +190,34 @@ def _noise_figures(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple
     den = float(np.sqrt(np.sum(d[:-1][pairs] ** 2) * np.sum(d[1:][pairs] ** 2)))
     dlag1 = float(np.sum(d[:-1][pairs] * d[1:][pairs]) / den) if den > 0 else math.nan
     return float(np.std(highpass(v, hz)[mask])), white, float(mask.sum() / hz), dlag1
+
+
+#: Hz: a series' power above this (to its 50 Hz reading's Nyquist) is its vibration's floor, which a 0.5-2 Hz motion does
+#: not reach (the window classifier's 5-25 Hz band)
+BAND_HZ = 5.0
+
+
+def _band_std(t: np.ndarray, x: np.ndarray, hz: float, segments: list[tuple[float, float]]) -> float:
+    """The std (over ``segments``, s) of ``x`` read at ``hz`` and high-passed at :data:`BAND_HZ` (fourth-order
+    Butterworth, forward and back); NaN without :data:`MIN_SEGMENT_S` of it or at a rate without that band."""
+    from scipy.signal import butter, sosfiltfilt
+
+    if len(t) < 10 or not segments:
+        return math.nan
+    native = 1.0 / float(np.median(np.diff(t))) if np.median(np.diff(t)) > 0 else hz
+    hz = min(hz, native * 1.05)
+    if BAND_HZ >= 0.45 * hz:
+        return math.nan
+    grid, v = resample(t, x, hz)
+    mask = np.zeros(len(grid), bool)
+    for a, b in segments:
+        mask |= (grid >= a) & (grid <= b)
+    for k in np.flatnonzero(np.diff(t) > 0.5):
+        mask &= ~((grid > t[k]) & (grid < t[k + 1]))
+    mask = _shrink(mask, hz)
+    if mask.sum() < MIN_SEGMENT_S * hz or len(v) < 30:
+        return math.nan
+    return float(np.std(sosfiltfilt(butter(4, BAND_HZ, "highpass", fs=hz, output="sos"), v)[mask]))
 
 
 def _segments(t: np.ndarray, mask: np.ndarray) -> list[tuple[float, float]]:
@@ -439,6 +469,8 @@ def _noise(m: LogMeasure, tables, phases: pd.DataFrame | None) -> None:
         m.baro_lf, m.alt_ratio = baro_slow_figures(series["baro_alt"][0], series["baro_alt"][1], t, h, hover)
     for name, (ts, x, hz) in series.items():
         m.hover[name], m.hover_white[name], hs, m.hover_dlag1[name] = _noise_figures(ts, x, hz, hover)
+        if name in BAND_AXES:
+            m.hover_band[name] = _band_std(ts, x, hz, hover)
         m.ground[name], m.ground_white[name], gs, m.ground_dlag1[name] = _noise_figures(ts, x, hz, ground)
         if name == "acc_x":
             m.hover_s, m.ground_s = hs, gs
@@ -691,6 +723,10 @@ def fleet_figures(logs: list[LogMeasure]) -> dict[str, Figure]:
         v, n = _median([m.hover_white.get(k, math.nan) for m in (still if n and what.startswith("still") else logs)])
         out[f"white_hover_{k}"] = Figure(v, n, what.replace("high-passed per-sample std",
                                                              "sample-to-sample noise (std of differences / sqrt 2)"))
+        if any(k in m.hover_band for m in logs):
+            v, n = _median([m.hover_band.get(k, math.nan) for m in (still if n and what.startswith("still") else logs)])
+            out[f"band_hover_{k}"] = Figure(v, n, what.replace("high-passed per-sample std",
+                                                                f"std above {BAND_HZ:g} Hz (at 50 Hz)"))
         v, n = _median([m.hover_dlag1.get(k, math.nan) for m in (still if n and what.startswith("still") else logs)])
         out[f"dlag1_hover_{k}"] = Figure(v, n, what.replace("high-passed per-sample std",
                                                              "lag-1 autocorrelation of the differences (white: -0.5)"))
@@ -729,6 +765,7 @@ def calibration_figures(config, n: int = 3, seed: int = 12345) -> dict[str, floa
         _noise(m, tables, flight_phases(tables))
         per.append({**m.hover, "baro_lf": m.baro_lf, "alt_ratio": m.alt_ratio,
                     **{f"white_{k}": v for k, v in m.hover_white.items()},
+                    **{f"band_{k}": v for k, v in m.hover_band.items()},
                     **{f"dlag1_{k}": v for k, v in m.hover_dlag1.items()}})
     keys = {k for p in per for k in p}
     return {**{k: _median([p.get(k, math.nan) for p in per])[0] for k in keys}, "landed": landed}
@@ -777,6 +814,10 @@ NOISE_PLAN = (
     (("mag_noise", None, ("mag_x", "mag_y", "mag_z")),),
     (("baro_noise_pa", None, ("baro_alt",)),),
 )
+#: the axes whose vibration is fitted to the still hover's power above BAND_HZ instead of the sample-to-sample noise: the
+#: fleet's gyro z gets its sample-to-sample noise from a 0.5-2 Hz yaw motion and a white floor, the generated one from
+#: its low-passed vibration (fitted on the sample-to-sample noise, its 2-5 and 5-25 Hz power were 4x the fleet's at hover)
+BAND_AXES = ("gyro_z",)
 #: fitted when the sensor model has no vibration
 FALLBACK = {"accel_vibration": (("accel_noise_density", None, ("acc_x", "acc_y")),),
             "gyro_vibration": (("gyro_noise_density", None, ("gyro_x", "gyro_y", "gyro_z")),)}
@@ -903,6 +944,13 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
     lines: list[str] = []
     want = {k[len("white_hover_"):]: f for k, f in figures.items() if k.startswith("white_hover_") and f.n
             and math.isfinite(f.value)}
+    for k in BAND_AXES:  # these axes' vibration level on their floor above BAND_HZ, not their sample-to-sample noise
+        f = figures.get(f"band_hover_{k}")
+        if k in want and f is not None and f.n and math.isfinite(f.value) and f.value > 0:
+            want[k] = f
+
+    def kind(k: str) -> str:
+        return "band" if k in BAND_AXES and want.get(k) is figures.get(f"band_hover_{k}") else "white"
     plan = []
     for group in NOISE_PLAN:
         if not hasattr(s, group[0][0]):
@@ -995,7 +1043,7 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
                 cutoff[c[0]] = round(capped(c, fc), 3)
         for f, i, ks in plan:
             target = float(np.mean([want[k].value for k in ks]))
-            got = float(np.nanmean([gen.get(f"white_{k}", math.nan) for k in ks]))
+            got = float(np.nanmean([gen.get(f"{kind(k)}_{k}", math.nan) for k in ks]))
             if math.isfinite(got) and got > 0:
                 history[(f, i)].append((level[(f, i)] * before[f], got))
                 nxt = next_level(history[(f, i)], target) / factor(f)
@@ -1004,9 +1052,10 @@ def calibrate_noise(config, figures: dict[str, Figure], rounds: int = 4) -> tupl
     notes: dict[str, list[str]] = {}
     for f, _i, ks in plan:
         where = "still hover" if want[ks[0]].source.startswith("still") else "airborne"
-        got = [gen.get(f"white_{k}", math.nan) for k in ks]
+        got = [gen.get(f"{kind(k)}_{k}", math.nan) for k in ks]
         notes.setdefault(f, []).append(
-            f"{', '.join(f'{k} {want[k].value:.4g}' for k in ks)} (generated {', '.join(f'{g:.4g}' for g in got)})")
+            f"{', '.join(f'{k} {want[k].value:.4g}' + (f' above {BAND_HZ:g} Hz' if kind(k) == 'band' else '') for k in ks)}"
+            f" (generated {', '.join(f'{g:.4g}' for g in got)})")
         target = float(np.mean([want[k].value for k in ks]))
         if np.nanmean(got) > 1.5 * target:
             lines.append(f"{f}: the generated flights give {np.nanmean(got):.3g} at a tenth of the base's noise, "
