@@ -8,7 +8,8 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-from conftest import kernel_matches_numpy
+import pytest
+from conftest import bad_profile_key_is_refused, kernel_matches_numpy
 from scipy.signal import periodogram
 
 from scart_bench.generator.engine.simulate import FlightConfig, simulate
@@ -179,3 +180,13 @@ def test_a_fleet_log_s_baro_is_louder_moving_than_at_hover():
 
     m = measure_log(FLEET / "arducopter_09-10-2014_25.bin")
     assert m.moving_baro > 1.5 * m.hover_white["baro_alt"], (m.moving_baro, m.hover_white["baro_alt"])
+
+
+@pytest.mark.parametrize("key, value, expected", [
+    ("baro_speed_full_m_s", "1.0", "sensors.baro_speed_full_m_s: expected a number in [1.1, 100] (m/s, above the 1 m/s"),
+    ("baro_wander_tau_s", "0.0", "sensors.baro_wander_tau_s: expected a number in [0.05, 3600]"),
+    ("baro_wander_pa", "-1.0", "sensors.baro_wander_pa: expected a number >= 0"),
+])
+def test_bad_baro_parameters_in_a_profile_exit_2_naming_the_key(tmp_path, capsys, key, value, expected):
+    """A ramp ending where it starts would divide by zero (NaN pressures): refused before anything is flown."""
+    bad_profile_key_is_refused(tmp_path, capsys, "sensors", key, value, expected)

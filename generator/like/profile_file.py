@@ -108,7 +108,10 @@ def _check_value(path, key: str, value, default):
 #: fields with a range of their own beyond their default's type: key -> (least, most, what it is)
 RANGES = {"sensors.imu_offset_m": (-1.0, 1.0, "m from the centre of gravity, body frame"),
           "sensors.vibration_levels": (0.0, 1000.0, "multiples of the vibration"),
-          "mission.rocking_levels": (0.0, 1000.0, "rad/s^2 per step")}
+          "mission.rocking_levels": (0.0, 1000.0, "rad/s^2 per step"),
+          # the forward-flight baro noise ramps from 1 m/s (physics.sensors.BARO_FLOW_FROM) to full at this speed
+          "sensors.baro_speed_full_m_s": (1.1, 100.0, "m/s, above the 1 m/s where the noise starts"),
+          "sensors.baro_wander_tau_s": (0.05, 3600.0, "s, the wander's time constant")}
 #: fields whose value is a list of any length of same-length number lists (their default, (), says no element type):
 #: key -> the element's prototype
 PAIRS = {"sensors.vibration_levels": (1.0,) * 6, "mission.rocking_levels": (0.0,) * 3}
