@@ -124,3 +124,18 @@ def kernel_matches_numpy(cfg, seeds=(3, 4), atol: float = 1e-9):
         np.testing.assert_array_equal(ker.simulator[topic][0], steps, err_msg=topic)
         np.testing.assert_allclose(ker.simulator[topic][1], vals, rtol=0, atol=atol, err_msg=topic)
     return ker
+
+
+def kernel_matches_numpy_and_shows(sensors, off: dict, topic: str, seconds: float = 4.0) -> None:
+    """A 4 s airborne flight with ``sensors``: the compiled kernel agrees with the numpy reference
+    (:func:`kernel_matches_numpy`), and the same kernel flights with the fields of ``off`` changed give another
+    ``topic``: what ``sensors`` adds reaches the telemetry."""
+    import dataclasses
+
+    from scart_bench.generator.engine.simulate import FlightConfig, simulate
+    from scart_bench.generator.params import MissionParams
+
+    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=seconds), sensors=sensors)
+    ker = kernel_matches_numpy(cfg)
+    other = simulate([3, 4], dataclasses.replace(cfg, sensors=dataclasses.replace(sensors, **off)), engine="kernel")
+    assert not np.allclose(ker.simulator[topic][1], other.simulator[topic][1]), topic

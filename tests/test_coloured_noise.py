@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import kernel_matches_numpy
+from conftest import kernel_matches_numpy_and_shows
 
 from scart_bench.generator.engine.compiled import kernel_params
 from scart_bench.generator.engine.kernel_layout import PARAM_INDEX
@@ -98,11 +98,7 @@ def test_the_kernel_flies_coloured_noise_as_the_numpy_reference_step():
     message within 1e-9; and the colour reaches the telemetry's gyro."""
     sensors = SensorParams(accel_noise_cutoff_hz=15.0, gyro_noise_cutoff_hz=3.0, baro_noise_cutoff_hz=3.0,
                            gyro_vibration=(0.05, 0.05, 0.02))
-    cfg = FlightConfig(mission=MissionParams(ground_phase=False, max_duration_s=4.0), sensors=sensors)
-    ker = kernel_matches_numpy(cfg)
-    white = simulate([3, 4], dataclasses.replace(cfg, sensors=dataclasses.replace(sensors, gyro_noise_cutoff_hz=0.0)),
-                     engine="kernel")
-    assert not np.allclose(white.simulator["highres_imu"][1], ker.simulator["highres_imu"][1])
+    kernel_matches_numpy_and_shows(sensors, {"gyro_noise_cutoff_hz": 0.0}, "highres_imu")
 
 
 def test_the_kernel_gives_the_theory_s_colour_armed_on_the_ground_and_white_noise_before_arming():
