@@ -77,3 +77,23 @@ def test_listening_bridge_says_when_nothing_comes():
             link.wait_first(0.3)
     finally:
         link.close()
+
+
+@pytest.mark.parametrize("extra, named", [
+    (["--profile", "standard"], "--profile"),
+    (["--timing", "ideal", "--gps-accuracy", "simulator"], "--gps-accuracy, --timing are"),
+    (["--sensor-profile", "rflymad"], "--sensor-profile is"),
+    (["--like", "log.bin"], "--like"),
+])
+def test_generate_physics_jmavsim_refuses_the_built_in_engine_s_options(tmp_path, capsys, extra, named):
+    """jMAVSim flies the square or mission files with its own sensors and clock: a profile, a --like fit, a GPS
+    accuracy, sensor profile or timing asked of it is one line naming them, exit 2, nothing written (they were
+    dropped without a word), before Java or the jar is looked for."""
+    from scart_bench.cli.main import main
+
+    out = tmp_path / "out"
+    assert main(["generate", "--physics", "jmavsim", "--jmavsim", str(tmp_path / "nowhere"), "--out", str(out),
+                 "--flights", "1", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and named in err and "for the built-in engine" in err, err
+    assert not out.exists()

@@ -166,6 +166,16 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
     if args.executor != "local" or args.uorb or args.layout:
         raise UsageError("--physics jmavsim flies one jMAVSim flight at a time: --executor dask, --uorb "
                          "and --layout are for the built-in engine")
+    # jMAVSim flies the square (or --missions) with its own sensors and timing: a profile's mission mix, sensors,
+    # GPS accuracy and timing would otherwise be dropped without a word
+    given = [flag for flag, on in (("--profile", args.profile != "quick" or is_profile_file(args.profile)),
+                                   ("--like", bool(getattr(args, "like", None))),
+                                   ("--gps-accuracy", args.gps_accuracy is not None),
+                                   ("--sensor-profile", args.sensor_profile is not None),
+                                   ("--timing", args.timing is not None)) if on]
+    if given:
+        raise UsageError(f"--physics jmavsim flies the square or --missions FILE... with jMAVSim's sensors and clock: "
+                         f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for the built-in engine")
     check_seed(args.seed)
     mission = None
     if args.missions:  # every file read and checked before anything is flown or written
