@@ -168,7 +168,7 @@ def _generate_jmavsim(args: argparse.Namespace) -> int:
                          "and --layout are for the built-in engine")
     # jMAVSim flies the square (or --missions) with its own sensors and timing: a profile's mission mix, sensors,
     # GPS accuracy and timing would otherwise be dropped without a word
-    given = [flag for flag, on in (("--profile", args.profile != "quick" or is_profile_file(args.profile)),
+    given = [flag for flag, on in (("--profile", args.profile != "quick"),  # a profile TOML too
                                    ("--like", bool(getattr(args, "like", None))),
                                    ("--gps-accuracy", args.gps_accuracy is not None),
                                    ("--sensor-profile", args.sensor_profile is not None),
