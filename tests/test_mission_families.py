@@ -132,6 +132,31 @@ def test_draws_come_from_the_seed_alone_and_follow_the_mix():
     np.testing.assert_array_equal(table[0, :len(a.items)], a.items)
 
 
+def test_validation_and_held_out_flights_fly_the_same_mix():
+    """The conformal threshold's false-alarm rate assumes the held-out flights are drawn as the validation
+    flights are: a flight's family and planned duration come from its seed, never from its place in the
+    split (over 20 dataset seeds of the standard profile, the splits' mean planned duration and their
+    survey and delivery shares, the two families flagged most, agree within sampling error)."""
+    from scart_bench.generator.plan import normal_seeds, splits
+
+    profile = PROFILES["standard"]
+    m = profile.flight_config().mission
+    split = np.array(splits(profile.n_normal, profile.n_train, profile.n_validation, profile.n_csv_source))
+    diffs, long_share = [], {"validation": [], "test": []}
+    for dataset_seed in range(20):
+        draws = [draw_mission(s, m) for s in normal_seeds(dataset_seed, profile.n_normal)]
+        planned = np.array([d.summary()["planned_duration_s"] for d in draws])
+        diffs.append(planned[split == "test"].mean() - planned[split == "validation"].mean())
+        for name in long_share:
+            fams = [d.family for d, sp in zip(draws, split) if sp == name]
+            long_share[name].append(sum(f in ("survey", "delivery") for f in fams) / len(fams))
+    diffs = np.array(diffs)
+    # one dataset's difference spreads by ~8 s; the mean of 20 by ~2 s
+    assert abs(diffs.mean()) < 3 * diffs.std(ddof=1) / np.sqrt(len(diffs)) + 1.0, diffs
+    gap = np.mean(long_share["test"]) - np.mean(long_share["validation"])
+    assert abs(gap) < 0.04, (np.mean(long_share["test"]), np.mean(long_share["validation"]))
+
+
 def test_a_bad_mix_is_a_clear_error():
     with pytest.raises(ValueError, match="mission family 'sqare'"):
         Profile("x", 1, 1, 1, None, missions={"sqare": 1.0}).flight_config()
