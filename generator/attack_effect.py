@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from scart_bench.dataset import LABEL_COLUMNS, label_rows
+from scart_bench.dataset.tables import plain_columns
 
 #: Injection points whose effect shows as a difference between the navigator and simulator views.
 MESSAGE_POINTS = ("link", "command")
@@ -65,8 +66,10 @@ def _last_in_windows(df: pd.DataFrame, windows) -> tuple[np.ndarray, np.ndarray]
 def _values(df: pd.DataFrame, fields: list[str], rows: np.ndarray) -> np.ndarray:
     """``df``'s ``fields`` at ``rows`` as a float64 (rows x fields) array."""
     out = np.empty((len(rows), len(fields)))
+    plain = plain_columns(df)  # plain number columns as their arrays: no Series per field
     for j, f in enumerate(fields):
-        out[:, j] = df[f].to_numpy(np.float64)[rows]
+        col = plain.get(f)
+        out[:, j] = (df[f].to_numpy(np.float64) if col is None else col.astype(np.float64, copy=False))[rows]
     return out
 
 

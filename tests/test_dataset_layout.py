@@ -188,3 +188,31 @@ def test_version_1_view_files_still_read(both_layouts, tmp_path):
         meta["version"] = 1
         pq.write_table(table.replace_schema_metadata({META_KEY: json.dumps(meta).encode()}), path)
     pd.testing.assert_frame_equal(open_dataset(target).flight("normal-0001", "simulator"), before)
+
+
+def test_fields_shared_with_the_navigator_are_bit_for_bit_the_same_and_plain_columns_are_the_frames():
+    """The writer stores a copy's field only where it differs from the navigator's by a bit (0.0 against
+    -0.0 and two NaN payloads differ); the number columns it reads as arrays are the frame's own values,
+    text and nullable columns are read as columns."""
+    from scart_bench.dataset.compact import shared_fields
+    from scart_bench.dataset.tables import plain_columns
+
+    n = 5
+    nav = pd.DataFrame({"Timestamp": np.arange(n, dtype=np.int64) * 20_000, "Is_Anomaly": np.zeros(n, np.int8),
+                        "Anomaly_Ids": [""] * n, "lat": np.linspace(47.0, 47.1, n), "alt": np.zeros(n),
+                        "nan": np.full(n, np.nan), "count": pd.array([1, None, 3, 4, 5], dtype="Int64")})
+    copy = nav.copy()
+    copy["alt"] = -0.0  # equal as numbers, not as bits
+    copy["nan"] = np.frombuffer(np.full(n, 0x7FF8000000000001, np.uint64).tobytes(), np.float64)  # another NaN
+    assert shared_fields(copy, nav) == ["Timestamp", "Is_Anomaly", "Anomaly_Ids", "lat", "count"]
+    copy.loc[2, "lat"] += 1e-12
+    copy.loc[1, "Anomaly_Ids"] = "gps"
+    assert shared_fields(copy, nav) == ["Timestamp", "Is_Anomaly", "count"]
+    shifted = nav.assign(Timestamp=nav["Timestamp"] + 1)
+    assert shared_fields(shifted, nav) is None  # other rows: nothing is shared
+
+    plain = plain_columns(nav)
+    assert set(plain) == {"Timestamp", "Is_Anomaly", "lat", "alt", "nan"}  # not the text or the nullable column
+    for c, arr in plain.items():
+        assert arr.dtype == nav[c].dtype and arr.tobytes() == nav[c].to_numpy().tobytes()
+    assert plain_columns(pd.DataFrame(np.zeros((2, 2)), columns=["a", "a"])) == {}  # repeated labels: by column

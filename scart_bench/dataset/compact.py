@@ -36,6 +36,7 @@ import pyarrow.parquet as pq
 
 from scart_bench.dataset.labels import LABEL_COLUMNS, SourceTopic
 from scart_bench.dataset.schema import TOPICS, TRUTH_FIELDS
+from scart_bench.dataset.tables import plain_columns
 from scart_bench.errors import ScartBenchError
 from scart_bench.jsonfile import JsonFileError, loads_bounded
 from scart_bench.names import IdError, check_id
@@ -137,9 +138,17 @@ def shared_fields(df: pd.DataFrame, other: pd.DataFrame) -> list[str] | None:
     or None when the two tables' rows differ (other length or other timestamps)."""
     if len(df) != len(other) or "Timestamp" not in df or "Timestamp" not in other:
         return None
-    if not same_bits(df["Timestamp"], other["Timestamp"]):
+    mine, theirs = plain_columns(df), plain_columns(other)  # plain numbers: their bytes, no Series
+
+    def same(c) -> bool:
+        x, y = mine.get(c), theirs.get(c)
+        if x is not None and y is not None:
+            return x.dtype == y.dtype and len(x) == len(y) and x.tobytes() == y.tobytes()
+        return same_bits(df[c], other[c])
+
+    if not same("Timestamp"):
         return None
-    return [str(c) for c in df.columns if c in other.columns and same_bits(df[c], other[c])]
+    return [str(c) for c in df.columns if c in other.columns and same(c)]
 
 
 _DTYPE_NAMES: dict = {}
@@ -182,6 +191,7 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
         kept_elsewhere = set(elsewhere)
         labels = None
         dtypes = df.dtypes if from_source else df.dtypes.tolist()  # dtypes once per topic, not per column
+        columns = {} if from_source else plain_columns(df)  # plain number columns: arrays, no Series
         for label, dtype in zip(df.columns, dtypes):
             col = str(label)
             if col in kept_elsewhere:
@@ -191,7 +201,13 @@ def stack_view(topics: dict[str, pd.DataFrame], reuse: dict[str, str] | None = N
             if owner.setdefault(key, name) != name and key not in SHARED_COLUMNS:
                 raise CompactError(f"topic {name!r} column {col!r}: the name {key!r} is taken by topic {owner[key]!r}")
             if not from_source:
-                arr = _arrow(df[label], key, float32_safe(name, col))
+                plain = columns.get(label)
+                if plain is None or key in LABEL_COLUMNS:
+                    arr = _arrow(df[label], key, float32_safe(name, col))
+                elif float32_safe(name, col) and plain.dtype == np.float64:  # as _arrow, from the array
+                    arr = pa.array(plain.astype(np.float32), type=pa.float32())
+                else:
+                    arr = pa.Array.from_pandas(plain)
             elif col in LABEL_COLUMNS:
                 labels = labels or df.label_arrays()
                 arr = labels[col]

@@ -14,6 +14,7 @@ import pandas as pd
 import pyarrow as pa
 
 from scart_bench.dataset.record import DatasetError
+from scart_bench.dataset.tables import plain_columns
 
 #: The label columns of every table, in order, after ``Timestamp``.
 LABEL_COLUMNS = ("Is_Anomaly", "Anomaly_Ids", "Anomaly_Kind")
@@ -69,9 +70,10 @@ def insert_labels(df: pd.DataFrame, timestamps: np.ndarray, windows: Iterable[tu
     keep = [c for c in df.columns if c not in LABEL_COLUMNS]
     if df.columns.is_unique and all(isinstance(c, str) for c in df.columns) and 0 <= at <= len(keep):
         # one constructor instead of a drop and three inserts (each copies the table)
-        data = {c: df[c] for c in keep[:at]}
+        plain = plain_columns(df)  # plain number columns as their arrays: no Series per column
+        data = {c: plain[c] if c in plain else df[c] for c in keep[:at]}
         data.update(labels)
-        data.update({c: df[c] for c in keep[at:]})
+        data.update({c: plain[c] if c in plain else df[c] for c in keep[at:]})
         return pd.DataFrame(data, index=df.index)
     df = df.drop(columns=[c for c in LABEL_COLUMNS if c in df.columns])
     for k, (name, col) in enumerate(labels.items()):

@@ -5,9 +5,28 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from scart_bench.dataset.record import DatasetError
+
+#: numpy kinds whose values are their bytes (bool, integers, floats, complex, datetimes)
+PLAIN_KINDS = "biufcmM"
+
+
+def plain_columns(df: pd.DataFrame) -> dict:
+    """Label -> numpy array of each column whose values are plain numbers (``df[label].to_numpy()``,
+    the same array), without building a Series per column: a dataset's writer reads every column
+    of every topic of every flight, and ``df[label]`` costs ~40 us where the whole frame's arrays
+    cost ~2 us a column. Columns of other dtypes (text, nullable extension types) and frames with
+    repeated labels are left out: read them as ``df[label]``."""
+    if not df.columns.is_unique:
+        return {}
+    arrays = getattr(df, "_iter_column_arrays", None)  # pandas' own column iterator (pandas >= 1.3)
+    it = arrays() if arrays is not None else (df.iloc[:, j].to_numpy() if isinstance(df.dtypes.iloc[j], np.dtype)
+                                              else None for j in range(df.shape[1]))
+    return {label: a for label, a in zip(df.columns, it)
+            if isinstance(a, np.ndarray) and a.dtype.kind in PLAIN_KINDS}
 
 
 def write_table(df: pd.DataFrame, path: Path, fmt: str) -> None:
