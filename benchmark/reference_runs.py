@@ -77,9 +77,15 @@ def _log(msg: str) -> None:
 
 
 def finished(run: Path, detectors=None) -> bool:
-    """The run folder has metrics for every one of ``detectors`` (default: the paper's eight)."""
+    """The run folder has metrics for every one of ``detectors`` (default: the paper's eight), each job
+    finished (OK or failed with its message): an interrupted run lists its unstarted jobs as UNFINISHED,
+    and is resumed rather than reused."""
     need = set(PAPER if detectors is None else detectors)
-    return (run / "metrics.csv").is_file() and set(pd.read_csv(run / "metrics.csv")["detector"]) >= need
+    if not (run / "metrics.csv").is_file():
+        return False
+    m = pd.read_csv(run / "metrics.csv")
+    done = m["detector"] if "status" not in m.columns else m.loc[m["status"] != "UNFINISHED", "detector"]
+    return set(done) >= need
 
 
 def run_seeds(profile: str, seeds: list[int], jobs: int, runs_root: Path, data_root: Path,

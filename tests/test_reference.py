@@ -158,3 +158,22 @@ def test_the_strength_line_names_who_catches_the_strong_attacks():
     line = next(x for x in reference.why([], rule, pooled({"rdp": 0.90, "goad": 0.97}), pd.DataFrame())
                 if "strength" in x)
     assert "no detector catches 99 % of the attacks" in line and "(the best, goad: 97.0 %)" in line
+
+
+def test_an_interrupted_run_is_resumed_not_reused_as_complete(tmp_path, monkeypatch):
+    """A run folder whose metrics list a job UNFINISHED (the run was stopped before it ran) is run again
+    by the reference and zoo commands; a run whose every job finished (OK or failed) is reused."""
+    from scart_bench.benchmark import reference_runs
+
+    run = tmp_path / "quick-seed0"
+    run.mkdir()
+    rows = pd.DataFrame({"detector": ["statistical", "pca", "kmeans"], "status": ["OK", "ERROR", "UNFINISHED"]})
+    rows.to_csv(run / "metrics.csv", index=False)
+    assert reference_runs.finished(run, ["statistical", "pca"])  # an ERROR is a finished job, shown as such
+    assert not reference_runs.finished(run, ["statistical", "kmeans"])
+    calls = []
+    monkeypatch.setattr("scart_bench.benchmark.runner.run_benchmark", lambda cfg: calls.append(cfg.detectors))
+    reference_runs.run_seeds("quick", [0], 1, tmp_path, tmp_path / "data", detectors=["statistical", "kmeans"])
+    assert calls == [["statistical", "kmeans"]]  # resumed
+    reference_runs.run_seeds("quick", [0], 1, tmp_path, tmp_path / "data", detectors=["statistical", "pca"])
+    assert calls == [["statistical", "kmeans"]]  # reused, nothing run
