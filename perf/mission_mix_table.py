@@ -28,6 +28,8 @@ def side(runs: list[Path]) -> pd.DataFrame:
     """Every OK detector row of the runs' metrics.csv, with the run's name."""
     frames = []
     for run in runs:
+        if not (run / "metrics.csv").is_file():
+            raise SystemExit(f"{run}: no metrics.csv (not a run folder, or its run has not finished)")
         m = pd.read_csv(run / "metrics.csv")
         ok = m.loc[m["status"] == "OK", ["detector", *(c for c, _, _ in COLUMNS)]].copy()
         ok["run"] = run.name
