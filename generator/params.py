@@ -272,6 +272,15 @@ class MissionParams:
     #: missions' order, fitted to its log's gyro). (): none (the default). The ArduCopter fleet's rough vehicles'
     #: gyro differences in cruise are 2.5x the generated ones (docs/like.md "Each vehicle's rocking")
     rocking_levels: tuple[tuple[float, float, float], ...] = ()
+    #: each vehicle's rocking in forward flight: the standard deviation (rad/s^2, roll/pitch) of an angular acceleration
+    #: low-passed at ``rocking_flow_hz``, at ``rocking_flow_full_m_s`` of true horizontal speed or faster (linear in the
+    #: speed from ``rocking_flow_from_m_s``: none below it), per flight as ``rocking_levels``
+    #: (physics.vehicle.FlowRocking). (): none (the default). The ArduCopter fleet's hand-flown vehicles rock at 1-5 Hz in forward flight, 3-30x more than at rest
+    #: (docs/like.md "Rocking in forward flight")
+    rocking_flow_levels: tuple[tuple[float, float], ...] = ()
+    rocking_flow_hz: float = 1.0  # Hz, the forward-flight rocking's first-order low-pass
+    rocking_flow_full_m_s: float = 3.0  # m/s, the speed of the full forward-flight rocking
+    rocking_flow_from_m_s: float = 0.5  # m/s, the speed it starts from
 
 
 #: GPS accuracy levels, a profile's ``gps_accuracy``: the receiver's position errors (SensorParams)

@@ -139,6 +139,9 @@ def plan_generation(profile: str, seed: int = 0, n_normal: int | None = None, wi
         del flight_config["sensors"]["vibration_levels"]
     if not cfg.mission.rocking_levels:  # no vehicle rocks: as before the rocking
         del flight_config["mission"]["rocking_levels"]
+    if not cfg.mission.rocking_flow_levels:  # no vehicle rocks in forward flight: as before it
+        for key in ("rocking_flow_levels", "rocking_flow_hz", "rocking_flow_full_m_s", "rocking_flow_from_m_s"):
+            del flight_config["mission"][key]
     if not max(cfg.mission.pilot_stick_deg, cfg.mission.pilot_yaw_deg, cfg.mission.pilot_throttle):
         for key in [k for k in flight_config["mission"] if k.startswith("pilot_")]:  # no pilot: as before it
             del flight_config["mission"][key]

@@ -45,6 +45,7 @@ from scart_bench.generator.physics.sensors import (
     gps_error_coefficients,
     lowpass_coefficients,
 )
+from scart_bench.generator.physics.vehicle import flow_coefficients
 from scart_bench.generator.telemetry.schedule import due_steps
 
 if TYPE_CHECKING:
@@ -122,6 +123,8 @@ def initial_state(init, est_P0: np.ndarray) -> BatchState:
     st["vib_level"] = ss.vibration_level if ss.vibration_level is not None else 1.0
     if init.rocking is not None:
         st["rock_rng"], st["rock_level"] = init.rocking[:, 0], init.rocking[:, 1:4]
+    if init.flow is not None:
+        st["flow_rng"], st["flow_level"] = init.flow[:, 0], init.flow[:, 1:3]
     return st
 
 
@@ -176,6 +179,8 @@ def kernel_params(cfg: FlightConfig, delay: int) -> np.ndarray:
         "imu_offset": np.r_[np.asarray(sp.imu_offset_m, dtype=float), float(any(sp.imu_offset_m))],
         "baro_downwash": sp.baro_downwash_pa,
         "baro_wander": np.r_[baro_wander_coefficients(sp), float(sp.baro_wander_pa > 0.0)],
+        "rocking_flow": (*flow_coefficients(mp.rocking_flow_hz, dt), 1.0 / (mp.rocking_flow_full_m_s - mp.rocking_flow_from_m_s),
+                         mp.rocking_flow_from_m_s),
         "baro_speed": (sp.baro_speed_pa, 1.0 / (sp.baro_speed_full_m_s - BARO_FLOW_FROM), BARO_FLOW_FROM),
     }
     return K.param_vector(values)

@@ -28,7 +28,7 @@ from scart_bench.generator.params import (
 )
 from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.sensors import Sensors, flight_vibration_levels
-from scart_bench.generator.physics.vehicle import VehicleState, Wind, rocking_start
+from scart_bench.generator.physics.vehicle import VehicleState, Wind, flow_start, rocking_start
 from scart_bench.generator.telemetry.batch import BatchResult
 
 STATUS = ("landed", "timeout", "crashed")
@@ -124,6 +124,8 @@ class Initial:
     pilot: np.ndarray | None = None
     #: (N, 4) each vehicle's rocking stream state and level (generator.physics.vehicle.rocking_start); None: none
     rocking: np.ndarray | None = None
+    #: (N, 3) each vehicle's forward-flight rocking stream state and level (generator.physics.vehicle.flow_start)
+    flow: np.ndarray | None = None
 def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     """Draw the wind, start heading, mission jitter and sensor errors of each flight."""
     n = len(seeds)
@@ -151,7 +153,8 @@ def initial_conditions(seeds: list[int], cfg: FlightConfig) -> Initial:
     ss.vibration_level = flight_vibration_levels(cfg.sensors.vibration_levels, seeds)
     battery = _battery_init(battery_start(seeds))
     return Initial(rngs, wind, yaw0, waypoints, cruise, sensors, vs, ss, int(max_s * SIM_RATE_HZ),
-                   start, battery, table, last, pilot_start(seeds, m), rocking_start(seeds, m.rocking_levels))
+                   start, battery, table, last, pilot_start(seeds, m), rocking_start(seeds, m.rocking_levels),
+                   flow_start(seeds, m.rocking_flow_levels))
 def alive(env: Disturbances | None, sensor: str, delivered: np.ndarray | None) -> np.ndarray | None:
     """Flights whose ``sensor`` sample reaches the estimator (None: all of them)."""
     lost = env.lost(sensor) if env is not None else None

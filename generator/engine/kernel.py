@@ -85,6 +85,7 @@ K_LAT0, K_LON0, K_SIN_LAT0, K_COS_LAT0 = _I["lat0"], _I["lon0"], _I["sin_lat0"],
 K_HOVER, K_TAIL, K_YAW_STEP, K_OUT_DECAY = _I["hover"], _I["tail_steps"], _I["yaw_step_max"], _I["out_decay"]
 K_PILOT = _I["pilot"]
 K_PILOT_HP = _I["pilot_hp"]
+K_FLOW = _I["rocking_flow"]
 
 G = GRAVITY
 PI = math.pi
@@ -266,12 +267,26 @@ def _rock(s, axis):
 
 
 @njit(**_HOT)
+def _flow(s, p, axis, gain):
+    """One axis of a vehicle's rocking in forward flight, rad/s^2 (physics.vehicle.FlowRocking.step, the same lines):
+    its low-passed unit drive advanced by a normal of its own stream, times its level and the speed's gain."""
+    xr, n = _xorshift_normal(int(s[L.FLOW_RNG]))
+    s[L.FLOW_RNG] = xr
+    y = p[K_FLOW] * s[L.FLOW_Y + axis] + p[K_FLOW + 1] * n
+    s[L.FLOW_Y + axis] = y
+    return s[L.FLOW_LEVEL + axis] * gain * y
+
+
+@njit(**_HOT)
 def _vehicle(s, p, cmd, wx, wy, wz, x, env):
     """Advance the rigid body one step; returns the rotation matrix used (of the old attitude).
 
     With ``env`` the rotors' thrusts are scaled by the disturbances' motor efficiency (x).
     """
     dt = p[K_DT]
+    flow_gain = 0.0
+    if s[L.FLOW_RNG] != 0.0:  # the forward-flight rocking's gain at the speed before this step's
+        flow_gain = min(max(math.sqrt(s[L.VEL] ** 2 + s[L.VEL + 1] ** 2) - p[K_FLOW + 3], 0.0) * p[K_FLOW + 2], 1.0)
     w0 = _motor(s, p, 0, cmd[0], dt)
     w1 = _motor(s, p, 1, cmd[1], dt)
     w2 = _motor(s, p, 2, cmd[2], dt)
@@ -325,7 +340,17 @@ def _vehicle(s, p, cmd, wx, wy, wz, x, env):
     n0 = w0 + (wr[1] - g0) / J0 * dt
     n1 = w1 + (wr[2] - g1) / J1 * dt
     n2 = w2 + (wr[3] - g2) / J2 * dt
-    if s[L.ROCK_RNG] != 0.0:  # each vehicle's rocking (MissionParams.rocking_levels; physics.vehicle.Rocking)
+    if s[L.FLOW_RNG] != 0.0:  # ... and in forward flight (MissionParams.rocking_flow_levels; physics.vehicle.FlowRocking)
+        r0 = r1 = 0.0
+        r2 = 0.0
+        if s[L.ROCK_RNG] != 0.0:
+            r0, r1, r2 = _rock(s, 0), _rock(s, 1), _rock(s, 2)
+        r0 = r0 + _flow(s, p, 0, flow_gain)
+        r1 = r1 + _flow(s, p, 1, flow_gain)
+        n0 = n0 + r0 * dt
+        n1 = n1 + r1 * dt
+        n2 = n2 + r2 * dt
+    elif s[L.ROCK_RNG] != 0.0:  # each vehicle's rocking (MissionParams.rocking_levels; physics.vehicle.Rocking)
         n0 = n0 + _rock(s, 0) * dt
         n1 = n1 + _rock(s, 1) * dt
         n2 = n2 + _rock(s, 2) * dt

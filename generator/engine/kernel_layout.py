@@ -226,6 +226,18 @@ ROCK_LEVEL = WIDTH + 1  # 3: rad/s^2 per step, roll/pitch/yaw (0: no rocking)
 WIDTH = ROCK_LEVEL + 3
 FIELDS.update({"rock_rng": (ROCK_RNG, 1), "rock_level": (ROCK_LEVEL, 3)})
 
+# -- each vehicle's rocking in forward flight (MissionParams.rocking_flow_levels; physics.vehicle.FlowRocking) ----------
+FLOW_RNG = WIDTH  # its xorshift32 state (0: none)
+FLOW_LEVEL = WIDTH + 1  # 2: rad/s^2 at full speed, roll/pitch
+FLOW_Y = WIDTH + 3  # 2: the low-passed unit drive, roll/pitch
+WIDTH = FLOW_Y + 2
+FIELDS.update({"flow_rng": (FLOW_RNG, 1), "flow_level": (FLOW_LEVEL, 2), "flow_y": (FLOW_Y, 2)})
+#: a, b (the low-pass per step, physics.vehicle.flow_coefficients), 1 / (the speed of the full rocking - the speed it
+#: starts from), the speed it starts from
+PARAMS += ("rocking_flow",)
+PARAM_INDEX["rocking_flow"] = N_PARAMS
+N_PARAMS += 4
+
 
 # -- the baro's slow error (SensorParams.baro_wander_pa; physics.sensors.baro_wander_coefficients) ---------------------
 BARO_WANDER = WIDTH  # 2, Pa: the wander's drive and the wander

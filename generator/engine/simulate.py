@@ -51,7 +51,7 @@ from scart_bench.generator.physics.disturbances import Disturbances
 from scart_bench.generator.physics.noise import NOISE_DIM, NOISE_FIELDS, NoiseStream
 from scart_bench.generator.physics.rotation import euler_from_quat
 from scart_bench.generator.physics.sensors import logged_imu, thrust_scale, vibration_scale
-from scart_bench.generator.physics.vehicle import Rocking, Vehicle
+from scart_bench.generator.physics.vehicle import FlowRocking, Rocking, Vehicle
 from scart_bench.generator.telemetry.schedule import (
     SENSOR_TOPICS,
     UORB_STREAMS,
@@ -166,6 +166,8 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
     pilot = Pilot(m) if pilot_on(m) else None  # a pilot in attitude mode (MissionParams.pilot_*)
     pilot_state = pilot.init_state(init.pilot) if pilot is not None else None
     rocking = Rocking(init.rocking) if init.rocking is not None else None  # each vehicle's (MissionParams.rocking_levels)
+    flow = (FlowRocking(init.flow, m.rocking_flow_hz, m.rocking_flow_full_m_s, m.rocking_flow_from_m_s, DT)  # ... in forward flight
+            if init.flow is not None else None)
     noise = NoiseStream(rngs, NOISE_DIM)
     nz = NOISE_FIELDS
 
@@ -221,7 +223,10 @@ def simulate_reference(seeds: list[int], config: FlightConfig | None = None, lay
             env.resolve(vs.pos)
             wind_now = wind_now + env.wind
             rotor_cmd = np.minimum(rotor_cmd, max_rotor * env.rotor_limit[:, None])
-        R_true = vehicle.step(vs, rotor_cmd, wind_now, DT, efficiency, rocking.step() if rocking is not None else None)
+        rock = rocking.step() if rocking is not None else None
+        if flow is not None:  # the forward-flight rocking at the speed before this step's (kernel._vehicle)
+            rock = flow.step(vs.vel) if rock is None else rock + flow.step(vs.vel)
+        R_true = vehicle.step(vs, rotor_cmd, wind_now, DT, efficiency, rock)
         sensors.push_truth(ss, step, vs.pos, vs.vel)
 
         # sensors -> estimator

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from scart_bench.generator.like import flow as like_flow
 from scart_bench.generator.like import pilot as like_pilot
 from scart_bench.generator.like import timing as like_timing
 from scart_bench.generator.like import tracks
@@ -102,6 +103,7 @@ class LogMeasure:
     #: estimated horizontal velocity); NaN: none
     moving_baro: float = math.nan
     pilot: dict[str, float] = field(default_factory=dict)  # hand flight and attitude spectra (generator.like.pilot)
+    flow: dict[str, float] = field(default_factory=dict)  # roll/pitch power moving (generator.like.flow.figures)
     ground: dict[str, float] = field(default_factory=dict)  # the same on the ground before take-off
     ground_s: float = 0.0
     rates: dict[str, tuple[float, float]] = field(default_factory=dict)  # logical topic -> (Hz, interval CV)
@@ -315,7 +317,13 @@ def measure_log(path: str | Path, base_sensors=None, vehicle=None) -> LogMeasure
     _gps(m, tables)
     _mag_field(m, tables, phases)
     m.pilot = pilot_figures(tables, phases)
+    m.flow = flow_figures(tables, phases)
     return m
+
+
+def flow_figures(tables, phases) -> dict[str, float]:
+    """A log's roll/pitch rocking in forward flight (generator.like.flow.figures) from its series found by meaning."""
+    return like_flow.figures(phases, _tilt(tables), _velocity(tables))
 
 
 def pilot_figures(tables, phases) -> dict[str, float]:
@@ -785,6 +793,8 @@ class Fit:
     vibration_levels: dict[str, tuple[float, ...]] = field(default_factory=dict)
     #: log name -> its vehicle's rocking (rad/s^2 per step, roll/pitch/yaw; :func:`fit_rocking`); empty: none fitted
     rocking_levels: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    #: log name -> its vehicle's rocking in forward flight (rad/s^2 at full speed, roll/pitch; generator.like.flow)
+    flow_levels: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def next_level(history: list[tuple[float, float]], target: float) -> float:
@@ -1425,7 +1435,14 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
                  if hasattr(config.sensors, k)}
         rocking = fit_rocking(logs, dataclasses.replace(config, sensors=dataclasses.replace(config.sensors, **noise)),
                               lines)
-    return Fit(values, measured, [], lines, logs, levels, rocking)
+    flow = {}
+    if calibrate and hasattr(config.mission, "rocking_flow_levels"):  # ... and in forward flight, on the fitted noise
+        noise = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in values["sensors"].items()
+                 if hasattr(config.sensors, k)}
+        flow, fields = like_flow.fit_flow({m.name: m.flow for m in logs}, dataclasses.replace(
+            config, sensors=dataclasses.replace(config.sensors, **noise)), flow_figures, lines)
+        values["mission"].update(fields)
+    return Fit(values, measured, [], lines, logs, levels, rocking, flow)
 
 
 def log_line(m: LogMeasure) -> str:

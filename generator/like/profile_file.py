@@ -109,12 +109,17 @@ def _check_value(path, key: str, value, default):
 RANGES = {"sensors.imu_offset_m": (-1.0, 1.0, "m from the centre of gravity, body frame"),
           "sensors.vibration_levels": (0.0, 1000.0, "multiples of the vibration"),
           "mission.rocking_levels": (0.0, 1000.0, "rad/s^2 per step"),
+          "mission.rocking_flow_levels": (0.0, 1000.0, "rad/s^2 at full speed"),
+          "mission.rocking_flow_hz": (0.01, 100.0, "Hz, the forward-flight rocking's low-pass"),
+          "mission.rocking_flow_full_m_s": (0.1, 100.0, "m/s, the speed of the full forward-flight rocking"),
+          "mission.rocking_flow_from_m_s": (0.0, 50.0, "m/s, the speed the forward-flight rocking starts from"),
           # the forward-flight baro noise ramps from 1 m/s (physics.sensors.BARO_FLOW_FROM) to full at this speed
           "sensors.baro_speed_full_m_s": (1.1, 100.0, "m/s, above the 1 m/s where the noise starts"),
           "sensors.baro_wander_tau_s": (0.05, 3600.0, "s, the wander's time constant")}
 #: fields whose value is a list of any length of same-length number lists (their default, (), says no element type):
 #: key -> the element's prototype
-PAIRS = {"sensors.vibration_levels": (1.0,) * 6, "mission.rocking_levels": (0.0,) * 3}
+PAIRS = {"sensors.vibration_levels": (1.0,) * 6, "mission.rocking_levels": (0.0,) * 3,
+         "mission.rocking_flow_levels": (0.0,) * 2}
 
 
 def _check_range(path, key: str, value) -> None:
@@ -204,6 +209,10 @@ def read_profile(path: str | Path) -> ProfileFile:
                 edits[key] = _check_value(path, f"{section}.{key}", value, getattr(current, key))
             _check_range(path, f"{section}.{key}", edits[key])
         config = dataclasses.replace(config, **{CONFIG_ATTR[section]: dataclasses.replace(current, **edits)})
+    m = config.mission
+    if getattr(m, "rocking_flow_levels", ()) and m.rocking_flow_full_m_s <= m.rocking_flow_from_m_s:
+        raise _fail(path, "mission.rocking_flow_full_m_s", f"a speed above rocking_flow_from_m_s "
+                    f"({m.rocking_flow_from_m_s:g} m/s, where the forward-flight rocking starts)", m.rocking_flow_full_m_s)
     if missions:
         from scart_bench.generator.flight_software.mission_files import with_missions
 

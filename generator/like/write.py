@@ -64,6 +64,7 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
     missions = []
     levels = []  # each written mission's vehicle vibration (SensorParams.vibration_levels), in the missions' order
     rocking = []  # ... and its rocking (MissionParams.rocking_levels)
+    flow = []  # ... and its rocking in forward flight (MissionParams.rocking_flow_levels)
     names = set()
     for m in logs:
         name = _unique(Path(m.name).stem, names)
@@ -73,6 +74,7 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
             missions.append(f"{MISSION_DIR}/{target.name}")
             levels.append(list(fitted.vibration_levels.get(m.name, (1.0,) * 6)))
             rocking.append(list(fitted.rocking_levels.get(m.name, (0.0,) * 3)))
+            flow.append(list(fitted.flow_levels.get(m.name, (0.0,) * 2)))
         elif m.mission_source:
             say(f"  {m.name}: its mission could not be written ({written is None and 'no waypoints' or 'refused'})")
     sections = {"profile": {"base": (base, "flight counts, splits and attack grid of this built-in profile")}}
@@ -98,6 +100,16 @@ def fit_to_folder(paths: list[str], folder: str | Path, base: str = "quick", say
                                                 "in the air, in the missions' order: "
                                                 + "; ".join(f"{Path(p).stem} " + "/".join(f"{x:g}" for x in v)
                                                             for p, v in zip(missions, rocking)))
+    if missions and fitted.flow_levels and any(any(v) for v in flow):
+        sections["mission"]["rocking_flow_levels"] = (flow, "each mission's vehicle: angular acceleration in forward "
+                                                      "flight (rad/s^2 at full speed, roll/pitch) that gives its log's "
+                                                      "roll/pitch power in 1-5 Hz moving faster than 1 m/s (a log "
+                                                      "without: the median), in the missions' order: "
+                                                      + "; ".join(f"{Path(p).stem} " + "/".join(f"{x:g}" for x in v)
+                                                                  for p, v in zip(missions, flow)))
+    else:
+        for key in ("rocking_flow_hz", "rocking_flow_from_m_s", "rocking_flow_full_m_s"):
+            sections["mission"].pop(key, None)
     if missions:
         sections["mission"]["missions"] = (missions, f"recovered from {len(missions)} of {len(logs)} logs; the flight "
                                                      "with seed s flies file s mod N")

@@ -6,6 +6,7 @@ semi-implicit Euler on the translational and rotational velocities.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -159,3 +160,60 @@ def rocking_start(seeds, levels) -> np.ndarray | None:
         out[i, 1:4] = levels[int(s) % len(levels)]
     return out
 
+
+#: a flight's forward-flight rocking stream of its seed (SeedSequence([seed, FLOW_STREAM]))
+FLOW_STREAM = 0xF10C
+
+
+def flow_coefficients(hz: float, dt: float) -> tuple[float, float]:
+    """(a, b) of the forward-flight rocking's first-order low-pass at ``hz`` per step ``dt``: y' = a y + b n keeps
+    a unit normal drive n at unit variance (b = sqrt(1 - a^2))."""
+    a = math.exp(-2.0 * math.pi * hz * dt)
+    return a, math.sqrt(1.0 - a * a)
+
+
+class FlowRocking:
+    """Each vehicle's rocking in forward flight (MissionParams.rocking_flow_levels): per step an angular acceleration
+    (roll, pitch) that is a unit Gauss-Markov process low-passed at ``rocking_flow_hz``, times the flight's level and
+    a gain growing linearly with its true horizontal speed from ``rocking_flow_from_m_s`` (0) to ``rocking_flow_full_m_s``
+    (1): the rotors' disturbed inflow and the
+    frame's response in forward flight, which a hovering vehicle does not have. Its own 32-bit xorshift stream (four
+    uniforms summed, as the rocking's), so the flights' other draws stay as they are. The compiled kernel has the
+    same lines (kernel._flow)."""
+
+    def __init__(self, start: np.ndarray, hz: float, full_m_s: float, from_m_s: float, dt: float):
+        self.state = start[:, 0].astype(np.int64)  # (N,) xorshift32 states, non-zero
+        self.level = np.array(start[:, 1:3], dtype=float)  # (N, 2) rad/s^2 at full speed, roll/pitch
+        self.y = np.zeros(self.level.shape)  # (N, 2) the low-passed unit drive
+        self.a, self.b = flow_coefficients(hz, dt)
+        self.inv_span, self.start = 1.0 / (full_m_s - from_m_s), from_m_s
+
+    def step(self, vel: np.ndarray) -> np.ndarray:
+        """(N, 3) this step's angular acceleration (rad/s^2; yaw 0) at true velocity ``vel`` (N, 3, NED)."""
+        x = self.state
+        out = np.zeros((len(x), 3))
+        gain = np.minimum(np.maximum(np.sqrt(vel[:, 0] ** 2 + vel[:, 1] ** 2) - self.start, 0.0) * self.inv_span, 1.0)
+        for a in range(2):
+            total = np.zeros(len(x))
+            for _ in range(4):
+                x = x ^ ((x << 13) & _M32)
+                x = x ^ (x >> 17)
+                x = x ^ ((x << 5) & _M32)
+                total = total + x / 4294967296.0
+            self.y[:, a] = self.a * self.y[:, a] + self.b * ((total - 2.0) * _SQRT3)
+            out[:, a] = self.level[:, a] * gain * self.y[:, a]
+        self.state = x
+        return out
+
+
+def flow_start(seeds, levels) -> np.ndarray | None:
+    """(N, 3) per flight: its forward-flight rocking stream's xorshift32 state and its (roll, pitch) level, the
+    flight with seed s taking ``levels[s mod len(levels)]`` (MissionParams.rocking_flow_levels); None for none."""
+    if not levels:
+        return None
+    out = np.zeros((len(seeds), 3))
+    for i, s in enumerate(seeds):
+        g = np.random.default_rng(np.random.SeedSequence([int(s), FLOW_STREAM]))
+        out[i, 0] = int(g.integers(1, 1 << 32))
+        out[i, 1:3] = levels[int(s) % len(levels)]
+    return out
