@@ -216,3 +216,19 @@ def test_fields_shared_with_the_navigator_are_bit_for_bit_the_same_and_plain_col
     for c, arr in plain.items():
         assert arr.dtype == nav[c].dtype and arr.tobytes() == nav[c].to_numpy().tobytes()
     assert plain_columns(pd.DataFrame(np.zeros((2, 2)), columns=["a", "a"])) == {}  # repeated labels: by column
+
+
+def test_label_text_columns_are_the_columns_pandas_makes_of_the_text():
+    """The label columns are built by Arrow in one call, not by pandas' per-value inference: the same
+    dtype, the same text, the same Arrow data as the frame pandas builds from the strings."""
+    from scart_bench.dataset.labels import LABEL_COLUMNS, label_columns, labelled_table
+
+    ts = np.arange(400, dtype=np.int64) * 20_000
+    windows = [(1_000_000, 3_000_000, "gps-bias-L1", "attack"), (2_000_000, 5_000_000, "imu-noise", "fault")]
+    table = labelled_table(ts, np.zeros((400, 1)), ["x"], windows)
+    by_pandas = pd.DataFrame(label_columns(ts, windows))
+    for c in LABEL_COLUMNS:
+        assert table[c].dtype == by_pandas[c].dtype, c
+        assert table[c].tolist() == by_pandas[c].tolist(), c
+    assert set(table["Anomaly_Ids"]) == {"", "gps-bias-L1", "gps-bias-L1+imu-noise", "imu-noise"}
+    assert table.loc[table["Timestamp"] == 2_500_000, "Anomaly_Kind"].item() == "attack+fault"
