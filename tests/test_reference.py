@@ -127,6 +127,7 @@ def test_the_other_profiles_runs_in_the_runs_folder_give_the_grid_comparison(tmp
     assert "| Detector | quick (" in table and "2 seeds) | paper (" in table and "1 seed) |" in table
     assert "| statistical | " in table
     assert "they are on the quick profile's page ([results-quick.md](results-quick.md))" in page  # not retrained here
+    assert "Every flight of the paper profile flies the paper's 30 m square on the 3DR Iris" in page  # and says why
 
 
 def test_attacks_that_changed_no_value_keep_their_detectability_column(tmp_path):
