@@ -209,6 +209,20 @@ def test_the_paper_profile_keeps_the_square():
     assert "families" in plan_generation("quick", n_normal=3, with_attacks=False).config_dict["flight_config"]["mission"]
 
 
+def test_the_square_profile_file_is_the_standard_profile_on_the_square():
+    """examples/profiles/standard-square.toml (docs/realism.md, "Mission diversity"): the standard profile's
+    counts and grid, every flight the square on the 3DR Iris, as the paper profile flies it."""
+    from scart_bench.generator.like.profile_file import read_profile
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "profiles" / "standard-square.toml"
+    got = read_profile(str(path))
+    std = PROFILES["standard"]
+    assert (got.profile.n_train, got.profile.n_validation, got.profile.n_test, got.profile.scenario_grid) == (
+        std.n_train, std.n_validation, std.n_test, std.scenario_grid)
+    assert not got.config.mission.families and not got.config.airframes and std.flight_config().mission.families
+    assert got.config.mission == PROFILES["paper"].flight_config().mission
+
+
 def test_attacked_simulation_flights_fly_the_mix_and_record_it(tmp_path):
     """An attacked flight is flown with its own airframe and mission (per airframe group) and says so."""
     from scart_bench.generator.engine.flight_batch import flight_summaries
