@@ -138,6 +138,8 @@ def test_a_generated_flight_has_the_logs_hover_accelerometer_noise(like_run):
     ('[profile]\nbase = "huge"\n', "profile.base", "one of quick, standard, paper"),
     ("[sensors]\nmag_field_ned = [0.2, 0.0]\n", "sensors.mag_field_ned", "a list of 3 values"),
     ("[sensors\n", "expected TOML", ""),
+    # the quick profile mixes airframes, each with its own vehicle and gains: a [controller] would be ignored
+    ("[controller]\nrate_p = [0.2, 0.2, 0.3]\n", "controller.rate_p", "set airframes = {} to fly the [controller]"),
 ])
 def test_a_malformed_profile_exits_2_naming_the_key(tmp_path, capsys, text, key, expected):
     bad = tmp_path / "bad.toml"
@@ -162,6 +164,9 @@ def test_a_hand_written_profile_maps_onto_the_flight_config(tmp_path):
     assert prof.config.sensors.baro_noise_pa == 2.5 and prof.config.sensors.mag_field_ned == (0.2, 0.01, 0.4)
     assert prof.config.sensors.gps_bias_h == 2.75  # the real_receiver level under the file's own fields
     assert prof.config.mission.takeoff_hold_s == 9.0
+    # without an airframe mix the [vehicle] and [controller] sections are flown
+    f.write_text('[profile]\nbase = "quick"\nairframes = {}\n[vehicle]\nmass = 1.7\n')
+    assert read_profile(f).config.vehicle.mass == 1.7 and not read_profile(f).config.airframes
 
 
 def test_a_log_that_cannot_be_read_exits_2_and_writes_nothing(tmp_path, capsys):

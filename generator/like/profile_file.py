@@ -209,6 +209,13 @@ def read_profile(path: str | Path) -> ProfileFile:
                 edits[key] = _check_value(path, f"{section}.{key}", value, getattr(current, key))
             _check_range(path, f"{section}.{key}", edits[key])
         config = dataclasses.replace(config, **{CONFIG_ATTR[section]: dataclasses.replace(current, **edits)})
+    if config.airframes:  # each airframe of a mix flies its own vehicle and gains: these would be ignored
+        for section in ("vehicle", "controller"):
+            if doc.get(section):
+                key = next(iter(doc[section]))
+                raise _fail(path, f"{section}.{key}", f"no [{section}] keys while profile.airframes mixes airframes "
+                            "(each airframe flies its own vehicle and controller gains; set airframes = {} to fly "
+                            f"the [{section}] section)", doc[section][key])
     m = config.mission
     if getattr(m, "rocking_flow_levels", ()) and m.rocking_flow_full_m_s <= m.rocking_flow_from_m_s:
         raise _fail(path, "mission.rocking_flow_full_m_s", f"a speed above rocking_flow_from_m_s "
