@@ -92,22 +92,14 @@ def gain(speed: float) -> float:
 def calibration(config, measure, level: float, n: int = CAL_FLIGHTS, seed: int = 4343) -> dict[str, float]:
     """The figures (median over ``n`` flights) of the square flown at :data:`CAL_SPEED_M_S` with the rocking at
     ``level`` on every flight, measured as a log's (``measure(tables, phases)``)."""
-    from scart_bench.generator.engine.simulate import simulate
-    from scart_bench.generator.logs.phases import flight_phases
-    from scart_bench.generator.plan import normal_seeds
-    from scart_bench.generator.telemetry.tables import flight_views
+    from scart_bench.generator.like.pilot import fly_measured
 
     mission = dataclasses.replace(config.mission, missions=(), families=(), takeoff_hold_s=15.0, pilot_share=1.0,
                                   cruise_speed=CAL_SPEED_M_S, rocking_levels=(),
                                   rocking_flow_levels=((level, level),) if level > 0 else (),
                                   rocking_flow_hz=FLOW_HZ, rocking_flow_from_m_s=FROM_M_S,
                                   rocking_flow_full_m_s=FULL_M_S)
-    batch = simulate(normal_seeds(seed, n), dataclasses.replace(config, mission=mission, airframes=()))
-    per = []
-    for i in range(n):
-        _, sim = flight_views(batch, i, ())
-        tables = {k: v for k, v in sim.items() if k not in ("truth", "setpoint")}
-        per.append(measure(tables, flight_phases(tables)))
+    per = fly_measured(config, mission, measure, n, seed)
     keys = ("moving_roll", "moving_pitch")
     return {k: float(np.median([p[k] for p in per if math.isfinite(p.get(k, math.nan))] or [math.nan])) for k in keys}
 

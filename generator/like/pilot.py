@@ -121,19 +121,26 @@ def _median(figs: list[dict[str, float]], key: str) -> tuple[float, int]:
 def calibration_figures(config, measure, n: int = CAL_FLIGHTS, seed: int = 4242) -> dict[str, float]:
     """The pilot figures (median over ``n`` flights) of generated flights of ``config``: the square at its
     cruise speed with a 15 s hover after take-off, measured as a log's (``measure(tables, phases)``)."""
+    mission = dataclasses.replace(config.mission, missions=(), families=(), takeoff_hold_s=15.0, pilot_share=1.0)
+    per = fly_measured(config, mission, measure, n, seed)
+    return {k: _median(per, k)[0] for k in {k for p in per for k in p}}
+
+
+def fly_measured(config, mission, measure, n: int, seed: int) -> list[dict[str, float]]:
+    """``n`` calibration flights of ``config`` flying ``mission`` on its own vehicle (no airframe mix), each
+    measured as a log is (``measure(tables, phases)`` on its simulator view)."""
     from scart_bench.generator.engine.simulate import simulate
     from scart_bench.generator.logs.phases import flight_phases
     from scart_bench.generator.plan import normal_seeds
     from scart_bench.generator.telemetry.tables import flight_views
 
-    mission = dataclasses.replace(config.mission, missions=(), families=(), takeoff_hold_s=15.0, pilot_share=1.0)
     batch = simulate(normal_seeds(seed, n), dataclasses.replace(config, mission=mission, airframes=()))
     per = []
     for i in range(n):
         _, sim = flight_views(batch, i, ())
         tables = {k: v for k, v in sim.items() if k not in ("truth", "setpoint")}
         per.append(measure(tables, flight_phases(tables)))
-    return {k: _median(per, k)[0] for k in {k for p in per for k in p}}
+    return per
 
 
 def fit_pilot(figs: list[dict[str, float]], names: list[str], config, measure, cruise_speed: float = math.nan
