@@ -123,6 +123,31 @@ _M32 = 0xFFFFFFFF
 _SQRT3 = 1.7320508075688772
 
 
+def xorshift_normal(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(next states, one draw each) of per-flight 32-bit xorshift streams: four uniforms summed, centred and
+    scaled to unit variance (the kernel's ``_xorshift_normal``, the same lines)."""
+    total = np.zeros(len(x))
+    for _ in range(4):
+        x = x ^ ((x << 13) & _M32)
+        x = x ^ (x >> 17)
+        x = x ^ ((x << 5) & _M32)
+        total = total + x / 4294967296.0
+    return x, (total - 2.0) * _SQRT3
+
+
+def stream_start(seeds, levels, stream: int) -> np.ndarray | None:
+    """(N, 1 + len(level)) per flight: its own xorshift32 stream's start (from SeedSequence([seed, stream])) and
+    the level of the flight with seed s, ``levels[s mod len(levels)]``; None for no levels."""
+    if not levels:
+        return None
+    out = np.zeros((len(seeds), 1 + len(levels[0])))
+    for i, s in enumerate(seeds):
+        g = np.random.default_rng(np.random.SeedSequence([int(s), stream]))
+        out[i, 0] = int(g.integers(1, 1 << 32))
+        out[i, 1:] = levels[int(s) % len(levels)]
+    return out
+
+
 class Rocking:
     """Each vehicle's rocking (MissionParams.rocking_levels): per step a white angular acceleration of the flight's
     level, from a 32-bit xorshift of its own per flight (four uniforms summed, as the pilot's sticks), so that the
@@ -137,13 +162,8 @@ class Rocking:
         x = self.state
         out = np.zeros(self.level.shape)
         for a in range(3):
-            total = np.zeros(len(x))
-            for _ in range(4):
-                x = x ^ ((x << 13) & _M32)
-                x = x ^ (x >> 17)
-                x = x ^ ((x << 5) & _M32)
-                total = total + x / 4294967296.0
-            out[:, a] = self.level[:, a] * ((total - 2.0) * _SQRT3)
+            x, n = xorshift_normal(x)
+            out[:, a] = self.level[:, a] * n
         self.state = x
         return out
 
@@ -151,14 +171,7 @@ class Rocking:
 def rocking_start(seeds, levels) -> np.ndarray | None:
     """(N, 4) per flight: its rocking stream's xorshift32 state and its (roll, pitch, yaw) level, the flight with seed
     s taking ``levels[s mod len(levels)]`` (MissionParams.rocking_levels); None for no levels."""
-    if not levels:
-        return None
-    out = np.zeros((len(seeds), 4))
-    for i, s in enumerate(seeds):
-        g = np.random.default_rng(np.random.SeedSequence([int(s), ROCKING_STREAM]))
-        out[i, 0] = int(g.integers(1, 1 << 32))
-        out[i, 1:4] = levels[int(s) % len(levels)]
-    return out
+    return stream_start(seeds, levels, ROCKING_STREAM)
 
 
 #: a flight's forward-flight rocking stream of its seed (SeedSequence([seed, FLOW_STREAM]))
@@ -194,13 +207,8 @@ class FlowRocking:
         out = np.zeros((len(x), 3))
         gain = np.minimum(np.maximum(np.sqrt(vel[:, 0] ** 2 + vel[:, 1] ** 2) - self.start, 0.0) * self.inv_span, 1.0)
         for a in range(2):
-            total = np.zeros(len(x))
-            for _ in range(4):
-                x = x ^ ((x << 13) & _M32)
-                x = x ^ (x >> 17)
-                x = x ^ ((x << 5) & _M32)
-                total = total + x / 4294967296.0
-            self.y[:, a] = self.a * self.y[:, a] + self.b * ((total - 2.0) * _SQRT3)
+            x, n = xorshift_normal(x)
+            self.y[:, a] = self.a * self.y[:, a] + self.b * n
             out[:, a] = self.level[:, a] * gain * self.y[:, a]
         self.state = x
         return out
@@ -209,11 +217,4 @@ class FlowRocking:
 def flow_start(seeds, levels) -> np.ndarray | None:
     """(N, 3) per flight: its forward-flight rocking stream's xorshift32 state and its (roll, pitch) level, the
     flight with seed s taking ``levels[s mod len(levels)]`` (MissionParams.rocking_flow_levels); None for none."""
-    if not levels:
-        return None
-    out = np.zeros((len(seeds), 3))
-    for i, s in enumerate(seeds):
-        g = np.random.default_rng(np.random.SeedSequence([int(s), FLOW_STREAM]))
-        out[i, 0] = int(g.integers(1, 1 << 32))
-        out[i, 1:3] = levels[int(s) % len(levels)]
-    return out
+    return stream_start(seeds, levels, FLOW_STREAM)
