@@ -15,11 +15,9 @@ import pandas as pd
 import pyarrow as pa
 
 from scart_bench.dataset import LABEL_COLUMNS, FlightRecord, SourceTopic, flight_record, label_columns
+from scart_bench.dataset.labels import TEXT_DTYPE  # the dtype of a label column (with_labels, labelled_table)
 from scart_bench.generator.logs.orientation import recorded_view
 from scart_bench.generator.modes import csv_record, passed_table
-
-#: The dtype pandas gives a label column built from text (as with_labels and labelled_table build them).
-_TEXT_DTYPE = pd.Series(np.array([""], dtype=object)).dtype
 
 
 def _bits(x: np.ndarray) -> np.ndarray | None:
@@ -125,7 +123,7 @@ def untouched(nav: dict[str, pd.DataFrame], source: dict[str, pd.DataFrame], win
         flag = a["Is_Anomaly"].to_numpy()
         if flag.dtype != labels["Is_Anomaly"].dtype or not np.array_equal(flag, labels["Is_Anomaly"]):
             continue
-        if any(d != _TEXT_DTYPE for d in da[2:1 + len(LABEL_COLUMNS)]) or \
+        if any(d != TEXT_DTYPE for d in da[2:1 + len(LABEL_COLUMNS)]) or \
                 any(not _same_text(a[c], labels[c]) for c in LABEL_COLUMNS[1:]):
             continue
         out.add(topic)
