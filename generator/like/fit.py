@@ -1429,18 +1429,13 @@ def fit_fleet(logs: list[LogMeasure], config, calibrate: bool = True) -> Fit:
         fig = figs.get("white_hover_gyro_z")
         per_sigma = {"gyro_z": fig.value / float(vib[2])} if fig is not None and fig.n and float(vib[2]) > 0 else {}
         levels = vibration_levels(logs, figs, tuple(k[:3] if k == "accel" else k for k, c in cut.items() if c), per_sigma)
-    rocking = {}
-    if calibrate and hasattr(config.mission, "rocking_levels"):  # each vehicle's rocking, on the fitted noise
+    rocking, flow = {}, {}
+    if calibrate:  # each vehicle's rocking, at rest and in forward flight, flown on the fitted noise
         noise = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in values["sensors"].items()
                  if hasattr(config.sensors, k)}
-        rocking = fit_rocking(logs, dataclasses.replace(config, sensors=dataclasses.replace(config.sensors, **noise)),
-                              lines)
-    flow = {}
-    if calibrate and hasattr(config.mission, "rocking_flow_levels"):  # ... and in forward flight, on the fitted noise
-        noise = {k: tuple(v) if isinstance(v, list) else v for k, (v, _) in values["sensors"].items()
-                 if hasattr(config.sensors, k)}
-        flow, fields = like_flow.fit_flow({m.name: m.flow for m in logs}, dataclasses.replace(
-            config, sensors=dataclasses.replace(config.sensors, **noise)), flow_figures, lines)
+        noisy = dataclasses.replace(config, sensors=dataclasses.replace(config.sensors, **noise))
+        rocking = fit_rocking(logs, noisy, lines)
+        flow, fields = like_flow.fit_flow({m.name: m.flow for m in logs}, noisy, flow_figures, lines)
         values["mission"].update(fields)
     return Fit(values, measured, [], lines, logs, levels, rocking, flow)
 

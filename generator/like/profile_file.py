@@ -217,7 +217,7 @@ def read_profile(path: str | Path) -> ProfileFile:
                             "(each airframe flies its own vehicle and controller gains; set airframes = {} to fly "
                             f"the [{section}] section)", doc[section][key])
     m = config.mission
-    if getattr(m, "rocking_flow_levels", ()) and m.rocking_flow_full_m_s <= m.rocking_flow_from_m_s:
+    if m.rocking_flow_levels and m.rocking_flow_full_m_s <= m.rocking_flow_from_m_s:
         raise _fail(path, "mission.rocking_flow_full_m_s", f"a speed above rocking_flow_from_m_s "
                     f"({m.rocking_flow_from_m_s:g} m/s, where the forward-flight rocking starts)", m.rocking_flow_full_m_s)
     if missions:
